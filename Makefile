@@ -1,0 +1,52 @@
+# octofuse: set-up, build, tests and the main job on a Debian 12 machine.
+#   make demo   - install everything and run the main job on the bundled data
+#   make test   - install everything and run the whole test suite (C++ and Python)
+
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+JOBS ?= 2
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+APT_PACKAGES := build-essential cmake git python3-venv python3-dev \
+                liboctomap-dev libeigen3-dev libgtest-dev octomap-tools
+
+.PHONY: all deps venv install test test-cpp test-python demo bench clean
+
+all: install
+
+deps: ## Debian packages: compiler, CMake, OctoMap, Eigen, GoogleTest, OctoMap's tools
+	@missing=""; for p in $(APT_PACKAGES); do \
+	  dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing:$$missing"; \
+	  $(SUDO) apt-get update && $(SUDO) DEBIAN_FRONTEND=noninteractive apt-get install -y $$missing; \
+	fi
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip
+
+venv: deps $(PY)
+
+install: venv ## build the C++ core (Release) and install octofuse with its test tools
+	$(PY) -m pip install "scikit-build-core>=0.10" "pybind11>=2.12"
+	$(PY) -m pip install --no-build-isolation ".[test]"
+
+test-cpp: deps ## C++ unit tests (GoogleTest via ctest)
+	cmake -S . -B build/cpp-tests -DOCTOFUSE_BUILD_TESTS=ON -DCMAKE_BUILD_TYPE=Release
+	cmake --build build/cpp-tests -j $(JOBS)
+	ctest --test-dir build/cpp-tests --output-on-failure
+
+test-python: install
+	$(PY) -m pytest
+
+test: test-cpp test-python ## the whole suite
+
+demo: install ## the main job on the bundled dataset
+	$(VENV)/bin/octofuse demo
+
+bench: install ## benchmarks (see benchmarks/README.md)
+	$(PY) benchmarks/run_all.py
+
+clean:
+	rm -rf build $(VENV) octofuse-demo

@@ -1,0 +1,147 @@
+// octofuse bindings: OccupancyMap, the information-loss tree and tree fusion.
+#include "common.hpp"
+
+#include "octofuse/fuse.hpp"
+#include "octofuse/tree_access.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+namespace octofuse::bindings {
+
+namespace {
+
+py::dict leaves_to_dict(LeafArrays&& l) {
+  const auto n = static_cast<py::ssize_t>(l.sizes.size());
+  py::dict d;
+  d["centers"] = to_numpy(std::move(l.centers), {n, 3});
+  d["sizes"] = to_numpy(std::move(l.sizes), {n});
+  d["values"] = to_numpy(std::move(l.values), {n});
+  d["depths"] = to_numpy(std::move(l.depths), {n});
+  return d;
+}
+
+template <class Real>
+void insert_impl(OccupancyMap& self, py::array_t<Real, py::array::c_style> points,
+                 py::array_t<double, py::array::c_style | py::array::forcecast> origin_or_pose,
+                 double max_range, bool sensor_frame) {
+  if (points.ndim() != 2 || points.shape(1) != 3) {
+    throw py::value_error("points must be an (N, 3) array");
+  }
+  const std::size_t n = static_cast<std::size_t>(points.shape(0));
+  const Real* p = points.data();
+  for (std::size_t i = 0; i < 3 * n; ++i) {
+    if (!std::isfinite(static_cast<double>(p[i]))) {
+      throw py::value_error("points hold a non-finite coordinate at row " + std::to_string(i / 3) +
+                            "; drop NaN/inf points before inserting");
+    }
+  }
+  const double* o = origin_or_pose.data();
+  const py::ssize_t need = sensor_frame ? 16 : 3;
+  if (origin_or_pose.size() != need) {
+    throw py::value_error(sensor_frame ? "pose must be a 4x4 matrix" : "origin must have 3 values");
+  }
+  for (py::ssize_t i = 0; i < need; ++i) {
+    if (!std::isfinite(o[i])) throw py::value_error(sensor_frame ? "pose is not finite" : "origin is not finite");
+  }
+  py::gil_scoped_release release;
+  if (sensor_frame) {
+    self.insert_scan_from_sensor(p, n, o, max_range);
+  } else {
+    self.insert_scan(p, n, o, max_range);
+  }
+}
+
+}  // namespace
+
+void define_maps(py::module_& m) {
+  py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
+
+  py::class_<ScalarTree>(m, "_ScalarTree")
+      .def(py::init<double>(), py::arg("resolution"))
+      .def_property_readonly("resolution", &ScalarTree::getResolution)
+      .def_property_readonly("num_leaves", &ScalarTree::getNumLeafNodes)
+      .def_property_readonly("memory_bytes", &ScalarTree::memoryUsage)
+      .def("leaves", [](const ScalarTree& t) {
+        LeafArrays l;
+        {
+          py::gil_scoped_release release;
+          l = scalar_leaves(t);
+        }
+        return leaves_to_dict(std::move(l));
+      })
+      .def("accumulate", [](ScalarTree& self, const ScalarTree& other) {
+        if (std::fabs(self.getResolution() - other.getResolution()) > 1e-9 * self.getResolution()) {
+          throw py::value_error("cannot accumulate trees of different resolutions");
+        }
+        py::gil_scoped_release release;
+        accumulate(self, other);
+      })
+      .def("copy", [](const ScalarTree& t) { return std::make_unique<ScalarTree>(t); });
+
+  py::class_<OccupancyMap>(m, "_OccupancyMap")
+      .def(py::init([](double res, double hit, double miss, double cmin, double cmax) {
+             MapParams p{res, hit, miss, cmin, cmax};
+             p.validate();  // std::invalid_argument -> ValueError
+             return std::make_unique<OccupancyMap>(p);
+           }),
+           py::arg("resolution"), py::arg("prob_hit"), py::arg("prob_miss"),
+           py::arg("clamp_min"), py::arg("clamp_max"))
+      .def("insert_scan", &insert_impl<float>, py::arg("points"), py::arg("origin"),
+           py::arg("max_range"), py::arg("sensor_frame"))
+      .def("insert_scan", &insert_impl<double>, py::arg("points"), py::arg("origin"),
+           py::arg("max_range"), py::arg("sensor_frame"))
+      .def("save", [](const OccupancyMap& self, const std::string& path) {
+        py::gil_scoped_release release;
+        self.save(path);
+      })
+      .def_static("load", [](const std::string& path) {
+        py::gil_scoped_release release;
+        return OccupancyMap::load(path);
+      })
+      .def("leaves", [](const OccupancyMap& self) {
+        LeafArrays l;
+        {
+          py::gil_scoped_release release;
+          l = self.leaves();
+        }
+        return leaves_to_dict(std::move(l));
+      })
+      .def("copy", [](const OccupancyMap& self) {
+        py::gil_scoped_release release;
+        return std::make_unique<OccupancyMap>(self);
+      })
+      .def_property_readonly("num_leaves", &OccupancyMap::num_leaves)
+      .def_property_readonly("num_nodes", &OccupancyMap::num_nodes)
+      .def_property_readonly("memory_bytes", &OccupancyMap::memory_bytes)
+      .def_property_readonly("resolution", [](const OccupancyMap& s) { return s.params().resolution; })
+      .def_property_readonly("prob_hit", [](const OccupancyMap& s) { return s.params().prob_hit; })
+      .def_property_readonly("prob_miss", [](const OccupancyMap& s) { return s.params().prob_miss; })
+      .def_property_readonly("clamping", [](const OccupancyMap& s) {
+        return py::make_tuple(s.params().clamp_min, s.params().clamp_max);
+      })
+      .def_property_readonly("clamping_logodds", [](const OccupancyMap& s) {
+        return py::make_tuple(s.clamp_min_logodds(), s.clamp_max_logodds());
+      });
+
+  m.def("_check_compatible", [](const OccupancyMap& a, const OccupancyMap& b) {
+    check_compatible(a, b);
+  });
+  m.def(
+      "_fuse_maps",
+      [](const OccupancyMap& a, const OccupancyMap& b, int rule, int unknown) {
+        if (rule < 0 || rule >= kNumRules) throw py::value_error("invalid rule index");
+        if (unknown < 0 || unknown > 1) throw py::value_error("invalid unknown policy");
+        check_compatible(a, b);
+        FusionResult r;
+        {
+          py::gil_scoped_release release;
+          r = fuse_maps(a, b, static_cast<Rule>(rule), static_cast<UnknownPolicy>(unknown));
+        }
+        return py::make_tuple(std::move(r.map), std::move(r.info_loss), r.voxels_fused,
+                              r.voxels_copied);
+      },
+      py::arg("a"), py::arg("b"), py::arg("rule"), py::arg("unknown"));
+}
+
+}  // namespace octofuse::bindings

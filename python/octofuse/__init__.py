@@ -1,0 +1,28 @@
+"""octofuse: conservative fusion of multi-robot OctoMap occupancy maps.
+
+The per-voxel weighted exponential product (WEP) rules (Chernoff, entropy- and
+KLD-weighted Chernoff, minimum information loss) and the naive-Bayes and Bhattacharyya
+baselines, applied to whole OctoMap trees by a compiled C++ core.
+"""
+
+from __future__ import annotations
+
+from .maps import InfoLossMap, Leaves, MapFileError, MapFusion, OccupancyMap, fuse_maps
+from .rules import RULES, WEP_RULES, BernoulliFusion, LogOddsFusion, fuse_bernoulli, fuse_logodds
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "RULES",
+    "WEP_RULES",
+    "BernoulliFusion",
+    "InfoLossMap",
+    "Leaves",
+    "LogOddsFusion",
+    "MapFileError",
+    "MapFusion",
+    "OccupancyMap",
+    "fuse_bernoulli",
+    "fuse_logodds",
+    "fuse_maps",
+]

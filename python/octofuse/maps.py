@@ -1,0 +1,264 @@
+"""Occupancy maps (OctoMap trees), information-loss maps and tree fusion."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _core
+from .rules import rule_index
+
+MapFileError = _core.MapFileError
+
+_UNKNOWN_POLICIES = ("copy", "prior")
+
+
+class Leaves(NamedTuple):
+    """Leaves of a tree as arrays (one row per leaf)."""
+
+    centers: np.ndarray  #: (N, 3) float64 voxel centres, metres
+    sizes: np.ndarray  #: (N,) float64 edge lengths, metres
+    values: np.ndarray  #: (N,) float32 stored value (log-odds for occupancy maps)
+    depths: np.ndarray  #: (N,) uint8 tree depth (16 = finest voxel)
+
+
+def _leaves(raw: dict) -> Leaves:
+    return Leaves(raw["centers"], raw["sizes"], raw["values"], raw["depths"])
+
+
+def _existing_file(path: str | os.PathLike) -> str:
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"map file '{p}' does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"map file '{p}' is a directory, expected a .ot or .bt file")
+    return str(p)
+
+
+class OccupancyMap:
+    """A 3D occupancy map: an ``octomap::OcTree`` with its sensor model and clamping.
+
+    Parameters
+    ----------
+    resolution : float
+        Edge length of the finest voxel, metres.
+    prob_hit, prob_miss : float
+        Sensor model: P(occupied) of an endpoint and of a voxel a ray passes through.
+    clamping : (float, float)
+        Clamping thresholds (probabilities) of the stored values.
+    """
+
+    __slots__ = ("_m",)
+
+    def __init__(self, resolution: float, prob_hit: float = 0.7, prob_miss: float = 0.4,
+                 clamping: tuple[float, float] = (0.1192, 0.971)):
+        cmin, cmax = clamping
+        self._m = _core._OccupancyMap(float(resolution), float(prob_hit), float(prob_miss),
+                                      float(cmin), float(cmax))
+
+    @classmethod
+    def _wrap(cls, raw) -> "OccupancyMap":
+        obj = cls.__new__(cls)
+        obj._m = raw
+        return obj
+
+    # -- insertion ---------------------------------------------------------------------
+    def insert_scan(self, points, origin, max_range: float = -1.0) -> None:
+        """Insert one scan with OctoMap's ray casting update.
+
+        ``points`` is an (N, 3) float32 or float64 array in the map frame (passed to C++
+        without a copy when C-contiguous), ``origin`` the sensor position. Rays longer than
+        ``max_range`` (if > 0) only clear free space up to ``max_range``. The GIL is
+        released while OctoMap works.
+        """
+        pts = _points(points)
+        o = np.asarray(origin, dtype=np.float64).reshape(-1)
+        self._m.insert_scan(pts, o, float(max_range), False)
+
+    def insert_scan_from_sensor(self, points, pose, max_range: float = -1.0) -> None:
+        """Insert a scan given in the sensor frame; ``pose`` is the 4x4 sensor-to-map transform."""
+        pts = _points(points)
+        T = np.asarray(pose, dtype=np.float64)
+        if T.shape != (4, 4):
+            raise ValueError(f"pose must be a 4x4 matrix, got shape {T.shape}")
+        self._m.insert_scan(pts, np.ascontiguousarray(T), float(max_range), True)
+
+    # -- files -------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the map and return its path.
+
+        ``.ot`` (the default for other suffixes is an error) keeps the full log-odds of
+        every node; ``.bt`` is OctoMap's compact maximum-likelihood binary format, which
+        keeps only free/occupied per leaf and DROPS the probabilities (a reloaded ``.bt``
+        holds the clamping thresholds as values). Both open in OctoMap's own tools
+        (octovis, compare_octrees). The file is written to a temporary name and renamed,
+        so an existing file is never left half-written.
+        """
+        p = Path(path)
+        if p.suffix not in (".ot", ".bt"):
+            raise ValueError(f"cannot save map to '{p}': expected a .ot or .bt file name")
+        self._m.save(str(p))
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "OccupancyMap":
+        """Read a ``.ot`` or ``.bt`` OctoMap file (validated before any node is built).
+
+        Raises ``FileNotFoundError`` for a missing file and :class:`MapFileError` (an
+        ``OSError``) naming the file for a truncated, corrupt or foreign one.
+        """
+        return cls._wrap(_core._OccupancyMap.load(_existing_file(path)))
+
+    # -- contents ----------------------------------------------------------------------
+    def leaves(self) -> Leaves:
+        """Leaf centres (N, 3), sizes (N,), log-odds (N,) and depths (N,)."""
+        return _leaves(self._m.leaves())
+
+    def copy(self) -> "OccupancyMap":
+        """A deep copy of the map."""
+        return OccupancyMap._wrap(self._m.copy())
+
+    @property
+    def num_leaves(self) -> int:
+        return self._m.num_leaves
+
+    @property
+    def num_nodes(self) -> int:
+        return self._m.num_nodes
+
+    @property
+    def resolution(self) -> float:
+        return self._m.resolution
+
+    @property
+    def memory_bytes(self) -> int:
+        """Memory used by the tree's nodes, bytes (OctoMap's ``memoryUsage()``)."""
+        return self._m.memory_bytes
+
+    @property
+    def prob_hit(self) -> float:
+        return self._m.prob_hit
+
+    @property
+    def prob_miss(self) -> float:
+        return self._m.prob_miss
+
+    @property
+    def clamping(self) -> tuple[float, float]:
+        return self._m.clamping
+
+    @property
+    def clamping_logodds(self) -> tuple[float, float]:
+        """Clamping thresholds as the float log-odds OctoMap stores."""
+        return self._m.clamping_logodds
+
+    def __repr__(self) -> str:
+        return (f"OccupancyMap(resolution={self.resolution}, leaves={self.num_leaves}, "
+                f"memory={self.memory_bytes / 1e6:.1f} MB)")
+
+
+class InfoLossMap:
+    """Per-voxel information loss KL(p_NB || p_fused) (nats) of one or more fusions.
+
+    A tree over the same voxel keys as the maps. :meth:`accumulate` adds another loss map
+    voxel by voxel, which is how an agent's loss over all its fusions is kept.
+    """
+
+    __slots__ = ("_t", "voxels_fused", "voxels_copied")
+
+    def __init__(self, resolution: float):
+        self._t = _core._ScalarTree(float(resolution))
+        self.voxels_fused = 0
+        self.voxels_copied = 0
+
+    @classmethod
+    def _wrap(cls, raw, fused: int = 0, copied: int = 0) -> "InfoLossMap":
+        obj = cls.__new__(cls)
+        obj._t, obj.voxels_fused, obj.voxels_copied = raw, fused, copied
+        return obj
+
+    def leaves(self) -> Leaves:
+        """Leaf centres, sizes, loss values (nats) and depths."""
+        return _leaves(self._t.leaves())
+
+    def accumulate(self, other: "InfoLossMap") -> None:
+        """Add ``other`` into this map voxel by voxel (in place)."""
+        self._t.accumulate(other._t)
+        self.voxels_fused += other.voxels_fused
+        self.voxels_copied += other.voxels_copied
+
+    def copy(self) -> "InfoLossMap":
+        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the leaves: ``.npz`` (arrays), or ``.ply`` / ``.pcd`` (a heat-map cloud)."""
+        p = Path(path)
+        if p.suffix == ".npz":
+            lv = self.leaves()
+            tmp = p.with_name(p.name + ".tmp.npz")
+            np.savez_compressed(tmp, centers=lv.centers, sizes=lv.sizes, values=lv.values,
+                                depths=lv.depths, resolution=self.resolution)
+            os.replace(tmp, p)
+            return p
+        if p.suffix in (".ply", ".pcd"):
+            from .export import write_heatmap
+
+            return write_heatmap(self, p)
+        raise ValueError(f"cannot save information loss to '{p}': expected .npz, .ply or .pcd")
+
+    @property
+    def num_leaves(self) -> int:
+        return self._t.num_leaves
+
+    @property
+    def resolution(self) -> float:
+        return self._t.resolution
+
+    @property
+    def memory_bytes(self) -> int:
+        return self._t.memory_bytes
+
+    def __repr__(self) -> str:
+        return f"InfoLossMap(resolution={self.resolution}, leaves={self.num_leaves})"
+
+
+class MapFusion(NamedTuple):
+    """Result of :func:`fuse_maps`."""
+
+    map: OccupancyMap
+    info_loss: InfoLossMap
+
+
+def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
+              unknown: str = "copy") -> MapFusion:
+    """Fuse two occupancy maps voxel by voxel.
+
+    Both trees are walked once, together; a coarse (pruned) leaf stands for all voxels
+    below it. A voxel both maps know gets :func:`octofuse.fuse_logodds` of the two values,
+    clamped to the maps' clamping thresholds. A voxel known to only one map keeps its value
+    (``unknown="copy"``: it carries no common information, so that is the exact fusion) or
+    is fused with the prior p = 0.5 (``unknown="prior"``). The GIL is released while fusing.
+
+    Raises ``ValueError`` if the maps differ in resolution or clamping, or for an unknown
+    rule or policy.
+    """
+    if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
+        raise TypeError("fuse_maps expects two OccupancyMap objects")
+    idx = rule_index(rule)
+    if unknown not in _UNKNOWN_POLICIES:
+        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
+    raw_map, raw_loss, fused, copied = _core._fuse_maps(a._m, b._m, idx,
+                                                        _UNKNOWN_POLICIES.index(unknown))
+    return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, fused, copied))
+
+
+def _points(points) -> np.ndarray:
+    pts = np.asarray(points)
+    if pts.dtype not in (np.float32, np.float64):
+        pts = pts.astype(np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
+    return np.ascontiguousarray(pts)

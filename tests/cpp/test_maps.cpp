@@ -1,0 +1,169 @@
+// OccupancyMap file I/O and tree fusion against the per-voxel rule on expanded trees.
+#include "octofuse/fuse.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <random>
+#include <tuple>
+
+using namespace octofuse;
+
+namespace {
+
+using Key = std::tuple<unsigned, unsigned, unsigned>;
+
+// Every finest-level voxel of a tree with its value (a coarse leaf stands for all below it).
+template <class Tree>
+std::map<Key, float> expand(const Tree& t) {
+  std::map<Key, float> out;
+  for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) {
+    const unsigned span = 1u << (16 - it.getDepth());
+    octomap::OcTreeKey k = it.getKey();
+    unsigned k0[3];
+    for (int a = 0; a < 3; ++a) k0[a] = k[a] & ~(span - 1);
+    for (unsigned x = 0; x < span; ++x)
+      for (unsigned y = 0; y < span; ++y)
+        for (unsigned z = 0; z < span; ++z)
+          out[{k0[0] + x, k0[1] + y, k0[2] + z}] = it->getValue();
+  }
+  return out;
+}
+
+// A random tree over a 16^3 voxel block with some coarse (pruned) blocks.
+OccupancyMap random_map(unsigned seed, double coarse_fraction) {
+  OccupancyMap m(MapParams{});
+  std::mt19937 rng(seed);
+  const float values[] = {-2.0f, -1.0f, -0.4f, 0.4f, 0.85f, 2.0f, 3.5f};
+  std::uniform_int_distribution<int> v(0, 6), c(0, 15), coin(0, 99);
+  const unsigned base = 32768 - 8;
+  for (int i = 0; i < 600; ++i) {
+    octomap::OcTreeKey k(base + c(rng), base + c(rng), base + c(rng));
+    m.tree().setNodeValue(k, values[v(rng)], true);
+  }
+  for (int i = 0; i < 6; ++i) {  // uniform 4x4x4 blocks prune to depth-14 leaves
+    if (coin(rng) >= coarse_fraction * 100) continue;
+    const unsigned bx = base + 4 * (c(rng) / 4), by = base + 4 * (c(rng) / 4), bz = base + 4 * (c(rng) / 4);
+    const float val = values[v(rng)];
+    for (unsigned x = 0; x < 4; ++x)
+      for (unsigned y = 0; y < 4; ++y)
+        for (unsigned z = 0; z < 4; ++z)
+          m.tree().setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
+  }
+  m.tree().updateInnerOccupancy();
+  m.tree().prune();
+  return m;
+}
+
+std::string tmp_path(const char* name) { return std::string("/tmp/octofuse_cpp_test_") + name; }
+
+}  // namespace
+
+TEST(Fuse, EqualsPerVoxelRuleOnExpandedTrees) {
+  for (unsigned seed = 1; seed <= 6; ++seed) {
+    const OccupancyMap a = random_map(seed, 0.9), b = random_map(100 + seed, 0.3);
+    const auto ea = expand(a.tree()), eb = expand(b.tree());
+    for (int r = 0; r < kNumRules; ++r)
+      for (UnknownPolicy pol : {UnknownPolicy::Copy, UnknownPolicy::Prior}) {
+        const FusionResult res = fuse_maps(a, b, static_cast<Rule>(r), pol);
+        const auto ef = expand(res.map->tree()), el = expand(*res.info_loss);
+        std::map<Key, std::pair<float, float>> expected;
+        std::map<Key, std::pair<bool, bool>> seen;
+        for (auto& [k, v] : ea) seen[k].first = true;
+        for (auto& [k, v] : eb) seen[k].second = true;
+        ASSERT_EQ(ef.size(), seen.size());
+        for (auto& [k, s] : seen) {
+          double la = s.first ? ea.at(k) : 0.0, lb = s.second ? eb.at(k) : 0.0;
+          float want, loss;
+          if ((!s.first || !s.second) && pol == UnknownPolicy::Copy) {
+            want = static_cast<float>(s.first ? la : lb);
+            loss = 0.0f;
+          } else {
+            const Fused f = fuse_logodds(static_cast<Rule>(r), la, lb);
+            want = static_cast<float>(std::clamp(f.l, double(a.clamp_min_logodds()),
+                                                 double(a.clamp_max_logodds())));
+            loss = static_cast<float>(f.info_loss);
+          }
+          ASSERT_EQ(ef.at(k), want) << rule_name(static_cast<Rule>(r));
+          ASSERT_EQ(el.at(k), loss);
+        }
+      }
+  }
+}
+
+TEST(Fuse, NaiveBayesEqualsOctomapUpdateNodeMerge) {
+  const OccupancyMap a = random_map(7, 0.9), b = random_map(8, 0.9);
+  OccupancyMap merged(a);
+  octomap::OcTree bb(b.tree());
+  bb.expand();
+  for (auto it = bb.begin_leafs(); it != bb.end_leafs(); ++it)
+    merged.tree().updateNode(it.getKey(), it->getLogOdds());
+  const FusionResult res = fuse_maps(a, b, Rule::NaiveBayes, UnknownPolicy::Copy);
+  EXPECT_EQ(expand(res.map->tree()), expand(merged.tree()));
+}
+
+TEST(Fuse, RejectsIncompatibleMaps) {
+  MapParams p;
+  OccupancyMap a(p);
+  p.resolution = 0.1;
+  OccupancyMap b(p);
+  EXPECT_THROW(fuse_maps(a, b, Rule::Chernoff, UnknownPolicy::Copy), std::invalid_argument);
+  p = MapParams{};
+  p.clamp_max = 0.99;
+  OccupancyMap c(p);
+  EXPECT_THROW(check_compatible(a, c), std::invalid_argument);
+}
+
+TEST(Fuse, AccumulateAddsVoxelByVoxel) {
+  const OccupancyMap a = random_map(3, 0.9), b = random_map(4, 0.2);
+  const FusionResult r1 = fuse_maps(a, b, Rule::Chernoff, UnknownPolicy::Prior);
+  const FusionResult r2 = fuse_maps(b, a, Rule::Bhattacharyya, UnknownPolicy::Prior);
+  ScalarTree acc(*r1.info_loss);
+  accumulate(acc, *r2.info_loss);
+  const auto e1 = expand(*r1.info_loss), e2 = expand(*r2.info_loss), ea = expand(acc);
+  for (auto& [k, v] : ea) EXPECT_FLOAT_EQ(v, e1.at(k) + e2.at(k));
+}
+
+TEST(MapFiles, RoundTripKeepsEveryValue) {
+  const OccupancyMap a = random_map(11, 0.5);
+  a.save(tmp_path("rt.ot"));
+  auto b = OccupancyMap::load(tmp_path("rt.ot"));
+  EXPECT_EQ(expand(a.tree()), expand(b->tree()));
+  EXPECT_EQ(b->tree().size(), a.tree().size());
+  a.save(tmp_path("rt.bt"));
+  auto c = OccupancyMap::load(tmp_path("rt.bt"));
+  const auto ea = expand(a.tree()), ec = expand(c->tree());
+  ASSERT_EQ(ea.size(), ec.size());
+  const float thr = a.tree().getOccupancyThresLog();
+  for (auto& [k, v] : ea) EXPECT_EQ(ec.at(k) > thr, v > thr);
+}
+
+TEST(MapFiles, TruncatedForeignAndMissingFilesThrow) {
+  const OccupancyMap a = random_map(12, 0.5);
+  for (const char* ext : {"ot", "bt"}) {
+    const std::string path = tmp_path((std::string("full.") + ext).c_str());
+    a.save(path);
+    std::ifstream in(path, std::ios::binary);
+    std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    for (std::size_t cut : {data.size() / 2, data.size() - 1, std::size_t(20)}) {
+      const std::string t = tmp_path((std::string("cut.") + ext).c_str());
+      std::ofstream(t, std::ios::binary) << data.substr(0, cut);
+      EXPECT_THROW(OccupancyMap::load(t), MapFileError) << ext << " cut at " << cut;
+    }
+  }
+  std::ofstream(tmp_path("foreign.ot")) << "hello, not a map\n";
+  EXPECT_THROW(OccupancyMap::load(tmp_path("foreign.ot")), MapFileError);
+  EXPECT_THROW(OccupancyMap::load(tmp_path("does-not-exist.ot")), MapFileError);
+}
+
+TEST(MapFiles, ReadsOctomapsOwnBinaryFile) {
+  const std::string path = std::string(OCTOFUSE_SHARED_DATA) + "/geb079.bt";
+  if (!std::ifstream(path)) GTEST_SKIP() << "shared data not present: " << path;
+  auto m = OccupancyMap::load(path);
+  octomap::OcTree ref(0.1);
+  ASSERT_TRUE(ref.readBinary(path));
+  EXPECT_EQ(m->num_leaves(), ref.getNumLeafNodes());
+  EXPECT_DOUBLE_EQ(m->params().resolution, ref.getResolution());
+}

@@ -1,0 +1,116 @@
+// Defining properties of the per-voxel rules (see MATH.md), checked over a grid of inputs.
+#include "octofuse/fuse_arrays.hpp"
+#include "octofuse/rules.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+using namespace octofuse;
+using octofuse::detail::entropy_logodds;
+using octofuse::detail::kl_logodds;
+
+namespace {
+
+std::vector<double> grid() {
+  std::vector<double> g;
+  for (double l = -6.0; l <= 6.0; l += 0.37) g.push_back(l);
+  g.push_back(0.0);
+  g.push_back(3.5);
+  g.push_back(-2.0);
+  return g;
+}
+
+// Brute-force KL(q || p) straight from the probabilities.
+double kl_direct(double lq, double lp) {
+  const double q = 1.0 / (1.0 + std::exp(-lq)), p = 1.0 / (1.0 + std::exp(-lp));
+  return q * std::log(q / p) + (1 - q) * std::log((1 - q) / (1 - p));
+}
+
+}  // namespace
+
+TEST(Rules, KlMatchesDefinition) {
+  for (double a : grid())
+    for (double b : grid()) EXPECT_NEAR(kl_logodds(a, b), kl_direct(a, b), 1e-12);
+}
+
+TEST(Rules, ChernoffEqualisesKlds) {
+  for (double a : grid())
+    for (double b : grid()) {
+      if (a == b) continue;
+      const Fused f = fuse_logodds(Rule::Chernoff, a, b);
+      EXPECT_NEAR(kl_logodds(f.l, a), kl_logodds(f.l, b), 1e-10) << a << " " << b;
+    }
+}
+
+TEST(Rules, WeightedChernoffEqualisesWeightedKlds) {
+  for (double a : grid())
+    for (double b : grid()) {
+      if (a == b) continue;
+      const Fused e = fuse_logodds(Rule::EntropyWeightedChernoff, a, b);
+      EXPECT_NEAR(kl_logodds(e.l, a) / entropy_logodds(a), kl_logodds(e.l, b) / entropy_logodds(b),
+                  1e-9)
+          << a << " " << b;
+      const double ca = kl_logodds(a, 0.0), cb = kl_logodds(b, 0.0);
+      if (ca > 0 && cb > 0) {
+        const Fused k = fuse_logodds(Rule::KldWeightedChernoff, a, b);
+        EXPECT_NEAR(ca * kl_logodds(k.l, a), cb * kl_logodds(k.l, b), 1e-9) << a << " " << b;
+      }
+    }
+}
+
+TEST(Rules, EntropyWeightedReducesToChernoffAtEqualEntropy) {
+  for (double a : grid()) {
+    if (a == 0.0) continue;
+    const Fused c = fuse_logodds(Rule::Chernoff, a, -a);
+    const Fused e = fuse_logodds(Rule::EntropyWeightedChernoff, a, -a);
+    EXPECT_NEAR(c.omega, e.omega, 1e-12);
+  }
+}
+
+TEST(Rules, KldWeightedTakesTheInformedSideWhenOneLearntNothing) {
+  const Fused f = fuse_logodds(Rule::KldWeightedChernoff, 0.0, 2.0);
+  EXPECT_EQ(f.omega, 0.0);
+  EXPECT_EQ(f.l, 2.0);
+}
+
+TEST(Rules, MinInfoLossIsTheMinimumOverAFineGrid) {
+  for (double a : grid())
+    for (double b : grid()) {
+      const Fused f = fuse_logodds(Rule::MinInfoLoss, a, b);
+      for (int i = 0; i <= 1000; ++i) {
+        const double w = i / 1000.0;
+        EXPECT_LE(f.info_loss, kl_logodds(a + b, w * a + (1 - w) * b) + 1e-12);
+      }
+      EXPECT_EQ(f.info_loss == 0.0, a * b <= 0.0) << a << " " << b;
+    }
+}
+
+TEST(Rules, WepResultsLieBetweenTheInputs) {
+  for (int r = 1; r < kNumRules; ++r)
+    for (double a : grid())
+      for (double b : grid()) {
+        const Fused f = fuse_logodds(static_cast<Rule>(r), a, b);
+        EXPECT_GE(f.l, std::min(a, b));
+        EXPECT_LE(f.l, std::max(a, b));
+        EXPECT_GE(f.omega, 0.0);
+        EXPECT_LE(f.omega, 1.0);
+      }
+}
+
+TEST(Rules, CertaintiesDominateAndContradictionsAreFlagged) {
+  const double inf = std::numeric_limits<double>::infinity();
+  for (int r = 0; r < kNumRules; ++r) {
+    EXPECT_EQ(fuse_logodds(static_cast<Rule>(r), inf, 1.0).l, inf);
+    EXPECT_EQ(fuse_logodds(static_cast<Rule>(r), 1.0, -inf).l, -inf);
+    EXPECT_TRUE(std::isnan(fuse_logodds(static_cast<Rule>(r), inf, -inf).l));
+  }
+  const double a[] = {0.3, 1.0}, b[] = {std::nan(""), 0.0};
+  double v[2], w[2], l[2];
+  ArrayStatus st = fuse_arrays(Rule::Chernoff, a, b, 2, true, 0.0, v, w, l);
+  EXPECT_EQ(st.what, BadInput::NaN);
+  EXPECT_EQ(st.index, 0u);
+  st = fuse_arrays(Rule::Chernoff, a + 1, b + 1, 1, true, 0.0, v, w, l);
+  EXPECT_EQ(st.what, BadInput::Contradiction);
+}

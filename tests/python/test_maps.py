@@ -1,0 +1,237 @@
+"""Occupancy maps: OctoMap insertion, files, and tree fusion equal to the per-voxel rule."""
+
+import shutil
+import subprocess
+import threading
+
+import numpy as np
+import pytest
+from conftest import random_map
+
+import octofuse
+from octofuse import OccupancyMap, fuse_logodds, fuse_maps
+
+
+def expand(leaves, resolution):
+    """Every finest voxel (integer key) of a tree with its value."""
+    lo = np.rint((leaves.centers - leaves.sizes[:, None] / 2) / resolution).astype(np.int64)
+    span = np.rint(leaves.sizes / resolution).astype(np.int64)
+    out = {}
+    for s in np.unique(span):
+        sel = span == s
+        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
+        keys = (lo[sel][:, None, :] + g[None]).reshape(-1, 3)
+        vals = np.repeat(leaves.values[sel], len(g))
+        out.update(zip(map(tuple, keys), vals))
+    return out
+
+
+@pytest.fixture(scope="module")
+def pair():
+    # a: many scans, free space saturates and prunes to coarse leaves; b: fine leaves only
+    return random_map(1, 25), random_map(2, 2, offset=(0.35, 0.1, 0.0))
+
+
+def test_the_pair_covers_a_coarse_leaf_over_fine_leaves(pair):
+    a, b = pair
+    la, lb = a.leaves(), b.leaves()
+    assert la.depths.min() < 16 and lb.depths.max() == 16
+    coarse = la.depths < 16
+    ka = expand(la._replace(values=la.depths.astype(np.float32)), a.resolution)
+    kb = expand(lb._replace(values=lb.depths.astype(np.float32)), b.resolution)
+    assert coarse.any()
+    assert any(ka[k] < 16 and kb[k] == 16 for k in kb.keys() & ka.keys())
+
+
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+@pytest.mark.parametrize("rule", octofuse.RULES)
+def test_tree_fusion_equals_the_rule_on_every_expanded_voxel(pair, rule, unknown):
+    a, b = pair
+    res = a.resolution
+    fused, loss = fuse_maps(a, b, rule=rule, unknown=unknown)
+    ea, eb = expand(a.leaves(), res), expand(b.leaves(), res)
+    ef, el = expand(fused.leaves(), res), expand(loss.leaves(), res)
+    keys = sorted(ea.keys() | eb.keys())
+    assert set(ef) == set(keys)
+    la = np.array([ea.get(k, np.nan) for k in keys], dtype=np.float64)
+    lb = np.array([eb.get(k, np.nan) for k in keys], dtype=np.float64)
+    both = ~np.isnan(la) & ~np.isnan(lb)
+    if unknown == "copy":
+        want = np.where(np.isnan(la), lb, la).astype(np.float32)
+        want_loss = np.zeros(len(keys), dtype=np.float32)
+        f = fuse_logodds(la[both], lb[both], rule=rule)
+        cmin, cmax = a.clamping_logodds
+        want[both] = np.clip(f.l, cmin, cmax).astype(np.float32)
+        want_loss[both] = f.info_loss.astype(np.float32)
+    else:
+        f = fuse_logodds(np.nan_to_num(la, nan=0.0), np.nan_to_num(lb, nan=0.0), rule=rule)
+        cmin, cmax = a.clamping_logodds
+        want = np.clip(f.l, cmin, cmax).astype(np.float32)
+        want_loss = f.info_loss.astype(np.float32)
+    got = np.array([ef[k] for k in keys])
+    got_loss = np.array([el[k] for k in keys])
+    assert both.sum() > 1000 and (~both).sum() > 1000
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got_loss, want_loss)
+
+
+def test_fused_tree_is_pruned_and_inner_nodes_hold_the_max(pair, tmp_path):
+    a, _ = pair
+    fused, loss = fuse_maps(a, a, rule="bhattacharyya")
+    # fusing a map with itself under a WEP rule gives the same map, as compact
+    assert fused.num_leaves == a.num_leaves
+    np.testing.assert_array_equal(fused.leaves().values, a.leaves().values)
+    # the loss is what naive Bayes would have added: KL(p(2l) || p(l)) > 0 where l != 0
+    lv = a.leaves().values.astype(np.float64)
+    want = fuse_logodds(lv, lv, rule="bhattacharyya").info_loss.astype(np.float32)
+    np.testing.assert_array_equal(loss.leaves().values, want)
+    path = fused.save(tmp_path / "f.ot")
+    assert OccupancyMap.load(path).num_nodes == a.num_nodes
+
+
+def test_incompatible_maps_are_rejected():
+    a = OccupancyMap(0.1)
+    with pytest.raises(ValueError, match="different resolutions"):
+        fuse_maps(a, OccupancyMap(0.05))
+    with pytest.raises(ValueError, match="different clamping"):
+        fuse_maps(a, OccupancyMap(0.1, clamping=(0.12, 0.97)))
+    with pytest.raises(ValueError, match="valid rules are"):
+        fuse_maps(a, a, rule="chernov")
+    with pytest.raises(ValueError, match="unknown = 'zero'"):
+        fuse_maps(a, a, unknown="zero")
+
+
+def test_map_parameters_are_validated():
+    with pytest.raises(ValueError, match="resolution"):
+        OccupancyMap(0.0)
+    with pytest.raises(ValueError, match="prob_hit"):
+        OccupancyMap(0.1, prob_hit=0.3)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        OccupancyMap(0.1).insert_scan(np.zeros((4, 2)), (0, 0, 0))
+    with pytest.raises(ValueError, match="non-finite coordinate at row 1"):
+        OccupancyMap(0.1).insert_scan(np.array([[1.0, 0, 0], [np.nan, 0, 0]]), (0, 0, 0))
+
+
+def test_insertion_matches_octomap_ray_casting():
+    m = OccupancyMap(0.1)
+    m.insert_scan(np.array([[1.05, 0.05, 0.05]], dtype=np.float32), (0.05, 0.05, 0.05))
+    lv = m.leaves()
+    occ = lv.centers[lv.values > 0]
+    np.testing.assert_allclose(occ, [[1.05, 0.05, 0.05]], atol=1e-6)
+    free = lv.centers[lv.values < 0]
+    assert len(free) == 10 and np.all(free[:, 0] < 1.0)
+    # one hit with prob_hit 0.7: log-odds 0.847; one miss with 0.4: -0.405
+    assert lv.values[lv.values > 0][0] == pytest.approx(np.log(0.7 / 0.3), rel=1e-6)
+    assert np.all(np.isclose(lv.values[lv.values < 0], np.log(0.4 / 0.6), rtol=1e-6))
+
+
+def test_sensor_frame_insertion_equals_map_frame_insertion():
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-1, 1, (200, 3))
+    T = np.eye(4)
+    c, s = np.cos(0.7), np.sin(0.7)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = [0.3, -0.2, 0.1]
+    a, b = OccupancyMap(0.1), OccupancyMap(0.1)
+    a.insert_scan_from_sensor(pts, T)
+    b.insert_scan(pts @ T[:3, :3].T + T[:3, 3], T[:3, 3])
+    np.testing.assert_array_equal(a.leaves().values, b.leaves().values)
+
+
+def test_ot_round_trip_keeps_every_log_odds(pair, tmp_path):
+    a, _ = pair
+    b = OccupancyMap.load(a.save(tmp_path / "a.ot"))
+    la, lb = a.leaves(), b.leaves()
+    np.testing.assert_array_equal(la.values, lb.values)
+    np.testing.assert_array_equal(la.centers, lb.centers)
+    assert (b.resolution, b.prob_hit, b.prob_miss, b.clamping) == (0.1, 0.7, 0.4, (0.1192, 0.971))
+
+
+def test_bt_keeps_only_maximum_likelihood(pair, tmp_path):
+    a, _ = pair
+    b = OccupancyMap.load(a.save(tmp_path / "a.bt"))
+    ea, eb = expand(a.leaves(), 0.1), expand(b.leaves(), 0.1)
+    assert ea.keys() == eb.keys()
+    cmin, cmax = b.clamping_logodds
+    assert set(np.unique(list(eb.values()))) <= {np.float32(cmin), np.float32(cmax)}
+    assert all((ea[k] > 0) == (eb[k] > 0) for k in ea)
+
+
+@pytest.mark.skipif(shutil.which("compare_octrees") is None, reason="octomap-tools not installed")
+def test_octomaps_own_tools_open_our_files(pair, tmp_path):
+    a, _ = pair
+    p = a.save(tmp_path / "a.ot")
+    out = subprocess.run(["compare_octrees", str(p), str(p)], capture_output=True, text=True,
+                         check=True)
+    assert "KLD: 0" in out.stdout
+    bt = a.save(tmp_path / "a.bt")
+    subprocess.run(["convert_octree", str(bt), str(tmp_path / "c.ot")], check=True,
+                   capture_output=True)
+    c = OccupancyMap.load(tmp_path / "c.ot")
+    assert c.num_leaves == OccupancyMap.load(bt).num_leaves
+
+
+def test_reads_octomaps_own_binary_file(shared_real):
+    m = OccupancyMap.load(shared_real / "geb079.bt")
+    assert m.resolution == pytest.approx(0.08) and m.num_leaves > 10000
+
+
+def test_bad_map_files_are_clear_errors(pair, tmp_path):
+    a, _ = pair
+    with pytest.raises(FileNotFoundError, match="missing.ot"):
+        OccupancyMap.load(tmp_path / "missing.ot")
+    (tmp_path / "foreign.ot").write_text("ply\nformat ascii 1.0\n")
+    with pytest.raises(octofuse.MapFileError, match=r"foreign.ot' is not an OctoMap file"):
+        OccupancyMap.load(tmp_path / "foreign.ot")
+    for ext in ("ot", "bt"):
+        data = a.save(tmp_path / f"full.{ext}").read_bytes()
+        (tmp_path / f"cut.{ext}").write_bytes(data[: len(data) // 2])
+        with pytest.raises(octofuse.MapFileError, match=f"cut.{ext}' is truncated"):
+            OccupancyMap.load(tmp_path / f"cut.{ext}")
+    with pytest.raises(ValueError, match="expected a .ot or .bt"):
+        a.save(tmp_path / "a.pcd")
+    with pytest.raises(octofuse.MapFileError, match="no-such-dir"):
+        a.save(tmp_path / "no-such-dir" / "a.ot")
+
+
+def test_a_failed_save_keeps_the_existing_file(pair, tmp_path):
+    a, _ = pair
+    p = a.save(tmp_path / "keep.ot")
+    before = p.read_bytes()
+    (tmp_path / "keep.ot.octofuse-tmp").mkdir()  # the temporary name is taken: write fails
+    with pytest.raises(octofuse.MapFileError):
+        OccupancyMap(0.1).save(p)
+    assert p.read_bytes() == before
+
+
+def test_fusion_releases_the_gil(pair):
+    a, b = pair
+    ticks = []
+    stop = threading.Event()
+
+    def tick():
+        while not stop.is_set():
+            ticks.append(1)
+
+    t = threading.Thread(target=tick)
+    t.start()
+    for _ in range(5):
+        fuse_maps(a, b, rule="kld-weighted-chernoff")
+    stop.set()
+    t.join()
+    assert len(ticks) > 0
+
+
+def test_info_loss_accumulates_and_saves(pair, tmp_path):
+    a, b = pair
+    _, l1 = fuse_maps(a, b, rule="chernoff", unknown="prior")
+    _, l2 = fuse_maps(b, a, rule="bhattacharyya", unknown="prior")
+    acc = l1.copy()
+    acc.accumulate(l2)
+    e1, e2, ea = (expand(x.leaves(), 0.1) for x in (l1, l2, acc))
+    assert ea.keys() == e1.keys() | e2.keys()
+    for k, v in ea.items():
+        assert v == pytest.approx(e1.get(k, 0) + e2.get(k, 0), rel=1e-6, abs=1e-7)
+    p = acc.save(tmp_path / "loss.npz")
+    with np.load(p) as z:
+        np.testing.assert_array_equal(z["values"], acc.leaves().values)
