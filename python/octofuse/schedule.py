@@ -1,0 +1,200 @@
+"""Communication schedules: when each link of a graph carries a map, and in which direction.
+
+A schedule is a time-ordered list of :class:`Exchange` events; an event carries the sender's
+current map to the receiver, which fuses it into its own. Events are applied one after another
+in list order, also when they share a time: a map sent later in the list already contains what
+its sender received earlier. The exception is :func:`rounds`, which is double-buffered.
+
+``directions``:
+
+* ``"both"``: every time a link fires it carries two events at the same time, ``a -> b`` then
+  ``b -> a`` for the link ``(a, b)`` with ``a < b``;
+* ``"one"``: every firing carries one event, alternating ``a -> b``, ``b -> a``, ``a -> b``, ...
+  over the firings of that link.
+
+Graphs are used through ``graph.n`` and ``graph.edges`` (sorted ``(a, b)`` pairs with
+``a < b``), as provided by :class:`octofuse.graph.Graph`. Links are always visited in that
+sorted order, so a schedule is fully determined by its arguments.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+DIRECTIONS = ("both", "one")
+SCHEDULE_KINDS = ("periodic:SECONDS", "aperiodic:SECONDS", "rounds:R")
+
+
+@dataclass(frozen=True, slots=True)
+class Exchange:
+    """At ``time_s``, agent ``sender`` sends its map to agent ``receiver``."""
+
+    time_s: float
+    sender: int
+    receiver: int
+
+
+def periodic(
+    graph, *, period_s: float, duration_s: float, start_s: float | None = None,
+    directions: str = "both",
+) -> list[Exchange]:
+    """Every link fires every ``period_s`` seconds.
+
+    Rounds happen at ``start_s + k * period_s`` for every k >= 0 with a time <= ``duration_s``;
+    ``start_s`` defaults to ``period_s`` (no exchange of empty maps at t = 0), which gives
+    ``floor(duration_s / period_s)`` rounds. Within a round the links fire in sorted edge order.
+    """
+    period_s = _positive("period_s", period_s)
+    duration_s = _non_negative("duration_s", duration_s)
+    start_s = period_s if start_s is None else _non_negative("start_s", start_s)
+    _check_directions(directions)
+    if start_s > duration_s:
+        return []
+    events = []
+    for k in range(math.floor((duration_s - start_s) / period_s + 1e-9) + 1):
+        events.extend(_fire(graph.edges, start_s + k * period_s, k, directions))
+    return events
+
+
+def aperiodic(
+    graph, *, mean_interval_s: float, duration_s: float, seed: int, directions: str = "both",
+) -> list[Exchange]:
+    """Every link fires at the times of its own Poisson process on ``(0, duration_s]``.
+
+    The gaps between firings of a link are exponential with mean ``mean_interval_s``. The
+    process of link ``(a, b)`` is seeded by ``(seed, a, b)`` only, so it does not change when
+    other links are added or removed, and a shorter ``duration_s`` gives a prefix of a longer
+    one. Events are sorted by time; ties go by sorted link order, then ``a -> b`` first.
+    """
+    mean_interval_s = _positive("mean_interval_s", mean_interval_s)
+    duration_s = _non_negative("duration_s", duration_s)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    _check_directions(directions)
+    keyed = []
+    for link, (a, b) in enumerate(graph.edges):
+        times = _poisson_times(np.random.default_rng([int(seed), a, b]), mean_interval_s, duration_s)
+        for k, t in enumerate(times):
+            for order, ex in enumerate(_fire([(a, b)], t, k, directions)):
+                keyed.append(((t, link, order), ex))
+    keyed.sort(key=lambda item: item[0])
+    return [ex for _, ex in keyed]
+
+
+def rounds(graph, n_rounds: int, directions: str = "both") -> list[list[Exchange]]:
+    """``n_rounds`` synchronous rounds for fusing finished maps (``time_s`` = round index 0, 1, ...).
+
+    Double buffering: in a round every agent receives each neighbour's map as it was at the
+    START of that round, so the order of events inside a round does not matter, and after R
+    rounds information has travelled at most R hops. Apply a round by fusing copies of the maps
+    taken before the round, not the maps being updated.
+    """
+    if isinstance(n_rounds, bool) or not isinstance(n_rounds, (int, np.integer)) or n_rounds < 0:
+        raise ValueError(f"n_rounds must be a non-negative integer, got {n_rounds!r}")
+    _check_directions(directions)
+    return [_fire(graph.edges, float(r), r, directions) for r in range(int(n_rounds))]
+
+
+@dataclass(frozen=True)
+class ScheduleSpec:
+    """A parsed ``--schedule`` string: ``kind`` is periodic, aperiodic or rounds; ``value`` the
+    period (s), the mean interval (s) or the number of rounds."""
+
+    kind: str
+    value: float
+
+    @property
+    def double_buffered(self) -> bool:
+        """True for ``rounds``: events sharing a time see the maps from before that time."""
+        return self.kind == "rounds"
+
+    def build(self, graph, *, duration_s: float | None = None, seed: int = 0,
+              directions: str = "both") -> list[Exchange]:
+        """The events for ``graph``; ``rounds`` come flattened (``time_s`` = round index) and
+        ignore ``duration_s``, which the other kinds need."""
+        if self.kind != "rounds" and duration_s is None:
+            raise ValueError(f"a {self.kind} schedule needs duration_s (the mission length)")
+        if self.kind == "periodic":
+            return periodic(graph, period_s=self.value, duration_s=duration_s, directions=directions)
+        if self.kind == "aperiodic":
+            return aperiodic(graph, mean_interval_s=self.value, duration_s=duration_s, seed=seed,
+                             directions=directions)
+        return [ex for rnd in rounds(graph, int(self.value), directions) for ex in rnd]
+
+
+def parse_schedule(spec: str) -> ScheduleSpec:
+    """Parse ``periodic:10`` (every 10 s), ``aperiodic:15`` (15 s mean gap) or ``rounds:3``."""
+    text = str(spec).strip()
+    kind, sep, param = (s.strip() for s in text.partition(":"))
+    kind = kind.lower()
+    valid = f"valid: {', '.join(SCHEDULE_KINDS)} (e.g. periodic:10)"
+    if kind not in ("periodic", "aperiodic", "rounds"):
+        raise ValueError(f"unknown schedule {text!r}; {valid}")
+    if not sep or not param:
+        raise ValueError(f"schedule {kind!r} needs a value, e.g. {kind}:{3 if kind == 'rounds' else 10}")
+    if kind == "rounds":
+        if not re.fullmatch(r"\d+", param) or int(param) < 1:
+            raise ValueError(f"rounds:R needs a whole number of rounds >= 1, got {text!r}")
+        return ScheduleSpec(kind, float(int(param)))
+    try:
+        value = float(param)
+    except ValueError:
+        raise ValueError(f"{kind}:SECONDS needs a number of seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{kind}:SECONDS needs a positive, finite number of seconds, got {text!r}")
+    return ScheduleSpec(kind, value)
+
+
+def _fire(edges, time_s: float, k: int, directions: str) -> list[Exchange]:
+    """Events of the k-th firing (0-based) of each link in ``edges`` at ``time_s``."""
+    t = float(time_s)
+    out = []
+    for a, b in edges:
+        if directions == "both":
+            out += [Exchange(t, a, b), Exchange(t, b, a)]
+        else:
+            out.append(Exchange(t, a, b) if k % 2 == 0 else Exchange(t, b, a))
+    return out
+
+
+def _poisson_times(rng: np.random.Generator, mean_s: float, duration_s: float) -> list[float]:
+    times: list[float] = []
+    t = 0.0
+    batch = max(16, int(1.2 * duration_s / mean_s) + 16)
+    while True:
+        for gap in rng.exponential(mean_s, batch).tolist():
+            t += gap
+            if t > duration_s:
+                return times
+            times.append(t)
+
+
+def _check_directions(directions: str) -> None:
+    if directions not in DIRECTIONS:
+        raise ValueError(f"directions must be one of {', '.join(DIRECTIONS)}, got {directions!r}")
+
+
+def _positive(what: str, value: float) -> float:
+    value = _number(what, value)
+    if value <= 0:
+        raise ValueError(f"{what} must be > 0, got {value}")
+    return value
+
+
+def _non_negative(what: str, value: float) -> float:
+    value = _number(what, value)
+    if value < 0:
+        raise ValueError(f"{what} must be >= 0, got {value}")
+    return value
+
+
+def _number(what: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{what} must be a number of seconds, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {value}")
+    return float(value)
