@@ -2,8 +2,12 @@
 #include "common.hpp"
 
 #include "octofuse/fuse.hpp"
+#include "octofuse/insert.hpp"
 #include "octofuse/tree_access.hpp"
 
+#include <pybind11/stl.h>
+
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -123,6 +127,50 @@ void define_maps(py::module_& m) {
       .def_property_readonly("clamping_logodds", [](const OccupancyMap& s) {
         return py::make_tuple(s.clamp_min_logodds(), s.clamp_max_logodds());
       });
+
+  m.def(
+      "_insert_batch",
+      [](const std::vector<std::vector<OccupancyMap*>>& targets, const py::list& points,
+         py::array_t<double, py::array::c_style | py::array::forcecast> poses,
+         py::array_t<double, py::array::c_style | py::array::forcecast> max_ranges,
+         unsigned threads) {
+        const std::size_t n = targets.size();
+        if (points.size() != n || poses.ndim() != 3 || static_cast<std::size_t>(poses.shape(0)) != n ||
+            poses.shape(1) != 4 || poses.shape(2) != 4 ||
+            static_cast<std::size_t>(max_ranges.size()) != n) {
+          throw py::value_error("insert batch: targets, points, poses (S,4,4) and max_ranges (S,) must agree");
+        }
+        std::vector<ScanInput> scans(n);
+        std::vector<py::array> keep;
+        keep.reserve(n);
+        for (std::size_t i = 0; i < n; ++i) {
+          py::array a = py::reinterpret_borrow<py::array>(points[i]);
+          const bool dbl = py::isinstance<py::array_t<double>>(a);
+          if (!(dbl || py::isinstance<py::array_t<float>>(a)) || a.ndim() != 2 || a.shape(1) != 3 ||
+              !(a.flags() & py::array::c_style)) {
+            throw py::value_error("insert batch: scan " + std::to_string(i) +
+                                  " points must be a C-contiguous (N, 3) float32/float64 array");
+          }
+          ScanInput& s = scans[i];
+          s.xyz = a.data();
+          s.is_double = dbl;
+          s.n = static_cast<std::size_t>(a.shape(0));
+          std::copy(poses.data() + 16 * i, poses.data() + 16 * (i + 1), s.pose);
+          s.max_range = max_ranges.data()[i];
+          s.targets = targets[i];
+          for (OccupancyMap* m : s.targets) {
+            if (m == nullptr) throw py::value_error("insert batch: a target map is None");
+            check_compatible(*m, *s.targets.front());
+          }
+          keep.push_back(a);
+        }
+        py::gil_scoped_release release;
+        insert_batch(scans, threads);
+      },
+      py::arg("targets"), py::arg("points"), py::arg("poses"), py::arg("max_ranges"),
+      py::arg("threads") = 2,
+      "Insert a batch of sensor-frame scans into their target maps (ray keys computed once "
+      "per scan, in parallel); the GIL is released.");
 
   m.def("_check_compatible", [](const OccupancyMap& a, const OccupancyMap& b) {
     check_compatible(a, b);

@@ -1,0 +1,213 @@
+"""Scans from bags: agents, decoding and poses, in time order."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from .config import AgentSpec, BuildConfig
+from .io import (
+    BagSet,
+    ConnectivityError,
+    ExtrapolationError,
+    PoseSource,
+    TransformError,
+    UnknownFrameError,
+    laserscan_to_xyz,
+    load_transforms,
+    pointcloud2_to_xyz,
+    stamp_to_ns,
+    transform_matrix,
+)
+
+LASERSCAN = "sensor_msgs/msg/LaserScan"
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+SCAN_TYPES = (LASERSCAN, POINTCLOUD2)
+POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+RESERVED_NAMES = ("centralized",)
+
+
+@dataclass
+class Scan:
+    """One scan ready for insertion."""
+
+    agent: int  #: index of the agent
+    stamp_ns: int  #: header stamp
+    points: np.ndarray  #: (N, 3) float64 in the sensor frame
+    pose: np.ndarray  #: (4, 4) sensor-to-fixed-frame transform at the stamp
+    max_range: float  #: rays longer than this only clear free space (-1: none)
+
+
+@dataclass
+class AgentStats:
+    """What ingest did for one agent."""
+
+    name: str
+    topic: str
+    scans_used: int = 0
+    skipped: Counter = field(default_factory=Counter)  #: reason -> count
+    points: int = 0
+    seconds: float = 0.0  #: decode + transform + insertion time attributed to the agent
+
+    @property
+    def scans_skipped(self) -> int:
+        return sum(self.skipped.values())
+
+
+def agent_name_for(topic: str) -> str:
+    """``/robot1/scan`` -> ``robot1``; ``/scan`` -> ``scan``."""
+    parts = [p for p in topic.split("/") if p]
+    return parts[0] if len(parts) > 1 else (parts[0] if parts else "scan")
+
+
+def default_agents(topics: dict) -> list[AgentSpec]:
+    """One agent per scan topic, named after the topic's namespace."""
+    scan_topics = sorted(t for t, info in topics.items() if info.msgtype in SCAN_TYPES)
+    names = [agent_name_for(t) for t in scan_topics]
+    if len(set(names)) < len(names):
+        names = ["_".join(p for p in t.split("/") if p) for t in scan_topics]
+    return [AgentSpec(n, t) for n, t in zip(names, scan_topics)]
+
+
+def _offset_matrix(offset) -> np.ndarray | None:
+    if offset is None:
+        return None
+    v = np.asarray(offset, dtype=float)
+    if v.shape != (7,):
+        raise ValueError(f"sensor_offset must be 7 numbers x y z qx qy qz qw, got {list(v)}")
+    return transform_matrix(v[:3], v[3:])
+
+
+class ScanSource:
+    """Opens bags, resolves agents and transforms, and yields scans in time order.
+
+    Use as a context manager. Scans whose pose cannot be found (before the first transform,
+    after the last, a broken chain) are skipped and counted per reason in :attr:`stats`;
+    a missing topic or fixed frame raises an error listing what the bags contain.
+    """
+
+    def __init__(self, cfg: BuildConfig):
+        self.cfg = cfg
+        if not cfg.bags:
+            raise ValueError("no bag files given")
+        if cfg.no_return not in ("skip", "free"):
+            raise ValueError(f"no_return = {cfg.no_return!r}: expected 'skip' or 'free'")
+        if cfg.scan_stride < 1:
+            raise ValueError(f"scan_stride = {cfg.scan_stride}: expected 1 or more")
+        self.bags = BagSet(cfg.bags).open()
+        try:
+            self._setup()
+        except BaseException:
+            self.bags.close()
+            raise
+
+    def _setup(self) -> None:
+        cfg = self.cfg
+        topics = self.bags.topics()
+        self.agents = list(cfg.agents) or default_agents(topics)
+        if not self.agents:
+            raise ValueError(
+                "no LaserScan or PointCloud2 topic in the bags; they contain:\n"
+                + self.bags.describe_topics())
+        names = [a.name for a in self.agents]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"agent name(s) used twice: {', '.join(dup)}")
+        bad = [n for n in names if n in RESERVED_NAMES or not n or "/" in n]
+        if bad:
+            raise ValueError(f"invalid agent name(s) {', '.join(map(repr, bad))}: "
+                             f"'centralized' is reserved and names may not contain '/'")
+        self.bags.check_topics({a.topic: list(SCAN_TYPES) for a in self.agents})
+        pose_sources = []
+        self._pose_frames: dict[int, str] = {}
+        for i, a in enumerate(self.agents):
+            if a.pose_topic:
+                self.bags.check_topics({a.pose_topic: list(POSE_TYPES)})
+                frame = f"octofuse/{a.name}/sensor"
+                pose_sources.append(PoseSource(a.pose_topic, frame, cfg.fixed_frame,
+                                               _offset_matrix(a.sensor_offset)))
+                self._pose_frames[i] = frame
+            elif a.sensor_offset is not None:
+                raise ValueError(f"agent {a.name}: sensor_offset needs a pose_topic")
+        self.tf = load_transforms(self.bags, pose_sources=pose_sources)
+        frames = self.tf.frames
+        if cfg.fixed_frame.lstrip("/") not in frames:
+            known = ", ".join(sorted(frames)) or "none (no /tf, /tf_static or pose topic)"
+            raise ValueError(f"fixed frame '{cfg.fixed_frame}' is not in the bags' transforms; "
+                             f"frames present: {known}")
+        self.topic_agent = {a.topic: i for i, a in enumerate(self.agents)}
+        self.stats = [AgentStats(a.name, a.topic) for a in self.agents]
+        info = self.bags.topics()
+        self.total_scans = sum(-(-info[a.topic].count // cfg.scan_stride) for a in self.agents)
+
+    def close(self) -> None:
+        self.bags.close()
+
+    def __enter__(self) -> "ScanSource":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def start_ns(self) -> int | None:
+        return self.bags.start_ns
+
+    def scans(self) -> Iterator[Scan]:
+        """Scans of all agents in log-time order (skipped scans are counted, not yielded)."""
+        import time
+
+        cfg = self.cfg
+        seen = [0] * len(self.agents)
+        fixed = cfg.fixed_frame.lstrip("/")
+        for m in self.bags.messages({a.topic: list(SCAN_TYPES) for a in self.agents}):
+            i = self.topic_agent[m.topic]
+            seen[i] += 1
+            if (seen[i] - 1) % cfg.scan_stride:
+                continue
+            t0 = time.perf_counter()
+            st = self.stats[i]
+            msg = m.msg
+            stamp = stamp_to_ns(msg.header)
+            frame = self._pose_frames.get(i, msg.header.frame_id)
+            try:
+                pose = self.tf.lookup(fixed, frame, stamp)
+            except ExtrapolationError as e:
+                st.skipped["before the first transform" if stamp < e.first_ns
+                           else "after the last transform"] += 1
+                continue
+            except ConnectivityError:
+                st.skipped[f"no transform chain from '{frame}' to '{fixed}'"] += 1
+                continue
+            except UnknownFrameError:
+                st.skipped[f"unknown frame '{frame}'"] += 1
+                continue
+            except TransformError as e:
+                st.skipped[f"transform error: {e}"] += 1
+                continue
+            points, max_range = self._decode(msg)
+            if len(points) == 0:
+                st.skipped["no valid points"] += 1
+                continue
+            st.scans_used += 1
+            st.points += len(points)
+            st.seconds += time.perf_counter() - t0
+            yield Scan(i, stamp, points, pose, max_range)
+
+    def _decode(self, msg) -> tuple[np.ndarray, float]:
+        cfg = self.cfg
+        if hasattr(msg, "ranges"):
+            hits, free_dirs = laserscan_to_xyz(msg, no_return=cfg.no_return)
+            rmax = float(msg.range_max)
+            if cfg.max_range > 0:
+                rmax = min(rmax, cfg.max_range)
+            if len(free_dirs):
+                # past the range limit: OctoMap clears the ray up to max_range only
+                far = free_dirs * (rmax + 2.0 * cfg.map.resolution + 1.0)
+                return np.concatenate([hits, far]), rmax
+            return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
+        pts = pointcloud2_to_xyz(msg)
+        return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)

@@ -1,0 +1,824 @@
+"""A time-aware transform buffer for recorded tf trees and pose topics.
+
+Frames form a forest: every link goes from a parent frame to a child frame
+and maps points in the child frame into the parent frame (the ``tf``
+convention: ``T_parent_child``). A child has exactly one parent. Links are
+
+* static (``/tf_static``): one transform, valid at all times;
+* dynamic (``/tf``, odometry and pose topics): samples sorted by stamp,
+  interpolated at lookup time (linear in translation, shortest-arc slerp in
+  rotation). A lookup exactly at a sample returns that sample; a lookup
+  before the first or after the last sample of a needed link fails with
+  :class:`ExtrapolationError` (up to ``tolerance_ns``).
+
+:meth:`TransformBuffer.lookup` walks from both frames up to their common
+ancestor, so a chain may be of any length and links may be traversed against
+their direction.
+
+Frame names are normalized by stripping a leading ``/`` (ROS 1 bags often
+write ``/base_link``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .decode import stamp_to_ns
+
+if TYPE_CHECKING:
+    from .bags import BagSet
+
+__all__ = [
+    "ConnectivityError",
+    "ExtrapolationError",
+    "PoseSource",
+    "TransformBuffer",
+    "TransformError",
+    "UnknownFrameError",
+    "invert_transform",
+    "load_transforms",
+    "matrix_to_quaternion",
+    "quaternion_to_matrix",
+    "transform_matrix",
+]
+
+_POSE_TYPES = (
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "geometry_msgs/msg/TransformStamped",
+)
+_TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+class TransformError(Exception):
+    """Base class of the errors raised by :class:`TransformBuffer`."""
+
+
+class UnknownFrameError(TransformError):
+    """A frame that no link of the buffer mentions (the message lists the known frames)."""
+
+
+class ConnectivityError(TransformError):
+    """Both frames are known but lie in different, unconnected trees."""
+
+
+class ExtrapolationError(TransformError):
+    """The stamp lies outside the sampled time range of a dynamic link on the chain.
+
+    Attributes
+    ----------
+    parent, child : str
+        The link that cannot be evaluated.
+    stamp_ns : int
+        The requested stamp.
+    first_ns, last_ns : int
+        Stamps of the first and last sample of the link.
+    """
+
+    def __init__(
+        self, message: str, parent: str, child: str, stamp_ns: int, first_ns: int, last_ns: int
+    ) -> None:
+        super().__init__(message)
+        self.parent = parent
+        self.child = child
+        self.stamp_ns = stamp_ns
+        self.first_ns = first_ns
+        self.last_ns = last_ns
+
+
+# -- small rigid-transform helpers ------------------------------------------------------------
+
+
+def _normalize_quaternions(q: np.ndarray) -> np.ndarray:
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(q)) or np.any(norm < 1e-12):
+        raise ValueError("rotation quaternions must be finite and non-zero")
+    return q / norm
+
+
+def quaternion_to_matrix(q: Any) -> np.ndarray:
+    """Rotation matrices of unit quaternions ``(x, y, z, w)``.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3, 3)
+    """
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    m = np.empty(q.shape[:-1] + (3, 3), dtype=np.float64)
+    m[..., 0, 0] = 1 - 2 * (yy + zz)
+    m[..., 0, 1] = 2 * (xy - wz)
+    m[..., 0, 2] = 2 * (xz + wy)
+    m[..., 1, 0] = 2 * (xy + wz)
+    m[..., 1, 1] = 1 - 2 * (xx + zz)
+    m[..., 1, 2] = 2 * (yz - wx)
+    m[..., 2, 0] = 2 * (xz - wy)
+    m[..., 2, 1] = 2 * (yz + wx)
+    m[..., 2, 2] = 1 - 2 * (xx + yy)
+    return m
+
+
+def matrix_to_quaternion(m: Any) -> np.ndarray:
+    """Unit quaternion ``(x, y, z, w)``, ``w >= 0``, of a 3x3 rotation (or 4x4 transform).
+
+    Parameters
+    ----------
+    m : array_like, shape (3, 3) or (4, 4)
+
+    Returns
+    -------
+    numpy.ndarray, shape (4,)
+    """
+    r = np.asarray(m, dtype=np.float64)[:3, :3]
+    tr = np.trace(r)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
+    elif r[1, 1] > r[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
+    qa = np.asarray(q, dtype=np.float64)
+    qa /= np.linalg.norm(qa)
+    return -qa if qa[3] < 0 else qa
+
+
+def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
+    """Homogeneous matrices from translations and quaternions ``(x, y, z, w)``.
+
+    Parameters
+    ----------
+    translation : array_like, shape (..., 3)
+    rotation : array_like, shape (..., 4)
+        Normalized here.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 4, 4)
+    """
+    t = np.asarray(translation, dtype=np.float64)
+    q = _normalize_quaternions(np.asarray(rotation, dtype=np.float64))
+    shape = np.broadcast_shapes(t.shape[:-1], q.shape[:-1])
+    m = np.zeros(shape + (4, 4), dtype=np.float64)
+    m[..., :3, :3] = quaternion_to_matrix(q)
+    m[..., :3, 3] = t
+    m[..., 3, 3] = 1.0
+    return m
+
+
+def invert_transform(m: Any) -> np.ndarray:
+    """Inverse of rigid homogeneous transforms (``R^T``, ``-R^T t``), shape (..., 4, 4)."""
+    m = np.asarray(m, dtype=np.float64)
+    if m.ndim == 2:
+        rt = m[:3, :3].T
+        out = np.eye(4)
+        out[:3, :3] = rt
+        out[:3, 3] = -(rt @ m[:3, 3])
+        return out
+    out = np.zeros_like(m)
+    rt = np.swapaxes(m[..., :3, :3], -1, -2)
+    out[..., :3, :3] = rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, m[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Shortest-arc slerp between unit quaternions (K, 4) at fractions a (K,)."""
+    d = np.einsum("ij,ij->i", q0, q1)
+    q1 = np.where((d < 0)[:, None], -q1, q1)
+    d = np.abs(d)
+    theta = np.arccos(np.clip(d, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-9
+    safe = np.where(small, 1.0, sin_t)
+    w0 = np.where(small, 1.0 - a, np.sin((1.0 - a) * theta) / safe)
+    w1 = np.where(small, a, np.sin(a * theta) / safe)
+    q = w0[:, None] * q0 + w1[:, None] * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _fmt_ns(ns: int) -> str:
+    return f"{ns} ns ({ns / 1e9:.6f} s)"
+
+
+# -- links ----------------------------------------------------------------------------------
+
+
+class _Link:
+    """One parent -> child link; dynamic samples are kept sorted in numpy arrays."""
+
+    def __init__(self, parent: str, child: str, static: bool) -> None:
+        self.parent = parent
+        self.child = child
+        self.static = static
+        self.static_matrix = np.eye(4)
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.stamps = np.empty(0, dtype=np.int64)
+        self.trans = np.empty((0, 3), dtype=np.float64)
+        self.quats = np.empty((0, 4), dtype=np.float64)
+
+    def add(self, stamps: np.ndarray, trans: np.ndarray, quats: np.ndarray) -> None:
+        self._pending.append((stamps, trans, quats))
+
+    def _finalize(self) -> None:
+        if not self._pending:
+            return
+        stamps = np.concatenate([self.stamps] + [p[0] for p in self._pending])
+        trans = np.concatenate([self.trans] + [p[1] for p in self._pending])
+        quats = np.concatenate([self.quats] + [p[2] for p in self._pending])
+        self._pending.clear()
+        order = np.argsort(stamps, kind="stable")
+        stamps = stamps[order]
+        # Several samples at one stamp: the one added last wins.
+        keep = np.ones(stamps.size, dtype=bool)
+        keep[:-1] = stamps[1:] != stamps[:-1]
+        order = order[keep]
+        self.stamps = stamps[keep]
+        self.trans = trans[order]
+        self.quats = quats[order]
+
+    def _extrapolation(self, stamps: np.ndarray, bad: np.ndarray, what: str) -> ExtrapolationError:
+        s = self.stamps
+        first, last = int(s[0]), int(s[-1])
+        t = int(stamps[np.argmax(bad)])
+        side = (
+            f"{(first - t) / 1e9:.6f} s before the first sample"
+            if t < first
+            else f"{(t - last) / 1e9:.6f} s after the last sample"
+        )
+        extra = (
+            f" ({int(bad.sum())} of {stamps.size} stamps are outside)" if stamps.size > 1 else ""
+        )
+        return ExtrapolationError(
+            f"{what} at {_fmt_ns(t)}: link {self.parent!r} -> {self.child!r} has "
+            f"{s.size} sample(s) from {_fmt_ns(first)} to {_fmt_ns(last)}; the stamp is "
+            f"{side}{extra}",
+            self.parent,
+            self.child,
+            t,
+            first,
+            last,
+        )
+
+    def matrix_at(self, stamp: int, tolerance_ns: int, what: str) -> np.ndarray:
+        """T_parent_child at one stamp, shape (4, 4) (scalar fast path of :meth:`matrices`)."""
+        if self.static:
+            return self.static_matrix
+        if self._pending:
+            self._finalize()
+        s = self.stamps
+        first, last = int(s[0]), int(s[-1])
+        if stamp < first - tolerance_ns or stamp > last + tolerance_ns:
+            arr = np.array([stamp], dtype=np.int64)
+            raise self._extrapolation(arr, np.array([True]), what)
+        n = s.size
+        stamp = min(max(stamp, first), last)
+        i1 = int(np.searchsorted(s, stamp, side="left"))
+        if s[min(i1, n - 1)] == stamp:
+            tx, ty, tz = self.trans[i1].tolist()
+            x, y, z, w = self.quats[i1].tolist()
+        else:
+            i0 = i1 - 1
+            s0 = int(s[i0])
+            a = (stamp - s0) / (int(s[i1]) - s0)
+            t0, t1 = self.trans[i0].tolist(), self.trans[i1].tolist()
+            tx, ty, tz = (p + a * (q - p) for p, q in zip(t0, t1, strict=True))
+            q0, q1 = self.quats[i0].tolist(), self.quats[i1].tolist()
+            d = sum(p * q for p, q in zip(q0, q1, strict=True))
+            if d < 0.0:
+                q1 = [-q for q in q1]
+                d = -d
+            theta = math.acos(min(d, 1.0))
+            sin_t = math.sin(theta)
+            if sin_t < 1e-9:
+                w0, w1 = 1.0 - a, a
+            else:
+                w0, w1 = math.sin((1.0 - a) * theta) / sin_t, math.sin(a * theta) / sin_t
+            x, y, z, w = (w0 * p + w1 * q for p, q in zip(q0, q1, strict=True))
+            norm = math.sqrt(x * x + y * y + z * z + w * w)
+            x, y, z, w = x / norm, y / norm, z / norm, w / norm
+        xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
+        wx, wy, wz = w * x, w * y, w * z
+        return np.array(
+            [
+                [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy), tx],
+                [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx), ty],
+                [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy), tz],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+
+    def matrices(self, stamps: np.ndarray, tolerance_ns: int, what: str) -> np.ndarray:
+        """Transforms T_parent_child at the stamps (K,), shape (K, 4, 4)."""
+        if self.static:
+            return np.broadcast_to(self.static_matrix, (stamps.size, 4, 4))
+        self._finalize()
+        s = self.stamps
+        first, last = int(s[0]), int(s[-1])
+        bad = (stamps < first - tolerance_ns) | (stamps > last + tolerance_ns)
+        if bad.any():
+            raise self._extrapolation(stamps, bad, what)
+        t = np.clip(stamps, first, last)
+        n = s.size
+        if n == 1:
+            trans = np.broadcast_to(self.trans[0], (t.size, 3))
+            quats = np.broadcast_to(self.quats[0], (t.size, 4))
+        else:
+            i1 = np.clip(np.searchsorted(s, t, side="left"), 1, n - 1)
+            i0 = i1 - 1
+            s0, s1 = s[i0], s[i1]
+            a = (t - s0).astype(np.float64) / (s1 - s0).astype(np.float64)
+            q0, q1 = self.quats[i0], self.quats[i1]
+            t0, t1 = self.trans[i0], self.trans[i1]
+            trans = t0 + a[:, None] * (t1 - t0)
+            quats = _slerp(q0, q1, a)
+            # Exact at the samples.
+            at0, at1 = (a == 0.0)[:, None], (a == 1.0)[:, None]
+            trans = np.where(at0, t0, np.where(at1, t1, trans))
+            quats = np.where(at0, q0, np.where(at1, q1, quats))
+        m = np.zeros((t.size, 4, 4), dtype=np.float64)
+        m[:, :3, :3] = quaternion_to_matrix(quats)
+        m[:, :3, 3] = trans
+        m[:, 3, 3] = 1.0
+        return m
+
+
+def _norm_frame(frame: str) -> str:
+    frame = str(frame).lstrip("/")
+    if not frame:
+        raise ValueError("frame names must not be empty")
+    return frame
+
+
+@dataclass(frozen=True)
+class PoseSource:
+    """A pose topic used as a dynamic link, for :func:`load_transforms`.
+
+    Attributes
+    ----------
+    topic : str
+        ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped``,
+        ``geometry_msgs/PoseWithCovarianceStamped`` or
+        ``geometry_msgs/TransformStamped`` topic.
+    child_frame : str or None
+        The frame whose pose the topic gives (with ``offset`` applied). ``None``
+        uses the message's ``child_frame_id`` (Odometry, TransformStamped).
+    parent_frame : str or None
+        The fixed frame; ``None`` uses ``header.frame_id``.
+    offset : array_like or None
+        Static 4x4 transform ``T_body_child`` from the body whose pose the
+        topic reports to ``child_frame`` (e.g. the lidar mounting), or ``None``.
+    """
+
+    topic: str
+    child_frame: str | None = None
+    parent_frame: str | None = None
+    offset: Any = None
+
+
+class TransformBuffer:
+    """Transforms between frames over time, built from tf and pose messages.
+
+    Parameters
+    ----------
+    tolerance_ns : int, optional
+        A stamp up to this far outside the sampled range of a dynamic link is
+        answered with the nearest sample instead of raising
+        :class:`ExtrapolationError`. Default 0: only stamps within
+        ``[first, last]`` (inclusive) of each link.
+    """
+
+    def __init__(self, *, tolerance_ns: int = 0) -> None:
+        if tolerance_ns < 0:
+            raise ValueError("tolerance_ns must be >= 0")
+        self.tolerance_ns = int(tolerance_ns)
+        self._links: dict[str, _Link] = {}  # child -> link to its parent
+        self._frames: set[str] = set()
+        self._paths: dict[tuple[str, str], tuple[list[_Link], list[_Link]]] = {}
+
+    # -- building ---------------------------------------------------------------------------
+    def _link(self, parent: str, child: str, static: bool) -> _Link:
+        parent, child = _norm_frame(parent), _norm_frame(child)
+        if parent == child:
+            raise TransformError(f"link {parent!r} -> {child!r} connects a frame to itself")
+        link = self._links.get(child)
+        if link is not None:
+            if link.parent != parent:
+                raise TransformError(
+                    f"frame {child!r} already has parent {link.parent!r}; cannot add a second "
+                    f"parent {parent!r} (a frame has one parent in a tf tree)"
+                )
+            if link.static != static:
+                kinds = ("static", "dynamic") if link.static else ("dynamic", "static")
+                raise TransformError(
+                    f"link {parent!r} -> {child!r} is {kinds[0]};"
+                    f" cannot add {kinds[1]} samples to it"
+                )
+            return link
+        frame = parent
+        while frame in self._links:
+            frame = self._links[frame].parent
+            if frame == child:
+                raise TransformError(f"link {parent!r} -> {child!r} would close a loop in the tree")
+        if frame == child:
+            raise TransformError(f"link {parent!r} -> {child!r} would close a loop in the tree")
+        link = _Link(parent, child, static)
+        self._links[child] = link
+        self._frames.update((parent, child))
+        self._paths.clear()
+        return link
+
+    def add_static_transform(
+        self, parent: str, child: str, translation: Any, rotation: Any
+    ) -> None:
+        """Add (or replace) a static link ``parent -> child``.
+
+        Parameters
+        ----------
+        parent, child : str
+            Frame names; the transform maps child coordinates into the parent.
+        translation : array_like, shape (3,)
+        rotation : array_like, shape (4,)
+            Quaternion ``(x, y, z, w)``, normalized here.
+        """
+        link = self._link(parent, child, static=True)
+        link.static_matrix = transform_matrix(
+            np.asarray(translation, dtype=np.float64).reshape(3),
+            np.asarray(rotation, dtype=np.float64).reshape(4),
+        )
+
+    def add_transform(
+        self, parent: str, child: str, stamp_ns: int, translation: Any, rotation: Any
+    ) -> None:
+        """Add one sample of the dynamic link ``parent -> child``.
+
+        A sample with the same stamp as an earlier one replaces it.
+
+        Parameters
+        ----------
+        parent, child : str
+        stamp_ns : int
+            Nanoseconds since the epoch.
+        translation : array_like, shape (3,)
+        rotation : array_like, shape (4,)
+            Quaternion ``(x, y, z, w)``, normalized here.
+        """
+        self.add_transforms(
+            parent,
+            child,
+            np.asarray([stamp_ns], dtype=np.int64),
+            np.asarray(translation, dtype=np.float64).reshape(1, 3),
+            np.asarray(rotation, dtype=np.float64).reshape(1, 4),
+        )
+
+    def add_transforms(
+        self, parent: str, child: str, stamps_ns: Any, translations: Any, rotations: Any
+    ) -> None:
+        """Add many samples of the dynamic link ``parent -> child`` at once.
+
+        Parameters
+        ----------
+        parent, child : str
+        stamps_ns : array_like of int, shape (K,)
+        translations : array_like, shape (K, 3)
+        rotations : array_like, shape (K, 4)
+            Quaternions ``(x, y, z, w)``, normalized here.
+        """
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        trans = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+        quats = np.asarray(rotations, dtype=np.float64).reshape(-1, 4)
+        if not stamps.size == trans.shape[0] == quats.shape[0]:
+            raise ValueError("stamps, translations and rotations must have the same length")
+        if not np.all(np.isfinite(trans)):
+            raise ValueError("translations must be finite")
+        quats = _normalize_quaternions(quats)
+        if stamps.size:
+            self._link(parent, child, static=False).add(stamps, trans, quats)
+
+    def add_tf_message(self, msg: Any, *, static: bool = False) -> None:
+        """Add every transform of a ``tf2_msgs/TFMessage``.
+
+        Parameters
+        ----------
+        msg : tf2_msgs/TFMessage
+        static : bool
+            ``True`` for messages of ``/tf_static``: their stamps are ignored.
+        """
+        for ts in msg.transforms:
+            tr, rot = ts.transform.translation, ts.transform.rotation
+            t = (tr.x, tr.y, tr.z)
+            q = (rot.x, rot.y, rot.z, rot.w)
+            if static:
+                self.add_static_transform(ts.header.frame_id, ts.child_frame_id, t, q)
+            else:
+                self.add_transform(
+                    ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header), t, q
+                )
+
+    def add_pose_message(
+        self,
+        msg: Any,
+        child_frame: str | None = None,
+        *,
+        parent_frame: str | None = None,
+        offset: Any = None,
+    ) -> None:
+        """Add a pose message as a sample of the dynamic link ``parent -> child``.
+
+        Supports ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped``,
+        ``geometry_msgs/PoseWithCovarianceStamped`` and
+        ``geometry_msgs/TransformStamped``. The stored transform is
+        ``T_parent_child = T_pose @ offset``.
+
+        Parameters
+        ----------
+        msg : pose message
+        child_frame : str, optional
+            Default: the message's ``child_frame_id``.
+        parent_frame : str, optional
+            The fixed frame. Default: ``msg.header.frame_id``.
+        offset : array_like (4, 4), optional
+            Static transform from the body whose pose the message reports to
+            ``child_frame``.
+        """
+        if hasattr(msg, "transform"):
+            tr, rot = msg.transform.translation, msg.transform.rotation
+        else:
+            pose = msg.pose
+            if hasattr(pose, "pose"):
+                pose = pose.pose
+            tr, rot = pose.position, pose.orientation
+        child = child_frame or getattr(msg, "child_frame_id", "")
+        parent = parent_frame or msg.header.frame_id
+        if not child:
+            raise ValueError("child_frame is required for messages without child_frame_id")
+        if not parent:
+            raise ValueError("parent_frame is required: the message has an empty header.frame_id")
+        t = np.array([tr.x, tr.y, tr.z], dtype=np.float64)
+        q = np.array([rot.x, rot.y, rot.z, rot.w], dtype=np.float64)
+        if offset is not None:
+            m = transform_matrix(t, q) @ np.asarray(offset, dtype=np.float64).reshape(4, 4)
+            t, q = m[:3, 3], matrix_to_quaternion(m)
+        self.add_transform(parent, child, stamp_to_ns(msg.header), t, q)
+
+    # -- queries ----------------------------------------------------------------------------
+    @property
+    def frames(self) -> list[str]:
+        """Sorted names of all frames mentioned by a link."""
+        return sorted(self._frames)
+
+    def links(self) -> list[tuple[str, str, bool, int, int | None, int | None]]:
+        """``(parent, child, static, n_samples, first_ns, last_ns)`` of every link."""
+        out = []
+        for child in sorted(self._links):
+            link = self._links[child]
+            if link.static:
+                out.append((link.parent, child, True, 1, None, None))
+            else:
+                link._finalize()
+                out.append(
+                    (
+                        link.parent,
+                        child,
+                        False,
+                        link.stamps.size,
+                        int(link.stamps[0]),
+                        int(link.stamps[-1]),
+                    )
+                )
+        return out
+
+    def _check_frame(self, frame: str) -> str:
+        name = _norm_frame(frame)
+        if name not in self._frames:
+            known = ", ".join(map(repr, self.frames)) or "none (the buffer is empty)"
+            raise UnknownFrameError(f"unknown frame {frame!r}; known frames: {known}")
+        return name
+
+    def _path(self, target: str, source: str) -> tuple[list[_Link], list[_Link]]:
+        key = (target, source)
+        path = self._paths.get(key)
+        if path is not None:
+            return path
+        up_s: list[_Link] = []
+        chain_s = [source]
+        frame = source
+        while frame in self._links:
+            link = self._links[frame]
+            up_s.append(link)
+            frame = link.parent
+            chain_s.append(frame)
+        index_s = {f: i for i, f in enumerate(chain_s)}
+        up_t: list[_Link] = []
+        frame = target
+        while frame not in index_s:
+            link = self._links.get(frame)
+            if link is None:
+                raise ConnectivityError(
+                    f"no transform chain between {target!r} and {source!r}: {target!r} belongs"
+                    f" to the tree rooted at {frame!r}, {source!r} to the tree rooted at"
+                    f" {chain_s[-1]!r}"
+                )
+            up_t.append(link)
+            frame = link.parent
+        path = (up_s[: index_s[frame]], up_t)
+        self._paths[key] = path
+        return path
+
+    def lookup_many(self, target: str, source: str, stamps_ns: Any) -> np.ndarray:
+        """Transforms from ``source`` into ``target`` at many stamps.
+
+        Parameters
+        ----------
+        target, source : str
+            Frame names.
+        stamps_ns : array_like of int, shape (K,)
+
+        Returns
+        -------
+        numpy.ndarray, shape (K, 4, 4)
+            ``T_target_source``: ``p_target = T @ p_source`` (homogeneous).
+
+        Raises
+        ------
+        UnknownFrameError, ConnectivityError, ExtrapolationError
+        """
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        tgt, src = self._check_frame(target), self._check_frame(source)
+        up_s, up_t = self._path(tgt, src)
+        what = f"cannot transform from {src!r} into {tgt!r}"
+        result = np.broadcast_to(np.eye(4), (stamps.size, 4, 4))
+        # T_anc_source = L_k @ ... @ L_1 with L_1 the link of the source.
+        t_anc_src = None
+        for link in up_s:
+            m = link.matrices(stamps, self.tolerance_ns, what)
+            t_anc_src = m if t_anc_src is None else m @ t_anc_src
+        t_anc_tgt = None
+        for link in up_t:
+            m = link.matrices(stamps, self.tolerance_ns, what)
+            t_anc_tgt = m if t_anc_tgt is None else m @ t_anc_tgt
+        if t_anc_tgt is None:
+            result = t_anc_src if t_anc_src is not None else result
+        elif t_anc_src is None:
+            result = invert_transform(t_anc_tgt)
+        else:
+            result = invert_transform(t_anc_tgt) @ t_anc_src
+        return np.array(result, dtype=np.float64)
+
+    def lookup(self, target: str, source: str, stamp_ns: int) -> np.ndarray:
+        """Transform from ``source`` into ``target`` at one stamp.
+
+        Parameters
+        ----------
+        target, source : str
+            Frame names.
+        stamp_ns : int
+            Nanoseconds since the epoch; ignored if the chain is all static.
+
+        Returns
+        -------
+        numpy.ndarray, shape (4, 4)
+            ``T_target_source``: ``p_target = T @ p_source`` (homogeneous).
+
+        Raises
+        ------
+        UnknownFrameError
+            A frame no link mentions; the message lists the known frames.
+        ConnectivityError
+            The frames are in different trees.
+        ExtrapolationError
+            The stamp is outside the samples of a dynamic link on the chain.
+        """
+        tgt, src = self._check_frame(target), self._check_frame(source)
+        up_s, up_t = self._path(tgt, src)
+        what = f"cannot transform from {src!r} into {tgt!r}"
+        stamp = int(stamp_ns)
+        tol = self.tolerance_ns
+        t_anc_src = np.eye(4)
+        for link in up_s:
+            t_anc_src = link.matrix_at(stamp, tol, what) @ t_anc_src
+        if not up_t:
+            return t_anc_src
+        t_anc_tgt = np.eye(4)
+        for link in up_t:
+            t_anc_tgt = link.matrix_at(stamp, tol, what) @ t_anc_tgt
+        return invert_transform(t_anc_tgt) @ t_anc_src
+
+    def can_transform(self, target: str, source: str, stamp_ns: int) -> bool:
+        """Whether :meth:`lookup` would succeed."""
+        try:
+            self.lookup(target, source, stamp_ns)
+        except TransformError:
+            return False
+        return True
+
+    def time_range(self, target: str, source: str) -> tuple[int, int] | None:
+        """Stamps ``(first, last)`` at which ``target <- source`` can be looked up.
+
+        The intersection of the sampled ranges of the dynamic links on the
+        chain (widened by ``tolerance_ns``); ``None`` if the chain is all
+        static (valid at any time).
+
+        Raises
+        ------
+        UnknownFrameError, ConnectivityError
+            As :meth:`lookup`. An empty intersection raises
+            :class:`ExtrapolationError`.
+        """
+        tgt, src = self._check_frame(target), self._check_frame(source)
+        up_s, up_t = self._path(tgt, src)
+        lo, hi = None, None
+        for link in up_s + up_t:
+            if link.static:
+                continue
+            link._finalize()
+            first = int(link.stamps[0]) - self.tolerance_ns
+            last = int(link.stamps[-1]) + self.tolerance_ns
+            lo = first if lo is None else max(lo, first)
+            hi = last if hi is None else min(hi, last)
+        if lo is None or hi is None:
+            return None
+        if lo > hi:
+            raise ExtrapolationError(
+                f"the dynamic links between {src!r} and {tgt!r} have no common time range",
+                tgt,
+                src,
+                lo,
+                lo,
+                hi,
+            )
+        return lo, hi
+
+
+def load_transforms(
+    bags: BagSet,
+    *,
+    tf_topics: Sequence[str] | None = None,
+    static_tf_topics: Sequence[str] | None = None,
+    pose_sources: Iterable[PoseSource] | Mapping[str, str] = (),
+    tolerance_ns: int = 0,
+) -> TransformBuffer:
+    """Fill a :class:`TransformBuffer` from the tf and pose topics of a bag set.
+
+    Parameters
+    ----------
+    bags : BagSet
+        An open bag set.
+    tf_topics, static_tf_topics : sequence of str, optional
+        ``tf2_msgs/TFMessage`` topics with dynamic and static transforms.
+        When not given, ``/tf`` and ``/tf_static`` are read if the bags have
+        them; topics given explicitly must exist.
+    pose_sources : iterable of PoseSource, or mapping of topic to child frame
+        Pose topics to add as dynamic links.
+    tolerance_ns : int
+        Passed to :class:`TransformBuffer`.
+
+    Returns
+    -------
+    TransformBuffer
+
+    Raises
+    ------
+    octofuse.io.BagError
+        A requested topic is missing or has the wrong type.
+    """
+    present = bags.topics()
+    if tf_topics is None:
+        tf_topics = [t for t in ("/tf",) if t in present]
+    if static_tf_topics is None:
+        static_tf_topics = [t for t in ("/tf_static",) if t in present]
+    if isinstance(pose_sources, Mapping):
+        pose_sources = [PoseSource(topic, child) for topic, child in pose_sources.items()]
+    poses = {p.topic: p for p in pose_sources}
+    spec: dict[str, Any] = {t: _TF_TYPE for t in (*tf_topics, *static_tf_topics)}
+    spec.update({t: _POSE_TYPES for t in poses})
+    buf = TransformBuffer(tolerance_ns=tolerance_ns)
+    if not spec:
+        return buf
+    static_set = set(static_tf_topics)
+    for topic, _t, msg in bags.messages(spec):
+        if topic in poses:
+            p = poses[topic]
+            buf.add_pose_message(msg, p.child_frame, parent_frame=p.parent_frame, offset=p.offset)
+        else:
+            buf.add_tf_message(msg, static=topic in static_set)
+    return buf
