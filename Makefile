@@ -8,7 +8,7 @@ PY := $(VENV)/bin/python
 JOBS ?= 2
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := build-essential cmake git python3-venv python3-dev \
-                liboctomap-dev libeigen3-dev libgtest-dev octomap-tools
+                liboctomap-dev libeigen3-dev libgtest-dev octomap-tools libusb-1.0-0
 
 .PHONY: all deps venv install test test-cpp test-python demo bench clean
 

@@ -8,6 +8,7 @@ from typing import List, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -23,7 +24,7 @@ class CliError(Exception):
 def _print_config(cfg) -> None:
     from .config import dump_yaml
 
-    console.print(dump_yaml(cfg), end="", highlight=False, markup=False)
+    console.print(dump_yaml(cfg), end="", highlight=False, markup=False, soft_wrap=True)
 
 
 def _build_config(bags, agent, pose, sensor_offset, fixed_frame, resolution, max_range, no_return,
@@ -157,8 +158,24 @@ def build(
     paths = write_maps(result, out)
     console.print(_build_table(result))
     for note in _skip_notes(result):
-        console.print(f"[yellow]{note}[/]", highlight=False)
-    console.print(f"wrote {len(paths)} maps to {out}/", highlight=False)
+        console.print(f"[yellow]{escape(note)}[/]", highlight=False, soft_wrap=True)
+    console.print(f"wrote {len(paths)} maps to {escape(str(out))}/", highlight=False, soft_wrap=True)
+
+
+@app.command()
+def export(
+    src: Path = typer.Argument(..., help="map (.ot/.bt) or information-loss file (.npz)"),
+    out: Path = typer.Option(..., "--out", help="file to write: .ply/.pcd cloud, or .ot/.bt map"),
+    all_voxels: bool = typer.Option(False, "--all-voxels",
+                                    help="map clouds: every known voxel, not only occupied ones"),
+    cmap: Optional[str] = typer.Option(None, "--cmap", help="matplotlib colour map "
+                                       "(default: viridis for maps, inferno for heat maps)"),
+):
+    """Write a map or an information-loss file as a PLY/PCD point cloud, or convert .ot/.bt."""
+    from .export import export_map
+
+    result = export_map(src, out, occupied_only=not all_voxels, cmap=cmap)
+    console.print(str(result), highlight=False, markup=False, soft_wrap=True)
 
 
 @app.command()
@@ -204,7 +221,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         app(args=argv, standalone_mode=False)
     except (CliError, ValueError, OSError, MapFileError, KeyError, BagError, TransformError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        err.print(f"[bold red]error:[/] {msg}", highlight=False)
+        err.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
         return 1
     except KeyboardInterrupt:
         err.print("interrupted")

@@ -46,6 +46,9 @@ class BuildConfig:
     max_range: float = -1.0
     #: LaserScan beams with no return: "skip" (default) or "free" (clear up to range_max)
     no_return: str = "skip"
+    #: LaserScan with time_increment > 0: place every beam with the pose at its own time
+    #: (the robot moves during a sweep); False: the whole scan at header.stamp
+    deskew: bool = True
     #: use every N-th scan of each agent (1 = all)
     scan_stride: int = 1
     #: scans inserted per call into the C++ core
@@ -121,6 +124,11 @@ def from_dict(cls, data: dict, where: str = "config"):
                 value = from_dict(sub, value, f"{where}.{name}")
         elif name == "clamping":
             value = tuple(value)
+        elif name == "bags":
+            if isinstance(value, str):  # one bag
+                value = [value]
+            if not isinstance(value, list) or not all(isinstance(b, str) for b in value):
+                raise ValueError(f"{where}.bags: expected a list of bag paths")
         kwargs[f.name] = value
     return cls(**kwargs)
 

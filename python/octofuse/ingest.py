@@ -110,12 +110,16 @@ class ScanSource:
         self.agents = list(cfg.agents) or default_agents(topics)
         if not self.agents:
             raise ValueError(
-                "no LaserScan or PointCloud2 topic in the bags; they contain:\n"
+                "no LaserScan or PointCloud2 topic in the bags; they contain: "
                 + self.bags.describe_topics())
         names = [a.name for a in self.agents]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"agent name(s) used twice: {', '.join(dup)}")
+        topics_used = [a.topic for a in self.agents]
+        dup = sorted({t for t in topics_used if topics_used.count(t) > 1})
+        if dup:
+            raise ValueError(f"topic(s) given to more than one agent: {', '.join(dup)}")
         bad = [n for n in names if n in RESERVED_NAMES or not n or "/" in n]
         if bad:
             raise ValueError(f"invalid agent name(s) {', '.join(map(repr, bad))}: "
@@ -139,6 +143,7 @@ class ScanSource:
             raise ValueError(f"fixed frame '{cfg.fixed_frame}' is not in the bags' transforms; "
                              f"frames present: {known}")
         self.topic_agent = {a.topic: i for i, a in enumerate(self.agents)}
+        self._time_ranges: dict[str, tuple] = {}
         self.stats = [AgentStats(a.name, a.topic) for a in self.agents]
         info = self.bags.topics()
         self.total_scans = sum(-(-info[a.topic].count // cfg.scan_stride) for a in self.agents)
@@ -173,6 +178,9 @@ class ScanSource:
             msg = m.msg
             stamp = stamp_to_ns(msg.header)
             frame = self._pose_frames.get(i, msg.header.frame_id)
+            if not frame.strip("/"):
+                st.skipped["empty header.frame_id"] += 1
+                continue
             try:
                 pose = self.tf.lookup(fixed, frame, stamp)
             except ExtrapolationError as e:
@@ -188,7 +196,13 @@ class ScanSource:
             except TransformError as e:
                 st.skipped[f"transform error: {e}"] += 1
                 continue
-            points, max_range = self._decode(msg)
+            try:
+                points, max_range = self._decode(msg)
+            except ValueError as e:
+                raise ValueError(f"cannot decode the message on '{m.topic}' stamped {stamp} ns: "
+                                 f"{e}") from None
+            if self.cfg.deskew and hasattr(msg, "ranges") and msg.time_increment > 0 and len(points):
+                points = self._deskew(msg, points, fixed, frame, stamp, pose)
             if len(points) == 0:
                 st.skipped["no valid points"] += 1
                 continue
@@ -196,6 +210,27 @@ class ScanSource:
             st.points += len(points)
             st.seconds += time.perf_counter() - t0
             yield Scan(i, stamp, points, pose, max_range)
+
+    def _deskew(self, msg, points, fixed, frame, stamp, pose) -> np.ndarray:
+        """Move each beam's point by the sensor motion between the scan stamp and its beam time.
+
+        Points come back in the sensor frame at ``stamp``: p = T(stamp)^-1 T(t_i) p_i, with
+        t_i = stamp + i * time_increment (beam times clipped to the transforms' time range).
+        """
+        ang = np.arctan2(points[:, 1], points[:, 0])
+        idx = np.rint(np.mod(ang - msg.angle_min, 2 * np.pi) / msg.angle_increment)
+        t = stamp + idx * (float(msg.time_increment) * 1e9)
+        rng = self._time_ranges.get(frame)
+        if rng is None:
+            rng = self.tf.time_range(fixed, frame) or (None, None)
+            self._time_ranges[frame] = rng
+        lo, hi = rng
+        if lo is not None:
+            t = np.clip(t, lo, hi)
+        T = self.tf.lookup_many(fixed, frame, t.astype(np.int64))
+        world = np.einsum("kij,kj->ki", T[:, :3, :3], points) + T[:, :3, 3]
+        inv = np.linalg.inv(pose)
+        return world @ inv[:3, :3].T + inv[:3, 3]
 
     def _decode(self, msg) -> tuple[np.ndarray, float]:
         cfg = self.cfg

@@ -1,0 +1,39 @@
+// octofuse: comparing a map with a reference map, and the voxels that changed between two
+// versions of a map.
+#pragma once
+
+#include "octofuse/occupancy_map.hpp"
+
+#include <array>
+#include <cstddef>
+#include <memory>
+
+namespace octofuse {
+
+/// Voxel classes: occupied (log-odds > occupancy threshold), free, unknown (no node).
+enum VoxelClass : int { kOccupied = 0, kFree = 1, kUnknown = 2 };
+
+/// Statistics of a map against a reference, over finest-level voxels (a coarse leaf counts
+/// for all the voxels below it).
+struct Comparison {
+  /// confusion[reference class][map class], voxel counts
+  std::array<std::array<double, 3>, 3> confusion{};
+  double kl_sum = 0.0;           ///< sum of KL(p_ref || p_map) over voxels the reference knows
+                                 ///< (an unknown map voxel counts as p = 0.5)
+  double both_known = 0.0;       ///< voxels both maps know
+  double overconfident = 0.0;    ///< of those: |l_map| > |l_ref| + tol
+  double abs_diff_sum = 0.0;     ///< sum of |l_map - l_ref| over voxels both know
+};
+
+/// Compares `map` with the reference `ref` (e.g. an agent's map with the centralized map).
+/// `tol` is the over-confidence tolerance in log-odds; `occ_threshold` the occupancy
+/// threshold in log-odds (OctoMap's default: 0).
+Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
+                        double occ_threshold = 0.0);
+
+/// The voxels of `current` that are new or have another value than in `previous`, as a map
+/// (the content of a delta message). Both maps must be compatible.
+std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
+                                             const OccupancyMap& previous);
+
+}  // namespace octofuse

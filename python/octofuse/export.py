@@ -1,0 +1,394 @@
+"""Point-cloud exports: information-loss heat maps and occupancy maps as PLY / PCD files.
+
+Every voxel (tree leaf) becomes one point at its centre, with an RGB colour from a
+matplotlib colour map and its scalars kept as named float32 per-point fields, so the files
+open in Open3D, CloudCompare, MeshLab or PCL and read back into numpy (:func:`read_cloud`).
+A coarse (pruned) leaf is one point; its edge length is in the ``voxel_size`` field.
+
+Both formats are written by Open3D's tensor I/O (``open3d.t.io.write_point_cloud``), binary:
+
+* ``.ply``: ``binary_little_endian 1.0``, vertex properties ``float x y z``,
+  ``uchar red green blue`` and one ``property float NAME`` per field;
+* ``.pcd``: PCD v0.7, ``DATA binary``, ``FIELDS x y z rgb NAME...`` with ``x y z`` and the
+  fields as ``F 4`` and ``rgb`` packed as PCL does (``U 4``: 0x00RRGGBB).
+
+Positions are float32 (what viewers and PCL's point types use): exact to well under a
+millimetre within OctoMap's key range at the usual resolutions.
+
+Files are written to a temporary name in the target folder and renamed, so an existing
+file is never left half-written. A cloud with no points is refused with ``ValueError``:
+neither Open3D's PLY nor its PCD writer stores one, and its PCD reader rejects ``POINTS 0``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+import zipfile
+from pathlib import Path
+from typing import Mapping, NamedTuple
+
+import numpy as np
+
+from .maps import InfoLossMap, Leaves, OccupancyMap
+
+CLOUD_SUFFIXES = (".ply", ".pcd")
+MAP_SUFFIXES = (".ot", ".bt")
+LOSS_SUFFIX = ".npz"
+
+#: per-point names a scalar field may not take: coordinates, colours, normals, the voxel
+#: size, and the attributes that make Open3D treat a cloud as Gaussian splats
+_RESERVED = frozenset({
+    "x", "y", "z", "positions", "colors", "normals", "nx", "ny", "nz", "rgb", "rgba", "red",
+    "green", "blue", "alpha", "voxel_size", "scale", "rot", "opacity", "f_dc", "f_rest",
+})
+_FIELD_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_LOSS_KEYS = ("centers", "sizes", "values", "depths")
+
+
+class ExportResult(NamedTuple):
+    """What :func:`export_map` wrote."""
+
+    path: Path  #: the file written
+    count: int  #: points of a cloud, leaves of a map
+    unit: str  #: "points" or "leaves"
+    content: str  #: a short description of the file
+
+    def __str__(self) -> str:
+        return f"wrote {self.path}: {self.count:,} {self.unit} ({self.content})"
+
+
+# -- writing -----------------------------------------------------------------------------
+def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="inferno",
+                  vmin: float = 0.0, vmax: float | None = None, field: str = "info_loss",
+                  min_value: float | None = None) -> Path:
+    """Write per-voxel information loss as a coloured point cloud and return its path.
+
+    Parameters
+    ----------
+    loss : InfoLossMap or Leaves
+        The loss map (or any leaves: their ``values`` are the scalar written).
+    path : path ending in ``.ply`` or ``.pcd``
+        Both binary, written by Open3D (see the module notes for the exact layout).
+    cmap : str or matplotlib Colormap
+        Colour map over [vmin, vmax]; values outside are clipped to its ends.
+    vmin, vmax : float
+        Colour range. ``vmax`` defaults to the 99th percentile of the values written, so
+        a few outliers don't squeeze every other voxel into the bottom colours; if that
+        percentile is not above ``vmin`` (more than 99 % of the voxels lose nothing, as
+        min-info-loss fusion often gives), the maximum is used instead.
+    field : str
+        Name of the per-point float32 field holding the values (``info_loss``). A
+        ``voxel_size`` field (leaf edge length, metres) is always written too.
+    min_value : float, optional
+        Write only voxels whose value is >= ``min_value`` (e.g. ``1e-9`` to drop the
+        voxels that lost nothing). The default colour range is taken over these.
+
+    Raises ``ValueError`` for another suffix, an unknown colour map, ``vmax < vmin``, a
+    reserved or malformed field name, or when no voxel is left to write.
+    """
+    p = _cloud_path(path)
+    _check_field(field)
+    _colormap(cmap)
+    lv = _as_leaves(loss)
+    values = np.asarray(lv.values, dtype=np.float32).reshape(-1)
+    keep = None if min_value is None else values >= np.float32(min_value)
+    if keep is not None:
+        values = values[keep]
+    if values.size == 0:
+        why = ("the information-loss map is empty" if min_value is None
+               else f"no voxel has {field} >= {min_value:g}")
+        raise ValueError(f"cannot write '{p}': no points to write ({why})")
+    centers = np.asarray(lv.centers, dtype=np.float64).reshape(-1, 3)
+    sizes = np.asarray(lv.sizes, dtype=np.float64).reshape(-1)
+    if keep is not None:
+        centers, sizes = centers[keep], sizes[keep]
+    lo, hi = _color_range(values, vmin, vmax)
+    colors = colorize(values, cmap, lo, hi)
+    return _write_cloud(p, centers, colors, {field: values, "voxel_size": sizes})
+
+
+def write_map_cloud(m: OccupancyMap, path: str | os.PathLike, *, occupied_only: bool = True,
+                    threshold: float = 0.0, cmap="viridis") -> Path:
+    """Write an occupancy map as a point cloud coloured by height and return its path.
+
+    One point per leaf with log-odds > ``threshold`` (``occupied_only=False``: every known
+    leaf, free ones too), coloured by its z over the [min, max] z of the points written,
+    with float32 fields ``log_odds``, ``probability`` (of occupancy) and ``voxel_size``.
+    ``.ply`` or ``.pcd`` as for :func:`write_heatmap`; ``ValueError`` when there is
+    nothing to write.
+    """
+    return _write_map_cloud(m, path, occupied_only, threshold, cmap)[0]
+
+
+def _write_map_cloud(m, path, occupied_only, threshold, cmap) -> tuple[Path, int]:
+    p = _cloud_path(path)
+    if not isinstance(m, OccupancyMap):
+        raise TypeError(f"write_map_cloud expects an OccupancyMap, got {type(m).__name__}")
+    _colormap(cmap)
+    lv = m.leaves()
+    logodds = np.asarray(lv.values, dtype=np.float32)
+    centers, sizes = lv.centers, lv.sizes
+    if occupied_only:
+        keep = logodds > np.float32(threshold)
+        logodds, centers, sizes = logodds[keep], centers[keep], sizes[keep]
+    if logodds.size == 0:
+        why = ("the map is empty" if m.num_leaves == 0 or not occupied_only
+               else f"no voxel has log-odds > {threshold:g}")
+        raise ValueError(f"cannot write '{p}': no points to write ({why})")
+    prob = 1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))
+    z = centers[:, 2]
+    colors = colorize(z, cmap, float(z.min()), float(z.max()))
+    path = _write_cloud(p, centers, colors,
+                        {"log_odds": logodds, "probability": prob, "voxel_size": sizes})
+    return path, len(logodds)
+
+
+def colorize(values, cmap, vmin: float, vmax: float) -> np.ndarray:
+    """RGB colours (N, 3) uint8 of ``values`` through a colour map over [vmin, vmax].
+
+    Values are clipped to the range; if ``vmax == vmin`` every value above it takes the top
+    colour and the rest the bottom one. NaN takes the map's "bad" colour.
+    """
+    cm = _colormap(cmap)
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if vmax > vmin:
+        t = np.clip((v - vmin) / (vmax - vmin), 0.0, 1.0)
+    else:
+        t = np.where(np.isnan(v), np.nan, (v > vmin).astype(np.float64))
+    return np.ascontiguousarray(cm(t, bytes=True)[:, :3])
+
+
+# -- reading -----------------------------------------------------------------------------
+def read_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a ``.ply`` or ``.pcd`` point cloud into numpy arrays.
+
+    Returns ``positions`` (N, 3), ``colors`` (N, 3) as floats in [0, 1] (when the file has
+    colours) and every other per-point field by name, one-column fields as 1-D arrays, in
+    the file's own dtypes (float32 for the files this module writes). Raises
+    ``FileNotFoundError`` for a missing file and ``OSError`` for one Open3D cannot read.
+    """
+    p = _cloud_path(path, verb="read")
+    if not p.exists():
+        raise FileNotFoundError(f"point cloud '{p}' does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"point cloud '{p}' is a directory")
+    if p.suffix == ".ply":
+        _check_ply_length(p)
+    o3d = _open3d()
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        pcd = o3d.t.io.read_point_cloud(str(p))
+    names = set(pcd.point)
+    if "positions" not in names:
+        raise OSError(f"cannot read point cloud '{p}': not a valid {p.suffix} file")
+    out = {"positions": pcd.point["positions"].numpy()}
+    if "colors" in names:
+        c = pcd.point["colors"].numpy()
+        if np.issubdtype(c.dtype, np.integer):
+            c = c.astype(np.float32) / np.float32(np.iinfo(c.dtype).max)
+        out["colors"] = c
+    for name in sorted(names - {"positions", "colors"}):
+        a = pcd.point[name].numpy()
+        out[name] = a.reshape(-1) if a.ndim == 2 and a.shape[1] == 1 else a
+    return out
+
+
+def read_info_loss(path: str | os.PathLike) -> Leaves:
+    """Read an information-loss ``.npz`` as written by :meth:`InfoLossMap.save`.
+
+    Raises ``FileNotFoundError`` for a missing file and ``OSError`` naming the file for one
+    that is not such an archive (not a zip, missing arrays, mismatched lengths).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"information-loss file '{p}' does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"information-loss file '{p}' is a directory")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            if not hasattr(z, "files"):
+                raise ValueError("a single array, not an .npz archive")
+            missing = [k for k in _LOSS_KEYS if k not in z.files]
+            if missing:
+                raise ValueError(f"missing arrays {', '.join(missing)}")
+            lv = Leaves(np.asarray(z["centers"], dtype=np.float64),
+                        np.asarray(z["sizes"], dtype=np.float64),
+                        np.asarray(z["values"], dtype=np.float32),
+                        np.asarray(z["depths"], dtype=np.uint8))
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise OSError(f"cannot read information-loss file '{p}': {e}") from None
+    n = len(lv.values)
+    if (lv.centers.shape != (n, 3) or lv.sizes.shape != (n,) or lv.values.shape != (n,)
+            or lv.depths.shape != (n,)):
+        raise OSError(f"cannot read information-loss file '{p}': arrays of mismatched shapes "
+                      f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
+                      f"values {lv.values.shape}, depths {lv.depths.shape})")
+    return lv
+
+
+# -- the `octofuse export` command -------------------------------------------------------
+def export_map(src_path: str | os.PathLike, out_path: str | os.PathLike, *,
+               occupied_only: bool = True, threshold: float = 0.0,
+               cmap: str | None = None) -> ExportResult:
+    """Convert a map or an information-loss file; what ``octofuse export`` runs.
+
+    ``src_path``: an OctoMap file (``.ot``/``.bt``) or an information-loss ``.npz``.
+    ``out_path``: ``.ply``/``.pcd`` writes a map cloud (:func:`write_map_cloud`, with
+    ``occupied_only`` and ``threshold``) or, for a loss file, a heat map
+    (:func:`write_heatmap`; ``occupied_only`` and ``threshold`` don't apply); ``.ot``/``.bt``
+    converts a map (``.bt`` keeps only free/occupied, see :meth:`OccupancyMap.save`).
+    ``cmap`` defaults to viridis for maps and inferno for heat maps.
+
+    Raises ``ValueError`` for unknown suffixes or a loss file to ``.ot``/``.bt``, and
+    ``OSError`` (``FileNotFoundError``, ``MapFileError``) for missing or unreadable input.
+    """
+    src, out = Path(src_path), Path(out_path)
+    out_suffix, src_suffix = out.suffix, src.suffix
+    if out_suffix not in CLOUD_SUFFIXES + MAP_SUFFIXES:
+        raise ValueError(f"cannot export to '{out}': expected a point cloud "
+                         f"({', '.join(CLOUD_SUFFIXES)}) or a map ({', '.join(MAP_SUFFIXES)})")
+    if src_suffix == LOSS_SUFFIX:
+        if out_suffix in MAP_SUFFIXES:
+            raise ValueError(f"cannot convert the information-loss file '{src}' to '{out}': "
+                             f"it is not an occupancy map; write a .ply or .pcd heat map")
+        lv = read_info_loss(src)
+        path = write_heatmap(lv, out, cmap=cmap or "inferno")
+        return ExportResult(path, len(lv.values), "points", "information-loss heat map")
+    if src_suffix not in MAP_SUFFIXES:
+        raise ValueError(f"cannot export '{src}': expected a map ({', '.join(MAP_SUFFIXES)}) "
+                         f"or an information-loss file ({LOSS_SUFFIX})")
+    m = OccupancyMap.load(src)
+    if out_suffix in MAP_SUFFIXES:
+        path = m.save(out)
+        kind = ("OctoMap .bt: free/occupied only" if out_suffix == ".bt"
+                else "OctoMap .ot: full log-odds")
+        return ExportResult(path, m.num_leaves, "leaves", kind)
+    path, n = _write_map_cloud(m, out, occupied_only, threshold, cmap or "viridis")
+    what = "occupied voxels" if occupied_only else "all known voxels"
+    return ExportResult(path, n, "points", f"{what} coloured by height")
+
+
+# -- helpers -----------------------------------------------------------------------------
+def _open3d():
+    import open3d  # slow (about a second): imported only when a cloud is written or read
+
+    return open3d
+
+
+def _colormap(cmap):
+    import matplotlib
+
+    if not isinstance(cmap, str):
+        if callable(cmap) and hasattr(cmap, "N"):
+            return cmap
+        raise TypeError(f"cmap must be a colour map name or a matplotlib Colormap, got {cmap!r}")
+    try:
+        return matplotlib.colormaps[cmap]
+    except KeyError:
+        raise ValueError(f"unknown colour map {cmap!r}: expected a matplotlib colour map name "
+                         f"such as viridis, inferno, magma, plasma, cividis or turbo") from None
+
+
+def _color_range(values: np.ndarray, vmin: float, vmax: float | None) -> tuple[float, float]:
+    vmin = float(vmin)
+    if vmax is None:
+        finite = values[np.isfinite(values)]
+        if finite.size == 0:
+            return vmin, vmin
+        vmax = float(np.percentile(finite, 99))
+        if not vmax > vmin:
+            vmax = float(finite.max())
+        return vmin, max(vmax, vmin)
+    vmax = float(vmax)
+    if vmax < vmin:
+        raise ValueError(f"colour range vmin={vmin:g} > vmax={vmax:g}")
+    return vmin, vmax
+
+
+def _check_field(name: str) -> None:
+    if not isinstance(name, str) or not _FIELD_NAME.match(name):
+        raise ValueError(f"field name {name!r}: expected letters, digits and underscores")
+    if name in _RESERVED:
+        raise ValueError(f"field name {name!r} is reserved (coordinates, colours, voxel_size "
+                         f"and Open3D's Gaussian-splat attributes)")
+
+
+def _as_leaves(loss) -> Leaves:
+    if isinstance(loss, InfoLossMap):
+        return loss.leaves()
+    if isinstance(loss, Leaves):
+        return loss
+    raise TypeError(f"expected an InfoLossMap or Leaves, got {type(loss).__name__}")
+
+
+def _cloud_path(path, verb: str = "write") -> Path:
+    p = Path(path)
+    if p.suffix not in CLOUD_SUFFIXES:
+        raise ValueError(f"cannot {verb} point cloud '{p}': expected a file name ending in "
+                         f"{' or '.join(CLOUD_SUFFIXES)}")
+    return p
+
+
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2,
+              "ushort": 2, "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4,
+              "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_ply_length(p: Path) -> None:
+    """Refuse a truncated binary PLY (Open3D's reader fills the missing points silently)."""
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return  # Open3D's reader reports it
+    body = head[:end].decode("ascii", "replace").splitlines()
+    if not any(line.startswith("format binary") for line in body):
+        return
+    need, count = 0, 0
+    for line in body:
+        w = line.split()
+        if w and w[0] == "element" and len(w) == 3:
+            count = int(w[2]) if w[2].isdigit() else 0
+        elif w and w[0] == "property":
+            if len(w) != 3 or w[1] not in _PLY_SIZES:
+                return  # list properties: no fixed record size
+            need += count * _PLY_SIZES[w[1]]
+    nl = head.find(b"\n", end)
+    data_start = (nl + 1) if nl >= 0 else len(head)
+    have = p.stat().st_size - data_start
+    if have < need:
+        raise OSError(f"cannot read point cloud '{p}': truncated ({have:,} of {need:,} data "
+                      f"bytes)")
+
+
+def _write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
+                 fields: Mapping[str, np.ndarray]) -> Path:
+    """Write one binary cloud through a temporary file in the same folder."""
+    folder = p.parent
+    if not folder.is_dir():
+        raise FileNotFoundError(f"cannot write '{p}': folder '{folder}' does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"cannot write '{p}': it is a directory")
+    o3d = _open3d()
+    o3c = o3d.core
+    n = len(centers)
+    pcd = o3d.t.geometry.PointCloud()
+    pcd.point["positions"] = o3c.Tensor.from_numpy(
+        np.ascontiguousarray(centers, dtype=np.float32).reshape(n, 3))
+    pcd.point["colors"] = o3c.Tensor.from_numpy(np.ascontiguousarray(colors, dtype=np.uint8))
+    for name, values in fields.items():
+        pcd.point[name] = o3c.Tensor.from_numpy(
+            np.ascontiguousarray(values, dtype=np.float32).reshape(n, 1))
+    # the writer picks the format from the suffix, so the temporary name keeps it
+    tmp = folder / f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp{p.suffix}"
+    try:
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            ok = o3d.t.io.write_point_cloud(str(tmp), pcd, write_ascii=False, compressed=False,
+                                            print_progress=False)
+        if not ok:
+            raise OSError(f"could not write point cloud '{p}' (is the folder writable?)")
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return p

@@ -1,0 +1,91 @@
+"""Scoring maps against the centralized map (and the ground truth, where there is one)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Optional
+
+import numpy as np
+
+from . import _core
+from .maps import InfoLossMap, OccupancyMap
+
+
+@dataclass
+class Score:
+    """How close one agent's map is to the centralized map."""
+
+    kl_mean: float  #: mean KL(central || agent) over voxels the centralized map knows, nats
+    agreement: float  #: fraction of those voxels with the same class (occupied/free/unknown)
+    agreement_occupied: float  #: of the centralized map's occupied voxels, fraction occupied
+    agreement_free: float  #: of its free voxels, fraction free
+    overconfidence: float  #: of voxels both know, fraction where |l_agent| > |l_central| + tol
+    coverage: float  #: fraction of the centralized map's voxels the agent knows
+    mean_abs_logodds_error: float  #: mean |l_agent - l_central| over voxels both know
+    loss_mean: Optional[float] = None  #: mean accumulated information loss, nats per voxel
+    loss_p95: Optional[float] = None  #: its 95th percentile
+    bytes_sent: Optional[int] = None
+    bytes_received: Optional[int] = None
+    bytes_sent_32b: Optional[int] = None  #: the same messages at 32 bytes per voxel
+    occupied_accuracy: Optional[float] = None  #: occupied voxels on a true surface (ground truth)
+    voxels: Optional[float] = None  #: finest voxels the centralized map knows
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
+    if len(values) == 0:
+        return float("nan")
+    order = np.argsort(values)
+    v, w = values[order], weights[order]
+    cw = np.cumsum(w)
+    return float(v[min(np.searchsorted(cw, q / 100.0 * cw[-1]), len(v) - 1)])
+
+
+def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
+    """Mean and 95th percentile of a loss map over its finest voxels."""
+    lv = loss.leaves()
+    if len(lv.values) == 0:
+        return 0.0, 0.0
+    w = np.power(8.0, 16 - lv.depths.astype(np.float64))
+    v = lv.values.astype(np.float64)
+    return float(np.sum(w * v) / np.sum(w)), weighted_percentile(v, w, 95.0)
+
+
+def compare(central: OccupancyMap, agent: OccupancyMap, tol: float = 0.1) -> Score:
+    """Score ``agent`` against ``central`` over finest-level voxels."""
+    d = _core._compare_maps(central._m, agent._m, float(tol), 0.0)
+    c = np.array(d["confusion"])  # [central class][agent class]; 0 occ, 1 free, 2 unknown
+    known = c[0].sum() + c[1].sum()
+    both = d["both_known"]
+
+    def ratio(a, b):
+        return float(a / b) if b > 0 else float("nan")
+
+    return Score(
+        kl_mean=ratio(d["kl_sum"], known),
+        agreement=ratio(c[0, 0] + c[1, 1], known),
+        agreement_occupied=ratio(c[0, 0], c[0].sum()),
+        agreement_free=ratio(c[1, 1], c[1].sum()),
+        overconfidence=ratio(d["overconfident"], both),
+        coverage=ratio(c[0, 0] + c[0, 1] + c[1, 0] + c[1, 1], known),
+        mean_abs_logodds_error=ratio(d["abs_diff_sum"], both),
+        voxels=float(known),
+    )
+
+
+def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
+          loss: Optional[InfoLossMap] = None, truth=None, bytes_sent: Optional[int] = None,
+          bytes_received: Optional[int] = None, bytes_sent_32b: Optional[int] = None) -> Score:
+    """Every metric of one agent: :func:`compare`, the loss statistics, traffic and the
+    occupied-voxel accuracy against a :class:`~octofuse.scene.Scene`."""
+    s = compare(central, agent, tol)
+    if loss is not None:
+        s.loss_mean, s.loss_p95 = loss_stats(loss)
+    s.bytes_sent, s.bytes_received, s.bytes_sent_32b = bytes_sent, bytes_received, bytes_sent_32b
+    if truth is not None:
+        lv = agent.leaves()
+        occ = lv.values > 0
+        s.occupied_accuracy = truth.occupied_accuracy(lv.centers[occ], agent.resolution)
+    return s

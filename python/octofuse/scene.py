@@ -1,0 +1,62 @@
+"""Ground truth of a simulated scene (axis-aligned boxes) for scoring map accuracy."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class Scene:
+    """Boxes (B, 2, 3): min and max corners, with their names and kinds."""
+
+    boxes: np.ndarray
+    names: list[str]
+    kinds: list[str]
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Scene":
+        p = Path(path)
+        try:
+            data = json.loads(p.read_text())
+            boxes = np.array([[b["min"], b["max"]] for b in data["boxes"]], dtype=float)
+            return cls(boxes, [b.get("name", "") for b in data["boxes"]],
+                       [b.get("kind", "") for b in data["boxes"]])
+        except FileNotFoundError:
+            raise FileNotFoundError(f"scene file '{p}' does not exist") from None
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"scene file '{p}' is not a scene description "
+                             f"(expected boxes with min/max corners): {e}") from None
+
+    @staticmethod
+    def beside(bag: str | Path) -> Path | None:
+        """The ground-truth file shipped beside a bag (``NAME_scene.json``), if any."""
+        p = Path(bag)
+        cand = p.with_name(p.stem + "_scene.json")
+        return cand if cand.is_file() else None
+
+    def signed_distance(self, points: np.ndarray, chunk: int = 200_000) -> np.ndarray:
+        """Distance to the nearest box surface; negative inside a box."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        out = np.empty(len(pts))
+        lo, hi = self.boxes[:, 0], self.boxes[:, 1]
+        for s in range(0, len(pts), chunk):
+            p = pts[s:s + chunk, None, :]
+            d_out = np.maximum(np.maximum(lo - p, p - hi), 0.0)
+            outside = np.linalg.norm(d_out, axis=2)
+            inside = -np.min(np.minimum(p - lo, hi - p), axis=2)
+            d = np.where(outside > 0, outside, inside)
+            # inside one box but near another's surface: the smallest magnitude wins
+            out[s:s + chunk] = d[np.arange(len(d)), np.argmin(np.abs(d), axis=1)]
+        return out
+
+    def occupied_accuracy(self, centers: np.ndarray, voxel_size: float, noise: float = 0.03) -> float:
+        """Fraction of occupied voxel centres within a voxel half-diagonal (+ range noise)
+        of a true surface."""
+        if len(centers) == 0:
+            return float("nan")
+        tol = voxel_size * np.sqrt(3) / 2 + noise
+        return float(np.mean(np.abs(self.signed_distance(centers)) <= tol))
