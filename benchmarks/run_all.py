@@ -1,0 +1,165 @@
+"""Run every octofuse benchmark and print one table (``make bench``).
+
+1. Builds the C++ benchmark (CMake, Release) into build/bench if it is missing or out of date.
+2. Runs it twice: maps with sensor-model values (as built from scans) and maps with continuous
+   values (as after earlier fusions, no repeated pairs of values).
+3. Runs benchmarks/rules_throughput.py (the per-voxel rules on numpy arrays).
+4. Prints the figures with the targets, and writes them to build/bench/results.json.
+
+    .venv/bin/python benchmarks/run_all.py [--repeats N] [--pairs N] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+BUILD = ROOT / "build" / "bench"
+EXE = BUILD / "benchmarks" / "octofuse_bench_fuse_trees"
+
+sys.path.insert(0, str(HERE))
+import rules_throughput  # noqa: E402
+
+CLOSED_FORM = ("bhattacharyya", "min-entropy", "chernoff", "min-info-loss")
+WEIGHTED = ("entropy-weighted-chernoff", "kld-weighted-chernoff")
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def build() -> None:
+    jobs = str(os.cpu_count() or 2)
+    if not (BUILD / "CMakeCache.txt").exists():
+        log(f"configuring the C++ benchmark in {BUILD.relative_to(ROOT)} (Release)")
+        subprocess.run(["cmake", "-S", str(ROOT), "-B", str(BUILD), "-DOCTOFUSE_BUILD_BENCHMARKS=ON",
+                        "-DCMAKE_BUILD_TYPE=Release"], check=True, stdout=subprocess.DEVNULL)
+    log("building the C++ benchmark (if out of date)")
+    subprocess.run(["cmake", "--build", str(BUILD), "-j", jobs, "--target", "octofuse_bench_fuse_trees"],
+                   check=True, stdout=subprocess.DEVNULL)
+
+
+def run_trees(values: str, repeats: int, scale: float) -> dict:
+    out = BUILD / f"fuse_trees_{values}.json"
+    log(f"running the tree benchmark ({values} values, {repeats} runs per method)")
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(EXE), "--repeats", str(repeats), "--scale", str(scale), "--values", values,
+                           "--json", str(out)], text=True, capture_output=True)
+    if proc.returncode not in (0, 1) or not out.exists():
+        sys.stderr.write(proc.stdout + proc.stderr)
+        raise SystemExit(f"the tree benchmark failed (exit code {proc.returncode})")
+    log(f"  done in {time.perf_counter() - t0:.0f} s")
+    res = json.loads(out.read_text())
+    res["stdout"] = proc.stdout
+    return res
+
+
+def fmt_rate(x: float) -> str:
+    return f"{x / 1e6:,.1f} M"
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "MISSED"
+
+
+def report(trees: dict[str, dict], rules: dict) -> tuple[str, dict]:
+    lines: list[str] = []
+    p = lines.append
+    s = trees["sensor"]
+    p("octofuse benchmarks")
+    p(f"machine: {s['hardware_threads']} hardware threads, {s['memory']} memory; every benchmarked "
+      "code path is single-threaded (one core)")
+    p("")
+    p("1. Tree fusion: two overlapping maps, every rule (unknown = copy) beside OctoMap's updateNode merge")
+    p(f"   map a: {s['leaves_a']:,} leaves, map b: {s['leaves_b']:,} leaves "
+      f"({100 * s['finest_leaves_a'] / s['leaves_a']:.1f}% / {100 * s['finest_leaves_b'] / s['leaves_b']:.1f}% "
+      "at the finest level); node layout as read from a map file")
+    p(f"   voxels = leaf pairs walked = {s['voxels']:,} ({s['voxels_both']:,} known to both maps); "
+      f"median of {s['repeats']} runs")
+    same = all(t["same_result_eager"] and t["same_result_lazy"] for t in trees.values())
+    p(f"   octofuse naive-bayes gives the same map as the updateNode merges (all finest-level voxels "
+      f"compared): {'yes' if same else 'NO'}")
+    p("")
+    head = f"   {'method':44s} {'sensor-model values':>27s} {'continuous values':>27s}"
+    p(head)
+    p(f"   {'':44s} {'voxels/s':>13s} {'time / NB':>13s} {'voxels/s':>13s} {'time / NB':>13s}")
+    cont = trees["continuous"]
+    for rs, rc in zip(s["rows"], cont["rows"]):
+        p(f"   {rs['name']:44s} {fmt_rate(rs['voxels_per_s']):>13s} {rs['vs_naive_bayes']:13.2f} "
+          f"{fmt_rate(rc['voxels_per_s']):>13s} {rc['vs_naive_bayes']:13.2f}")
+    p("")
+    nb_s = next(r["median_s"] for r in s["rows"] if r["name"] == "octofuse naive-bayes")
+    merge_s = next(r["median_s"] for r in s["rows"] if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false"))
+    p(f"   allocation floor: OctoMap's own deep copy of the naive-bayes result ({s['result_nodes']:,} nodes, "
+      f"one heap allocation each) takes {s['copy_result_s'] * 1e3:.0f} ms, octofuse naive-bayes "
+      f"{nb_s * 1e3:.0f} ms, the updateNode merge {merge_s * 1e3:.0f} ms "
+      f"({merge_s / s['copy_result_s']:.1f}x the copy)")
+    p("")
+    rows = {r["name"]: r for r in s["rows"]}
+    rows_c = {r["name"]: r for r in cont["rows"]}
+    merge = "OctoMap updateNode merge (lazy_eval=false)"
+    nb_ratio = rows[merge]["vs_naive_bayes"]
+    nb_ratio_c = rows_c[merge]["vs_naive_bayes"]
+    checks = {}  # name -> (met on the main trees, figure, met with continuous values or None)
+    checks["naive-bayes >= 10x the updateNode merge"] = (
+        nb_ratio >= 10.0, f"{nb_ratio:.1f}x / {nb_ratio_c:.1f}x", nb_ratio_c >= 10.0)
+    for rule in CLOSED_FORM:
+        r1, r2 = rows[f"octofuse {rule}"]["vs_naive_bayes"], rows_c[f"octofuse {rule}"]["vs_naive_bayes"]
+        checks[f"{rule} within 1.5x of naive-bayes"] = (r1 <= 1.5, f"{r1:.2f}x / {r2:.2f}x", r2 <= 1.5)
+    for rule in WEIGHTED:
+        r1, r2 = rows[f"octofuse {rule}"]["vs_naive_bayes"], rows_c[f"octofuse {rule}"]["vs_naive_bayes"]
+        checks[f"{rule} within 4x of naive-bayes"] = (r1 <= 4.0, f"{r1:.2f}x / {r2:.2f}x", r2 <= 4.0)
+
+    p(f"2. Per-voxel rules on arrays: octofuse.fuse_logodds on {rules['pairs']:,} random log-odds pairs "
+      f"(single-threaded kernel), median of {rules['repeats']} runs")
+    nb_s = rules["rules"]["naive-bayes"]["median_s"]
+    p(f"   {'method':40s} {'pairs/s':>12s} {'time / numpy add':>17s} {'time / NB':>10s}")
+    p(f"   {'numpy l_a + l_b':40s} {fmt_rate(rules['numpy_add_pairs_per_s']):>12s} {1.0:17.2f} "
+      f"{rules['numpy_add_s'] / nb_s:10.2f}")
+    for rule, r in rules["rules"].items():
+        p(f"   {'fuse_logodds ' + rule:40s} {fmt_rate(r['pairs_per_s']):>12s} "
+          f"{r['median_s'] / rules['numpy_add_s']:17.2f} {r['median_s'] / nb_s:10.2f}")
+        if rule in CLOSED_FORM:
+            checks[f"array {rule} >= 20 M pairs/s"] = (r["pairs_per_s"] >= 20e6, fmt_rate(r["pairs_per_s"]), None)
+    p("")
+    p("3. Targets: verdict on the main trees (sensor-model values) [and with continuous values];")
+    p("   figures: sensor-model values / continuous values")
+    for name, (ok, fig, ok_c) in checks.items():
+        extra = "" if ok_c is None else f"[{verdict(ok_c)}]"
+        p(f"   {verdict(ok):7s} {extra:9s} {name:52s} {fig}")
+    summary = {"trees": {k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in trees.items()},
+               "rules": rules,
+               "targets": {k: {"met": ok, "met_continuous_values": ok_c, "figure": fig}
+                           for k, (ok, fig, ok_c) in checks.items()}}
+    return "\n".join(lines), summary
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5, help="timed runs per method (median reported)")
+    ap.add_argument("--pairs", type=int, default=10_000_000, help="pairs for the array benchmark")
+    ap.add_argument("--quick", action="store_true", help="small inputs, for a smoke test of the scripts")
+    args = ap.parse_args(argv)
+    scale = 1.0
+    if args.quick:
+        args.repeats, args.pairs, scale = 1, 200_000, 0.25
+    build()
+    trees = {v: run_trees(v, args.repeats, scale) for v in ("sensor", "continuous")}
+    log(f"running the array benchmark ({args.pairs:,} pairs, {args.repeats} runs per rule)")
+    rules = rules_throughput.run(args.pairs, args.repeats)
+    text, summary = report(trees, rules)
+    print(text)
+    (BUILD / "results.json").write_text(json.dumps(summary, indent=2))
+    log(f"figures written to {(BUILD / 'results.json').relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
