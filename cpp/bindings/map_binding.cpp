@@ -3,6 +3,7 @@
 
 #include "octofuse/compare.hpp"
 #include "octofuse/fuse.hpp"
+#include "octofuse/fuse_into.hpp"
 #include "octofuse/insert.hpp"
 #include "octofuse/tree_access.hpp"
 
@@ -80,7 +81,7 @@ void define_maps(py::module_& m) {
           throw py::value_error("cannot accumulate trees of different resolutions");
         }
         py::gil_scoped_release release;
-        accumulate(self, other);
+        accumulate_loss(self, other);
       })
       .def("copy", [](const ScalarTree& t) { return std::make_unique<ScalarTree>(t); });
 
@@ -116,7 +117,10 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         return std::make_unique<OccupancyMap>(self);
       })
-      .def_property_readonly("num_leaves", &OccupancyMap::num_leaves)
+      .def_property_readonly("num_leaves", [](const OccupancyMap& s) {
+        py::gil_scoped_release release;  // counting walks the tree
+        return s.num_leaves();
+      })
       .def_property_readonly("num_nodes", &OccupancyMap::num_nodes)
       .def_property_readonly("memory_bytes", &OccupancyMap::memory_bytes)
       .def_property_readonly("resolution", [](const OccupancyMap& s) { return s.params().resolution; })
@@ -198,6 +202,46 @@ void define_maps(py::module_& m) {
     py::gil_scoped_release release;
     return changed_voxels(cur, prev);
   });
+
+  m.def(
+      "_fuse_into",
+      [](OccupancyMap& dst, const OccupancyMap& msg, int rule, int unknown, ScalarTree* loss) {
+        if (rule < 0 || rule >= kNumRules) throw py::value_error("invalid rule index");
+        if (unknown < 0 || unknown > 1) throw py::value_error("invalid unknown policy");
+        if (&dst == &msg) throw py::value_error("cannot fuse a map into itself in place");
+        check_compatible(dst, msg);
+        if (loss != nullptr &&
+            std::fabs(loss->getResolution() - dst.params().resolution) > 1e-9 * dst.params().resolution) {
+          throw py::value_error("information-loss map has another resolution than the map");
+        }
+        FuseIntoStats st;
+        {
+          py::gil_scoped_release release;
+          st = fuse_into(dst, msg, static_cast<Rule>(rule), static_cast<UnknownPolicy>(unknown), loss);
+        }
+        return py::make_tuple(st.fused, st.copied);
+      },
+      py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"), py::arg("loss").none(true));
+
+  m.def(
+      "_fuse_mutual",
+      [](OccupancyMap& a, OccupancyMap& b, int rule, int unknown, ScalarTree* loss_a,
+         ScalarTree* loss_b) {
+        if (rule < 0 || rule >= kNumRules) throw py::value_error("invalid rule index");
+        if (unknown < 0 || unknown > 1) throw py::value_error("invalid unknown policy");
+        if (&a == &b) throw py::value_error("cannot exchange a map with itself");
+        if (loss_a != nullptr && loss_a == loss_b) throw py::value_error("the two loss maps must differ");
+        check_compatible(a, b);
+        std::pair<FuseIntoStats, FuseIntoStats> st;
+        {
+          py::gil_scoped_release release;
+          st = fuse_mutual(a, b, static_cast<Rule>(rule), static_cast<UnknownPolicy>(unknown),
+                           loss_a, loss_b);
+        }
+        return py::make_tuple(st.first.fused, st.first.copied, st.second.fused, st.second.copied);
+      },
+      py::arg("a"), py::arg("b"), py::arg("rule"), py::arg("unknown"), py::arg("loss_a").none(true),
+      py::arg("loss_b").none(true));
 
   m.def("_check_compatible", [](const OccupancyMap& a, const OccupancyMap& b) {
     check_compatible(a, b);

@@ -7,7 +7,7 @@ baselines, applied to whole OctoMap trees by a compiled C++ core.
 
 from __future__ import annotations
 
-from .maps import InfoLossMap, Leaves, MapFileError, MapFusion, OccupancyMap, fuse_maps
+from .maps import InfoLossMap, Leaves, MapFileError, MapFusion, OccupancyMap, fuse_into, fuse_maps
 from .rules import RULES, WEP_RULES, BernoulliFusion, LogOddsFusion, fuse_bernoulli, fuse_logodds
 
 __version__ = "0.1.0"
@@ -24,5 +24,6 @@ __all__ = [
     "OccupancyMap",
     "fuse_bernoulli",
     "fuse_logodds",
+    "fuse_into",
     "fuse_maps",
 ]

@@ -255,6 +255,48 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, fused, copied))
 
 
+def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
+              unknown: str = "copy", loss: InfoLossMap | None = None) -> InfoLossMap | None:
+    """Fuse ``msg`` into ``dst`` in place (the result equals ``fuse_maps(dst, msg)``).
+
+    With ``unknown="copy"`` the work is proportional to the message, not to ``dst``: this is
+    how an agent fuses each received map (or delta) into its own. The information loss of
+    the fused voxels is added into ``loss`` (in place) if given; returns ``loss``.
+    """
+    if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
+        raise TypeError("fuse_into expects two OccupancyMap objects")
+    idx = rule_index(rule)
+    if unknown not in _UNKNOWN_POLICIES:
+        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
+    fused, copied = _core._fuse_into(dst._m, msg._m, idx, _UNKNOWN_POLICIES.index(unknown),
+                                     None if loss is None else loss._t)
+    if loss is not None:
+        loss.voxels_fused += fused
+        loss.voxels_copied += copied
+    return loss
+
+
+def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
+                  unknown: str = "copy", loss_a: InfoLossMap | None = None,
+                  loss_b: InfoLossMap | None = None) -> None:
+    """A simultaneous two-way exchange, in place: ``a`` fuses ``b`` and ``b`` fuses ``a``
+    (each as it was before), in one walk and without copying either map. Equal to
+    ``fuse_into(a, b0)`` and ``fuse_into(b, a0)``. Losses are added into ``loss_a``/``loss_b``.
+    """
+    if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
+        raise TypeError("exchange_maps expects two OccupancyMap objects")
+    idx = rule_index(rule)
+    if unknown not in _UNKNOWN_POLICIES:
+        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
+    fa, ca, fb, cb = _core._fuse_mutual(a._m, b._m, idx, _UNKNOWN_POLICIES.index(unknown),
+                                        None if loss_a is None else loss_a._t,
+                                        None if loss_b is None else loss_b._t)
+    for loss, f, c in ((loss_a, fa, ca), (loss_b, fb, cb)):
+        if loss is not None:
+            loss.voxels_fused += f
+            loss.voxels_copied += c
+
+
 def _points(points) -> np.ndarray:
     pts = np.asarray(points)
     if pts.dtype not in (np.float32, np.float64):

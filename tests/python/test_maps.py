@@ -235,3 +235,52 @@ def test_info_loss_accumulates_and_saves(pair, tmp_path):
     p = acc.save(tmp_path / "loss.npz")
     with np.load(p) as z:
         np.testing.assert_array_equal(z["values"], acc.leaves().values)
+
+
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+@pytest.mark.parametrize("rule", ["naive-bayes", "chernoff", "min-info-loss",
+                                  "kld-weighted-chernoff"])
+def test_in_place_fusion_equals_tree_fusion(pair, rule, unknown):
+    a, b = pair
+    for dst, msg in [(a.copy(), b), (b.copy(), a)]:
+        ref, ref_loss = fuse_maps(dst, msg, rule=rule, unknown=unknown)
+        known_both = expand(dst.leaves(), 0.1).keys() & expand(msg.leaves(), 0.1).keys()
+        loss = octofuse.InfoLossMap(dst.resolution)
+        octofuse.fuse_into(dst, msg, rule=rule, unknown=unknown, loss=loss)
+        assert expand(dst.leaves(), 0.1) == expand(ref.leaves(), 0.1)
+        want_loss = expand(ref_loss.leaves(), 0.1)
+        if unknown == "copy":  # copied voxels were not fused: they have no loss entry
+            want_loss = {k: v for k, v in want_loss.items() if k in known_both}
+        assert expand(loss.leaves(), 0.1) == want_loss
+
+
+def test_in_place_fusion_accumulates_loss_over_messages(pair):
+    a, b = pair
+    dst, loss = a.copy(), octofuse.InfoLossMap(a.resolution)
+    octofuse.fuse_into(dst, b, rule="chernoff", loss=loss)
+    first = expand(loss.leaves(), 0.1)
+    octofuse.fuse_into(dst, b, rule="chernoff", loss=loss)
+    second = expand(loss.leaves(), 0.1)
+    # the voxels b alone knew were copied by the first fusion and are fused by the second
+    assert first.keys() < second.keys()
+    assert all(second[k] >= first[k] for k in first)
+    assert sum(second.values()) > sum(first.values())
+    with pytest.raises(ValueError, match="into itself"):
+        octofuse.fuse_into(dst, dst)
+
+
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+@pytest.mark.parametrize("rule", ["chernoff", "min-entropy", "naive-bayes"])
+def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unknown):
+    a, b = pair
+    ra, rb = a.copy(), b.copy()
+    la_ref, lb_ref = octofuse.InfoLossMap(0.1), octofuse.InfoLossMap(0.1)
+    octofuse.fuse_into(ra, b, rule, unknown, la_ref)
+    octofuse.fuse_into(rb, a, rule, unknown, lb_ref)
+    xa, xb = a.copy(), b.copy()
+    la, lb = octofuse.InfoLossMap(0.1), octofuse.InfoLossMap(0.1)
+    octofuse.maps.exchange_maps(xa, xb, rule, unknown, la, lb)
+    assert expand(xa.leaves(), 0.1) == expand(ra.leaves(), 0.1)
+    assert expand(xb.leaves(), 0.1) == expand(rb.leaves(), 0.1)
+    assert expand(la.leaves(), 0.1) == expand(la_ref.leaves(), 0.1)
+    assert expand(lb.leaves(), 0.1) == expand(lb_ref.leaves(), 0.1)

@@ -1,0 +1,35 @@
+// octofuse: in-place fusion of a received map into an agent's own map.
+#pragma once
+
+#include "octofuse/fuse.hpp"
+
+#include <utility>
+
+namespace octofuse {
+
+/// Counts of an in-place fusion.
+struct FuseIntoStats {
+  std::size_t fused = 0;   ///< leaves where both maps had a value
+  std::size_t copied = 0;  ///< leaves known only to the message and copied (policy Copy)
+};
+
+/// Fuses `msg` into `dst` in place, voxel by voxel, with the same per-voxel result as
+/// fuse_maps(dst, msg, rule, unknown) (dst is "a"), but with work proportional to the
+/// message where the policy allows it: with UnknownPolicy::Copy, voxels only `dst` knows are
+/// not visited. The information loss of every fused voxel is added into `loss` (in place;
+/// may be null). Requires compatible maps (check_compatible()).
+FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
+                        UnknownPolicy unknown, ScalarTree* loss);
+
+/// A simultaneous bidirectional exchange: fuses b into a and a into b at once, in place,
+/// each with its own map as "a" of the rule; equal to fuse_into(a, b_before) and
+/// fuse_into(b, a_before), without copying either map. Returns the stats of a and of b.
+std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMap& b, Rule rule,
+                                                    UnknownPolicy unknown, ScalarTree* loss_a,
+                                                    ScalarTree* loss_b);
+
+/// Adds the scalar tree `b` into `acc` voxel by voxel (a coarse leaf of either stands for
+/// the voxels below it; voxels only in b are added to acc). Accumulates information loss.
+void accumulate_loss(ScalarTree& acc, const ScalarTree& b);
+
+}  // namespace octofuse
