@@ -2,6 +2,7 @@
 #include "octofuse/fuse.hpp"
 
 #include "octofuse/tree_access.hpp"
+#include "octofuse/walk.hpp"
 
 #include <cmath>
 #include <cstdint>
@@ -18,27 +19,8 @@ namespace {
 using OcNode = octomap::OcTreeNode;
 using ScalarNode = octomap::OcTreeDataNode<float>;
 
-/// A node of an input tree as seen by the walk: a real node, or a pruned leaf standing for
-/// the child it would have (a "virtual" node with the leaf's value), or nothing (unknown).
 template <class Tree>
-struct Src {
-  using Node = typename detail::TreeAccess<Tree>::Node;
-  const Tree* tree = nullptr;
-  const Node* node = nullptr;  // null when unknown
-  bool leaf = false;
-
-  bool present() const { return node != nullptr; }
-  Src child(unsigned i) const {
-    if (node == nullptr || leaf) return *this;  // unknown stays unknown, leaves expand
-    if (!tree->nodeChildExists(node, i)) return Src{tree, nullptr, false};
-    const Node* c = tree->getNodeChild(node, i);
-    return Src{tree, c, !tree->nodeHasChildren(c)};
-  }
-  static Src root(const Tree& t) {
-    const Node* r = t.getRoot();
-    return Src{&t, r, r != nullptr && !t.nodeHasChildren(r)};
-  }
-};
+using Src = detail::WalkNode<Tree>;
 
 /// Prunes a node whose 8 children are leaves of equal value (OctoMap's pruneNode);
 /// otherwise sets the inner node to the max of its children, as OctoMap does.
@@ -278,29 +260,6 @@ void run_walk(const octomap::OcTree& a, const octomap::OcTree& b, UnknownPolicy 
   }
 }
 
-void add_walk(ScalarTree& acc, ScalarNode* n, const Src<ScalarTree>& b, bool n_leaf) {
-  // n is a node of acc (n_leaf: it has no children); b the matching node of the addend.
-  if (!b.present()) return;
-  if (n_leaf && b.leaf) {
-    n->setValue(n->getValue() + b.node->getValue());
-    return;
-  }
-  if (n_leaf) acc.expandNode(n);  // the addend is finer here: split the accumulated leaf
-  for (unsigned i = 0; i < 8; ++i) {
-    const Src<ScalarTree> cb = b.child(i);
-    if (!cb.present()) continue;
-    if (acc.nodeChildExists(n, i)) {
-      ScalarNode* c = acc.getNodeChild(n, i);
-      add_walk(acc, c, cb, !acc.nodeHasChildren(c));
-    } else {
-      ScalarNode* c = acc.createNodeChild(n, i);
-      c->setValue(0.0f);
-      add_walk(acc, c, cb, true);
-    }
-  }
-  finish(acc, n, [](const ScalarNode* c) { return c->getValue(); },
-                 [](ScalarNode* m, float v) { m->setValue(v); });
-}
 
 }  // namespace
 
@@ -356,14 +315,5 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
   return res;
 }
 
-void accumulate(ScalarTree& acc, const ScalarTree& b) {
-  const auto rb = Src<ScalarTree>::root(b);
-  if (!rb.present()) return;
-  const bool was_empty = acc.getRoot() == nullptr;
-  ScalarNode* r = detail::TreeAccess<ScalarTree>::ensure_root(acc);
-  if (was_empty) r->setValue(0.0f);
-  add_walk(acc, r, rb, !acc.nodeHasChildren(r));
-  detail::TreeAccess<ScalarTree>::mark_changed(acc);
-}
 
 }  // namespace octofuse

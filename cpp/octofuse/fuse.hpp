@@ -36,8 +36,5 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
 /// Throws std::invalid_argument saying what differs if two maps cannot be fused.
 void check_compatible(const OccupancyMap& a, const OccupancyMap& b);
 
-/// Adds `b` into `acc` voxel by voxel (an accumulating sum; voxels only in b are copied).
-/// Used to accumulate the information loss of successive fusions.
-void accumulate(ScalarTree& acc, const ScalarTree& b);
 
 }  // namespace octofuse

@@ -1,5 +1,6 @@
 // OccupancyMap file I/O and tree fusion against the per-voxel rule on expanded trees.
 #include "octofuse/fuse.hpp"
+#include "octofuse/fuse_into.hpp"
 
 #include <gtest/gtest.h>
 
@@ -121,7 +122,7 @@ TEST(Fuse, AccumulateAddsVoxelByVoxel) {
   const FusionResult r1 = fuse_maps(a, b, Rule::Chernoff, UnknownPolicy::Prior);
   const FusionResult r2 = fuse_maps(b, a, Rule::Bhattacharyya, UnknownPolicy::Prior);
   ScalarTree acc(*r1.info_loss);
-  accumulate(acc, *r2.info_loss);
+  accumulate_loss(acc, *r2.info_loss);
   const auto e1 = expand(*r1.info_loss), e2 = expand(*r2.info_loss), ea = expand(acc);
   for (auto& [k, v] : ea) EXPECT_FLOAT_EQ(v, e1.at(k) + e2.at(k));
 }
