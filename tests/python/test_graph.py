@@ -1,29 +1,14 @@
 import dataclasses
-import importlib
-import importlib.util
 import itertools
-import sys
-from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 
-def _load(name):
-    """octofuse.<name>, or the module file itself while the package (compiled core) won't import."""
-    try:
-        return importlib.import_module(f"octofuse.{name}")
-    except Exception:
-        path = Path(__file__).parents[2] / "python" / "octofuse" / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(f"_octofuse_{name}", path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = module
-        spec.loader.exec_module(module)
-        return module
 
 
-graph = _load("graph")
+from octofuse import graph  # noqa: E402
 make_graph = graph.make_graph
 Graph = graph.Graph
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import re
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +14,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _io_loader import oio  # noqa: E402
+import octofuse.io as oio
 
 S = 1_000_000_000
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"

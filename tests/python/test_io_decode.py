@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,8 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _io_loader import oio  # noqa: E402
+import octofuse.io as oio
 
 FLOAT32, FLOAT64, UINT16, UINT8, INT32 = 7, 8, 4, 2, 5
 CODE = {np.dtype(v).str[1:]: k for k, v in oio.POINTFIELD_DTYPES.items()}

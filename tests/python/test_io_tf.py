@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _io_loader import oio  # noqa: E402
+import octofuse.io as oio
 
 S = 1_000_000_000  # ns per second
 

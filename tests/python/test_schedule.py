@@ -1,28 +1,13 @@
-import importlib
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 
-def _load(name):
-    """octofuse.<name>, or the module file itself while the package (compiled core) won't import."""
-    try:
-        return importlib.import_module(f"octofuse.{name}")
-    except Exception:
-        path = Path(__file__).parents[2] / "python" / "octofuse" / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(f"_octofuse_{name}", path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = module
-        spec.loader.exec_module(module)
-        return module
 
 
-graph = _load("graph")
-schedule = _load("schedule")
+from octofuse import graph  # noqa: E402
+from octofuse import schedule  # noqa: E402
 Exchange = schedule.Exchange
 
 RING8 = graph.make_graph("ring", 8)
