@@ -23,9 +23,9 @@ def run_bench(cfg: RunConfig, rules: Sequence[str], topologies: Sequence[str], o
     out = Path(out)
     with ScanSource(cfg.build) as src:
         total = src.total_scans
-        n = len(src.agents)
+        names = [a.name for a in src.agents]
     for t in topologies:  # fail early on a bad topology, before hours of work
-        make_graph(t, n, seed=cfg.fuse.seed)
+        make_graph(t, len(names), seed=cfg.fuse.seed, names=names)
     rows = []
     timings = {}
     for topo in topologies:

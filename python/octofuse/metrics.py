@@ -87,5 +87,19 @@ def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
     if truth is not None:
         lv = agent.leaves()
         occ = lv.values > 0
-        s.occupied_accuracy = truth.occupied_accuracy(lv.centers[occ], agent.resolution)
+        centers = finest_centers(lv.centers[occ], lv.sizes[occ], agent.resolution)
+        s.occupied_accuracy = truth.occupied_accuracy(centers, agent.resolution)
     return s
+
+
+def finest_centers(centers: np.ndarray, sizes: np.ndarray, resolution: float) -> np.ndarray:
+    """Centres of the finest voxels that leaves (centres, edge lengths) stand for: a coarse
+    (pruned) leaf counts as all the voxels below it, as in :func:`compare`."""
+    centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    span = np.rint(np.asarray(sizes, dtype=np.float64) / resolution).astype(np.int64)
+    out = [centers[span <= 1]]
+    for k in np.unique(span[span > 1]):
+        g = (np.arange(k) + 0.5) * resolution - k * resolution / 2
+        offsets = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        out.append((centers[span == k][:, None, :] + offsets[None]).reshape(-1, 3))
+    return np.concatenate(out)

@@ -178,7 +178,8 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
 
     t0 = time.perf_counter()
     agents = list(export_agents) if export_agents is not None else res.agents
-    res.central.save(out / "centralized.ot")
+    if res.central is not None:
+        res.central.save(out / "centralized.ot")
     for r in res.rules:
         d = out / r
         d.mkdir(exist_ok=True)

@@ -1,9 +1,10 @@
 """Communication schedules: when each link of a graph carries a map, and in which direction.
 
 A schedule is a time-ordered list of :class:`Exchange` events; an event carries the sender's
-current map to the receiver, which fuses it into its own. Events are applied one after another
-in list order, also when they share a time: a map sent later in the list already contains what
-its sender received earlier. The exception is :func:`rounds`, which is double-buffered.
+map to the receiver, which fuses it into its own. Events that share a time are simultaneous:
+every one of them carries its sender's map as it was before any of them was delivered, and
+the receivers fuse them in list order (first in, first out). A round of :func:`rounds` (time =
+round index) and a round of :func:`periodic` are such groups, i.e. double-buffered.
 
 ``directions``:
 
@@ -106,11 +107,6 @@ class ScheduleSpec:
 
     kind: str
     value: float
-
-    @property
-    def double_buffered(self) -> bool:
-        """True for ``rounds``: events sharing a time see the maps from before that time."""
-        return self.kind == "rounds"
 
     def build(self, graph, *, duration_s: float | None = None, seed: int = 0,
               directions: str = "both") -> list[Exchange]:

@@ -43,7 +43,7 @@ class SimResult:
     rules: list[str]
     graph: Graph
     events: list[Exchange]
-    central: OccupancyMap
+    central: Optional[OccupancyMap]  #: None when fusing finished maps without one
     local: dict[str, OccupancyMap]
     fused: dict[str, dict[str, OccupancyMap]]  #: rule -> agent -> map
     loss: dict[str, dict[str, InfoLossMap]]  #: rule -> agent -> accumulated loss
@@ -251,6 +251,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, rules: Sequence[str] 
                 sample(ts)
                 si += 1
         stats = src.stats
+    if not any(s.scans_used for s in stats):
+        reasons = "; ".join(f"{s.name}: {n} {why}" for s in stats for why, n in s.skipped.items())
+        raise ValueError(f"no scan of {', '.join(build_cfg.bags)} could be placed in the fixed "
+                         f"frame '{build_cfg.fixed_frame}' "
+                         f"({reasons or 'the scan topics are empty'})")
     res = SimResult(agents, rules, graph, events, central, local, net.fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats)
@@ -282,7 +287,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     for rnd in rounds:
         net.exchange(rnd)  # double-buffered: contents taken before fusing
     res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
-                    central if central is not None else first, dict(maps), net.fused,
+                    central, dict(maps), net.fused,
                     {r: {a: net.loss_map(r, a, first.resolution) for a in agents} for r in rules},
                     net.traffic, [], net.timings)
     if central is not None:

@@ -617,3 +617,56 @@ def run_cli(capsys, *args) -> tuple[int, str, str]:
     code = main([str(a) for a in args])
     out, err = capsys.readouterr()
     return code, strip_ansi(out), strip_ansi(err)
+
+
+# -- robot teams ------------------------------------------------------------------------------
+
+#: (start, velocity) of up to 4 lidar robots, one per quarter of :data:`ROOM`; each drives
+#: slowly while turning and stays clear of the obstacles for the first 5 s.
+TEAM = (
+    ((-2.3, 1.0, 0.0), (0.25, 0.0, 0.3)),
+    ((2.3, -1.0, 3.0), (-0.25, 0.0, 0.3)),
+    ((-0.4, -1.5, 1.5), (0.1, 0.12, -0.3)),
+    ((0.3, 1.5, -1.5), (-0.1, -0.1, 0.3)),
+)
+
+
+def team(n: int = 4, names: Sequence[str] = ("a", "b", "c", "d")) -> list[Robot]:
+    """``n`` (<= 4) lidar robots of :data:`TEAM`, named ``a``, ``b``, ... (topics ``/a/points``, ...)."""
+    if not 1 <= n <= len(TEAM):
+        raise ValueError(f"a team has 1 to {len(TEAM)} robots, got {n}")
+    return [Robot(names[i], start=TEAM[i][0], velocity=TEAM[i][1]) for i in range(n)]
+
+
+def team_times(robots: Sequence[Robot], n_scans: int = 4, step_s: float = 0.5,
+               first_s: float = 0.25) -> dict[str, list[int]]:
+    """``n_scans`` stamps per robot, ``step_s`` apart; robot i starts at ``first_s + 0.05 i`` s
+    after :data:`T0`, so no two scans share a stamp and none falls on a 2 Hz tf sample."""
+    return {r.name: [T0 + int(round((first_s + 0.05 * i + step_s * k) * S)) for k in range(n_scans)]
+            for i, r in enumerate(robots)}
+
+
+def team_agents(robots: Sequence[Robot]) -> dict[str, str]:
+    """{name: scan topic} of robots, as :func:`reference_maps` takes it."""
+    return {r.name: r.topic for r in robots}
+
+
+def voxel_keys(m) -> tuple[np.ndarray, np.ndarray]:
+    """Finest voxels of a map (or loss map) as sorted int64 keys and their float64 values; a
+    coarse leaf gives every voxel below it. Keys of maps of one resolution compare directly."""
+    lv = m.leaves()
+    res = m.resolution
+    lo = np.rint((lv.centers - lv.sizes[:, None] / 2) / res).astype(np.int64) + (1 << 20)
+    span = np.rint(lv.sizes / res).astype(np.int64)
+    keys, values = [], []
+    for s in np.unique(span):
+        sel = span == s
+        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
+        k = (lo[sel][:, None, :] + g[None]).reshape(-1, 3)
+        keys.append((k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2])
+        values.append(np.repeat(lv.values[sel].astype(np.float64), len(g)))
+    if not keys:
+        return np.empty(0, dtype=np.int64), np.empty(0)
+    keys_, values_ = np.concatenate(keys), np.concatenate(values)
+    order = np.argsort(keys_)
+    return keys_[order], values_[order]

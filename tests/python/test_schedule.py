@@ -152,7 +152,6 @@ def test_rounds_are_double_buffered():
 def test_parse_schedule(spec, kind, value):
     s = schedule.parse_schedule(spec)
     assert (s.kind, s.value) == (kind, value)
-    assert s.double_buffered == (kind == "rounds")
 
 
 def test_schedule_spec_build():
