@@ -10,7 +10,7 @@ from typing import Callable, Optional, Sequence
 
 from .config import RunConfig
 from .report import COLUMNS, mean_scores
-from .simulate import LOCAL, simulate
+from .network import LOCAL, simulate
 
 
 def run_bench(cfg: RunConfig, rules: Sequence[str], topologies: Sequence[str], out: str | Path, *,

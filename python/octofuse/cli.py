@@ -234,7 +234,7 @@ TruthOpt = typer.Option(None, "--truth", help="scene ground truth JSON (default:
 
 def _run_job(cfg, rules, out: Path, *, samples: int, truth_path, export_agents: str, title: str):
     from .report import mean_scores, write_outputs
-    from .simulate import simulate
+    from .network import simulate
 
     _check_bags(cfg.build.bags)
     if not rules:
@@ -357,7 +357,7 @@ def fuse_cmd(
     from .config import FuseConfig, RunConfig
     from .maps import OccupancyMap
     from .report import write_outputs
-    from .simulate import fuse_finished
+    from .network import fuse_finished
 
     if not maps_dir.is_dir():
         raise CliError(f"maps folder '{maps_dir}' does not exist")

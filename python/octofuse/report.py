@@ -11,7 +11,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .config import RunConfig, to_dict
-from .simulate import LOCAL, SimResult
+from .network import LOCAL, SimResult
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [

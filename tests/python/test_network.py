@@ -28,7 +28,7 @@ from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.graph import make_graph  # noqa: E402
 from octofuse.ingest import ScanSource  # noqa: E402
 from octofuse.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
-from octofuse.simulate import LOCAL, fuse_finished, simulate  # noqa: E402
+from octofuse.network import LOCAL, fuse_finished, simulate  # noqa: E402
 
 RES = 0.2
 WEP = [r for r in octofuse.RULES if r != "naive-bayes"]

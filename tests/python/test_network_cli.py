@@ -23,7 +23,7 @@ import octofuse.report  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.export import read_cloud  # noqa: E402
-from octofuse.simulate import LOCAL, fuse_finished  # noqa: E402
+from octofuse.network import LOCAL, fuse_finished  # noqa: E402
 
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]

@@ -77,6 +77,11 @@ class _Network:
             list(self.pool.map(lambda r: self._exchange_rule(r, group), self.rules))
         self.timings["exchange + fusion (wall)"] += time.perf_counter() - t0
 
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown()
+            self.pool = None
+
     def _loss(self, r: str, agent: str, resolution: float) -> InfoLossMap:
         loss = self.loss[r].get(agent)
         if loss is None:
@@ -206,9 +211,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, rules: Sequence[str] 
                                  "overconfidence": s.overconfidence, "coverage": s.coverage})
             timings["scoring"] += time.perf_counter() - t0
 
-        ei, si = 0, 0
-        groups = [list(g) for _, g in groupby(events, key=lambda e: e.time_s)]
-        gi = 0
+        # exchange groups and KL samples, merged in time order: (time, kind, payload)
+        timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+        timed += [(t, 1, None) for t in sample_times]
+        timed.sort(key=lambda x: (x[0], x[1]))
+        next_i = 0
 
         def flush(batch):
             if not batch:
@@ -221,35 +228,32 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, rules: Sequence[str] 
             if progress:
                 progress(len(batch))
 
+        def advance(until: float) -> None:
+            """Exchanges and samples before ``until`` (a scan stamped exactly at an exchange
+            time is inserted before it)."""
+            nonlocal next_i
+            while next_i < len(timed) and timed[next_i][0] < until:
+                t, kind, group = timed[next_i]
+                if kind == 0:
+                    net.exchange(group)
+                else:
+                    sample(t)
+                next_i += 1
+
         batch: list = []
         for scan in prefetch(src.scans()):
             t = (scan.stamp_ns - start) / 1e9
-            while (gi < len(groups) and groups[gi][0].time_s < t) or \
-                    (si < len(sample_times) and sample_times[si] < t):
+            if next_i < len(timed) and timed[next_i][0] < t:
                 flush(batch)
                 batch = []
-                tg = groups[gi][0].time_s if gi < len(groups) else float("inf")
-                ts = sample_times[si] if si < len(sample_times) else float("inf")
-                if tg <= ts:
-                    net.exchange(groups[gi])
-                    gi += 1
-                else:
-                    sample(ts)
-                    si += 1
+                advance(t)
             batch.append(scan)
             if len(batch) >= build_cfg.batch_size:
                 flush(batch)
                 batch = []
         flush(batch)
-        while gi < len(groups) or si < len(sample_times):
-            tg = groups[gi][0].time_s if gi < len(groups) else float("inf")
-            ts = sample_times[si] if si < len(sample_times) else float("inf")
-            if tg <= ts:
-                net.exchange(groups[gi])
-                gi += 1
-            else:
-                sample(ts)
-                si += 1
+        advance(float("inf"))
+        net.close()
         stats = src.stats
     if not any(s.scans_used for s in stats):
         reasons = "; ".join(f"{s.name}: {n} {why}" for s in stats for why, n in s.skipped.items())
@@ -286,6 +290,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     t_all = time.perf_counter()
     for rnd in rounds:
         net.exchange(rnd)  # double-buffered: contents taken before fusing
+    net.close()
     res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
                     central, dict(maps), net.fused,
                     {r: {a: net.loss_map(r, a, first.resolution) for a in agents} for r in rules},
