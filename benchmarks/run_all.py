@@ -4,9 +4,14 @@
 2. Runs it twice: maps with sensor-model values (as built from scans) and maps with continuous
    values (as after earlier fusions, no repeated pairs of values).
 3. Runs benchmarks/rules_throughput.py (the per-voxel rules on numpy arrays).
-4. Prints the figures with the targets, and writes them to build/bench/results.json.
+4. Prints the figures with the targets.
+5. Runs benchmarks/ingest.py (scan insertion against OctoMap's insertPointCloud, and where the
+   time of `octofuse build` goes) and benchmarks/network.py (a fusion run's time split in the
+   demo's setting, and its growth with 4 to 32 agents on generated bags in build/bench-data).
+6. Writes every figure to build/bench/results.json.
 
     .venv/bin/python benchmarks/run_all.py [--repeats N] [--pairs N] [--quick]
+        [--parts fusion,ingest,network] [--ingest-repeats N] [--network-repeats N]
 """
 
 from __future__ import annotations
@@ -25,7 +30,11 @@ BUILD = ROOT / "build" / "bench"
 EXE = BUILD / "benchmarks" / "octofuse_bench_fuse_trees"
 
 sys.path.insert(0, str(HERE))
+import ingest  # noqa: E402
+import network  # noqa: E402
 import rules_throughput  # noqa: E402
+
+PARTS = ("fusion", "ingest", "network")
 
 CLOSED_FORM = ("bhattacharyya", "min-entropy", "chernoff", "min-info-loss")
 WEIGHTED = ("entropy-weighted-chernoff", "kld-weighted-chernoff")
@@ -146,19 +155,56 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5, help="timed runs per method (median reported)")
     ap.add_argument("--pairs", type=int, default=10_000_000, help="pairs for the array benchmark")
     ap.add_argument("--quick", action="store_true", help="small inputs, for a smoke test of the scripts")
+    ap.add_argument("--parts", default=",".join(PARTS),
+                    help="what to run: fusion (trees + arrays), ingest, network (comma separated)")
+    ap.add_argument("--ingest-repeats", type=int, default=3, help="timed runs per insertion method")
+    ap.add_argument("--network-repeats", type=int, default=1, help="runs per fusion-run setting")
+    ap.add_argument("--network-duration", type=float, default=60.0,
+                    help="length of the generated 4-32 robot bags, s")
     args = ap.parse_args(argv)
+    parts = [x.strip() for x in args.parts.split(",") if x.strip()]
+    bad = [x for x in parts if x not in PARTS]
+    if bad:
+        ap.error(f"--parts: unknown part(s) {', '.join(bad)}; parts: {', '.join(PARTS)}")
     scale = 1.0
+    ingest_every, robots, demo_every, demo_rules = 1, (4, 8, 16, 32), 1, None
     if args.quick:
         args.repeats, args.pairs, scale = 1, 200_000, 0.25
-    build()
-    trees = {v: run_trees(v, args.repeats, scale) for v in ("sensor", "continuous")}
-    log(f"running the array benchmark ({args.pairs:,} pairs, {args.repeats} runs per rule)")
-    rules = rules_throughput.run(args.pairs, args.repeats)
-    text, summary = report(trees, rules)
-    print(text)
+        args.ingest_repeats, args.network_repeats, args.network_duration = 1, 1, 10.0
+        ingest_every, robots, demo_every, demo_rules = 20, (4, 8), 20, list(network.GROWTH_RULES)
+    summary: dict = {}
+    ok = True
+    if "fusion" in parts:
+        build()
+        trees = {v: run_trees(v, args.repeats, scale) for v in ("sensor", "continuous")}
+        log(f"running the array benchmark ({args.pairs:,} pairs, {args.repeats} runs per rule)")
+        rules = rules_throughput.run(args.pairs, args.repeats)
+        text, summary = report(trees, rules)
+        print(text)
+    if "ingest" in parts:
+        log("running the insertion and build benchmark (benchmarks/ingest.py)")
+        res = ingest.run(ingest.DEFAULT_BAG, args.ingest_repeats, ingest_every)
+        print()
+        print("4. Scan insertion and the whole build")
+        ingest.print_tables(res)
+        summary["ingest"] = res
+        ok = ok and res["same_maps"]["two_maps"] and res["same_maps"]["one_map"]
+    if "network" in parts:
+        log("running the fusion-run benchmark (benchmarks/network.py)")
+        res = network.run(robots, args.network_duration, args.network_repeats, demo_rules, demo_every)
+        print()
+        print("5. Fusion runs: where the time goes, and growth with the number of agents")
+        network.print_tables(res)
+        summary["network"] = res
+    BUILD.mkdir(parents=True, exist_ok=True)
+    if set(parts) != set(PARTS) and (BUILD / "results.json").exists():
+        try:  # keep the figures of the parts not run this time
+            summary = {**json.loads((BUILD / "results.json").read_text()), **summary}
+        except ValueError:
+            pass
     (BUILD / "results.json").write_text(json.dumps(summary, indent=2))
     log(f"figures written to {(BUILD / 'results.json').relative_to(ROOT)}")
-    return 0
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
