@@ -64,9 +64,10 @@ struct Kids {
   std::uint8_t present = 0;  // bit i: child i exists
   std::uint8_t inner = 0;    // bit i: child i is an allocated inner node
 
-  /// Ends a node: true (with `value[0]` as the node's value) if the 8 children collapse to
-  /// one leaf (OctoMap's isNodeCollapsible), else allocates the node and its leaf children
-  /// and sets its value to the max of its children (OctoMap's updateOccupancyChildren).
+  /// Ends a node: true if the 8 children collapse to one leaf (OctoMap's isNodeCollapsible),
+  /// else allocates the node and its leaf children and sets its value to the max of its
+  /// children (OctoMap's updateOccupancyChildren). Either way `value[0]` is then the node's
+  /// value, which its parent takes as the value of this child.
   template <class Tree, class SetValue>
   bool finish(Tree& t, Lazy<Tree>& self, SetValue set) {
     if (present == 0xFF && inner == 0) {
@@ -83,6 +84,7 @@ struct Kids {
       if (value[i] > mx) mx = value[i];
     }
     set(n, mx);
+    value[0] = mx;
     return false;
   }
 };

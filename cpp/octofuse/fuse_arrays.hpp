@@ -23,6 +23,33 @@ inline double logit(double p) { return std::log(p) - std::log1p(-p); }
 
 namespace detail {
 
+/// Fuses element i (already read into xa, xb) with rule R; false (with st set) if it is bad.
+template <Rule R>
+inline bool fuse_element(double xa, double xb, std::size_t i, bool probabilities, double l0,
+                         double* value, double* omega, double* info_loss, ArrayStatus& st) {
+  if (std::isnan(xa) || std::isnan(xb)) {
+    st = {BadInput::NaN, i, std::isnan(xa) ? 0 : 1};
+    return false;
+  }
+  if (probabilities) {
+    if (!(xa >= 0.0 && xa <= 1.0) || !(xb >= 0.0 && xb <= 1.0)) {
+      st = {BadInput::OutOfRange, i, (xa >= 0.0 && xa <= 1.0) ? 1 : 0};
+      return false;
+    }
+    xa = logit(xa);
+    xb = logit(xb);
+  }
+  const Fused f = fuse_logodds<R>(xa, xb, l0);
+  if (std::isnan(f.l)) {
+    st = {BadInput::Contradiction, i, 2};
+    return false;
+  }
+  value[i] = probabilities ? sigmoid(f.l) : f.l;
+  omega[i] = f.omega;
+  info_loss[i] = f.info_loss;
+  return true;
+}
+
 /// The array loop for one rule (a compile-time constant, so that the rule's code is inlined
 /// into the loop instead of being chosen again for every element).
 template <Rule R>
@@ -31,86 +58,40 @@ inline ArrayStatus fuse_arrays_rule(const double* a, const double* b, std::size_
                                     double* info_loss) {
   ArrayStatus st;
   for (std::size_t i = 0; i < n; ++i) {
-    double xa = a[i], xb = b[i];
-    if (std::isnan(xa) || std::isnan(xb)) {
-      return {BadInput::NaN, i, std::isnan(xa) ? 0 : 1};
-    }
-    if (probabilities) {
-      if (!(xa >= 0.0 && xa <= 1.0) || !(xb >= 0.0 && xb <= 1.0)) {
-        return {BadInput::OutOfRange, i, (xa >= 0.0 && xa <= 1.0) ? 1 : 0};
-      }
-      xa = logit(xa);
-      xb = logit(xb);
-    }
-    const Fused f = fuse_logodds<R>(xa, xb, l0);
-    if (std::isnan(f.l)) return {BadInput::Contradiction, i, 2};
-    value[i] = probabilities ? sigmoid(f.l) : f.l;
-    omega[i] = f.omega;
-    info_loss[i] = f.info_loss;
+    if (!fuse_element<R>(a[i], b[i], i, probabilities, l0, value, omega, info_loss, st)) break;
   }
   return st;
 }
 
-/// The Chernoff rule over log-odds arrays, in blocks: the pairs of a block for which
-/// ChernoffWide applies go through its four steps one step at a time over the whole block,
-/// so that the CPU overlaps the exp/log latency of independent pairs (one pair alone is a
-/// chain of dependent exp, log and divisions); the other pairs take fuse_logodds(). Same
-/// operations per pair as fuse_logodds<Chernoff>(), so the same results. A block holding a
-/// bad input is redone by the element-wise loop, which reports it.
+/// The Chernoff rule over log-odds arrays with prior log-odds 0: chernoff_pack() on
+/// kArrayLanes consecutive pairs at a time. A pack with a pair that chernoff_pack() does not
+/// take (infinite, NaN or beyond its range) and the last n % kArrayLanes pairs are done pair by
+/// pair by fuse_logodds(), which gives the pairs that chernoff_pack() takes the same bits.
 inline ArrayStatus fuse_arrays_chernoff(const double* a, const double* b, std::size_t n,
-                                        double l0, double* value, double* omega,
-                                        double* info_loss) {
-  constexpr std::size_t kBlock = 128;
-  std::size_t idx[kBlock];
-  double ea[kBlock], eb[kBlock], dl[kBlock], r[kBlock];
-  for (std::size_t start = 0; start < n; start += kBlock) {
-    const std::size_t m = n - start < kBlock ? n - start : kBlock;
-    const double *pa = a + start, *pb = b + start;
-    std::size_t k = 0;
-    bool bad = false;
-    for (std::size_t i = 0; i < m; ++i) {
-      const double xa = pa[i], xb = pb[i];
-      if (std::isnan(xa) || std::isnan(xb) || (std::isinf(xa) && std::isinf(xb) && (xa > 0) != (xb > 0))) {
-        bad = true;
-        break;
-      }
-      if (!std::isinf(xa) && !std::isinf(xb) && ChernoffWide::applies(xa, xb, l0)) {
-        idx[k++] = i;
-      } else {
-        const Fused f = fuse_logodds<Rule::Chernoff>(xa, xb, l0);
-        value[start + i] = f.l;
-        omega[start + i] = f.omega;
-        info_loss[start + i] = f.info_loss;
-      }
+                                        double* value, double* omega, double* info_loss) {
+  ArrayStatus st;
+  std::size_t i = 0;
+  for (; i + kArrayLanes <= n; i += kArrayLanes) {
+    bool fits = true;
+    for (int j = 0; j < kArrayLanes; ++j) {
+      fits &= std::fabs(a[i + j]) <= kChernoffPackMax && std::fabs(b[i + j]) <= kChernoffPackMax;
     }
-    if (bad) {
-      ArrayStatus st = fuse_arrays_rule<Rule::Chernoff>(pa, pb, m, false, l0, value + start,
-                                                        omega + start, info_loss + start);
-      st.index += start;
-      return st;
+    if (fits) {
+      chernoff_pack<kArrayLanes>(a + i, b + i, value + i, omega + i, info_loss + i);
+      continue;
     }
-    for (std::size_t j = 0; j < k; ++j) ChernoffWide::exps(pa[idx[j]], pb[idx[j]], ea[j], eb[j]);
-    for (std::size_t j = 0; j < k; ++j) dl[j] = ChernoffWide::dlog(ea[j], eb[j]);
-    for (std::size_t j = 0; j < k; ++j) {
-      const std::size_t i = start + idx[j];
-      double w, l;
-      if (ChernoffWide::weight(a[i], b[i], dl[j], r[j], w, l)) {
-        omega[i] = w;
-        value[i] = l;
-      } else {
-        omega[i] = w;
-        value[i] = l;
-        info_loss[i] = kl_logodds(a[i] + b[i], l);
-        r[j] = -1.0;  // loss done
+    for (std::size_t j = i; j < i + kArrayLanes; ++j) {
+      if (!fuse_element<Rule::Chernoff>(a[j], b[j], j, false, 0.0, value, omega, info_loss, st)) {
+        return st;
       }
-    }
-    for (std::size_t j = 0; j < k; ++j) {
-      if (r[j] < 0.0) continue;
-      const std::size_t i = start + idx[j];
-      info_loss[i] = ChernoffWide::info_loss(a[i], b[i], ea[j], eb[j], r[j], value[i]);
     }
   }
-  return {};
+  for (; i < n; ++i) {
+    if (!fuse_element<Rule::Chernoff>(a[i], b[i], i, false, 0.0, value, omega, info_loss, st)) {
+      return st;
+    }
+  }
+  return st;
 }
 
 }  // namespace detail
@@ -121,8 +102,8 @@ inline ArrayStatus fuse_arrays_chernoff(const double* a, const double* b, std::s
 inline ArrayStatus fuse_arrays(Rule rule, const double* a, const double* b, std::size_t n,
                                bool probabilities, double l0, double* value, double* omega,
                                double* info_loss) {
-  if (rule == Rule::Chernoff && !probabilities) {
-    return detail::fuse_arrays_chernoff(a, b, n, l0, value, omega, info_loss);
+  if (rule == Rule::Chernoff && !probabilities && l0 == 0.0) {
+    return detail::fuse_arrays_chernoff(a, b, n, value, omega, info_loss);
   }
   return with_rule(rule, [&](auto r) {
     return detail::fuse_arrays_rule<decltype(r)::value>(a, b, n, probabilities, l0, value, omega,

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <string_view>
@@ -219,67 +220,383 @@ inline double weighted_chernoff_weight(double la, double lb, double ca, double c
   return w;
 }
 
-/// Chernoff fusion of finite la, lb with |la - lb| >= 0.5 and |la|, |lb| <= 150 (prior
-/// log-odds 0) in four steps that share their exponentials: with e_x = exp(-|l_x|),
-/// e^l* = |B / A| and exp(-|l_NB|) follow from e_a and e_b, so the KL needs no exp of its own.
-/// The array kernel runs each step over a block of pairs (independent work for the CPU to
-/// overlap) and chernoff_fuse_wide() runs them one after the other: the same operations,
-/// so the same results.
-struct ChernoffWide {
-  /// Whether the fast path applies to (la, lb) (finite, prior log-odds l0 = 0).
-  static bool applies(double la, double lb, double l0) {
-    return l0 == 0.0 && std::fabs(la - lb) >= 0.5 && std::fabs(la) <= 150.0 &&
-           std::fabs(lb) <= 150.0;
+// ---------------------------------------------------------------------------------------------
+// The Chernoff rule on packs of pairs.
+//
+// chernoff_pack<N>() fuses N pairs at once with code in which every lane goes through the same
+// operations: both sides of each choice are computed and one is selected per lane (a side that
+// no lane needs may be skipped, which changes nothing). Its exp, expm1 and log are the
+// polynomials below, not the C library's. So a pair gets the same bits in any lane of any
+// pack: the array kernel fuses packs of kArrayLanes pairs (independent work that the CPU
+// overlaps), fuse_logodds<Chernoff>() a pack of kPackLanes copies of its one pair, and the
+// two agree exactly. Nothing relies on -ffast-math, and the lanes of a pack never mix.
+
+#if defined(__GNUC__) && !defined(__clang__)
+// Packs wider than a register only pass between inline functions, so the x86-64 ABI note on
+// passing them is moot. (GCC reports it at the end of the file, so it stays off.)
+#pragma GCC diagnostic ignored "-Wpsabi"
+#endif
+
+#if defined(__GNUC__)
+/// Two doubles (one SSE2 register), the bits of its lanes, and the result of comparing two:
+/// GCC/Clang vector extension.
+typedef double Pack2 __attribute__((vector_size(16)));
+typedef unsigned long long PackBits2 __attribute__((vector_size(16)));
+typedef long long PackMask2 __attribute__((vector_size(16)));
+/// Operations on packs of N doubles, a GCC/Clang vector type computed lane by lane (SSE2 on
+/// x86-64, two lanes per register), with integer and comparison types of the same shape.
+template <class V_, class Bits_, class Mask_, int N>
+struct PackOps {
+  using V = V_;
+  using Bits = Bits_;
+  using Mask = Mask_;
+  static V splat(double x) {
+    V v;
+    for (int i = 0; i < N; ++i) v[i] = x;
+    return v;
   }
-  /// Step 1: e_a = exp(-|la|), e_b = exp(-|lb|).
-  static void exps(double la, double lb, double& ea, double& eb) {
-    ea = std::exp(-std::fabs(la));
-    eb = std::exp(-std::fabs(lb));
+  static Bits bits(const V& x) { return (Bits)x; }
+  static V from_bits(const Bits& b) { return (V)b; }
+  /// a where m is true, else b.
+  static V select(const Mask& m, const V& a, const V& b) {
+    return (V)(((Bits)a & (Bits)m) | ((Bits)b & ~(Bits)m));
   }
-  /// Step 2: log1p(e_b) - log1p(e_a) = log1p((e_b - e_a) / (1 + e_a)), the shared part of
-  /// softplus(+-l_b) - softplus(+-l_a). When l_a and l_b have the same sign,
-  /// |e_b - e_a| >= (1 - e^-0.5) max(e_a, e_b), so the difference is accurate to a few ulps;
-  /// otherwise the result is small beside the other terms of B and A.
-  static double dlog(double ea, double eb) { return log1p_fast((eb - ea) / (1.0 + ea)); }
-  /// Step 3: r = e^l*, then w (clamped to [0, 1]) and l (clamped to the inputs) exactly as
-  /// chernoff_weight() and fuse_logodds() compute them from l* = log(r). Returns false if a
-  /// clamp changed w or l (then the KL is computed the general way).
-  static bool weight(double la, double lb, double dl, double& r, double& w, double& l) {
-    const double d = la - lb;
-    const double B = ((lb > 0.0 ? lb : 0.0) - (la > 0.0 ? la : 0.0)) + dl;
-    const double A = ((lb < 0.0 ? -lb : 0.0) - (la < 0.0 ? -la : 0.0)) + dl;
-    r = std::fabs(B / A);
-    w = (std::log(r) - lb) / d;
-    w = w < 0.0 ? 0.0 : (w > 1.0 ? 1.0 : w);
-    const double lo = la < lb ? la : lb, hi = la < lb ? lb : la;
-    const double lw = w * la + (1.0 - w) * lb;
-    l = lw < lo ? lo : (lw > hi ? hi : lw);
-    return w > 0.0 && w < 1.0 && l == lw;
+  /// a < b lane by lane, in registers of two lanes (GCC would compare wider packs one lane
+  /// at a time).
+  static Mask lt(const V& a, const V& b) {
+    if constexpr (N <= 2) {
+      return a < b;
+    } else {
+      constexpr int kRegs = N / 2;
+      Pack2 x[kRegs], y[kRegs];
+      PackMask2 r[kRegs];
+      std::memcpy(x, &a, sizeof x);
+      std::memcpy(y, &b, sizeof y);
+      for (int i = 0; i < kRegs; ++i) r[i] = x[i] < y[i];
+      Mask m;
+      std::memcpy(&m, r, sizeof m);
+      return m;
+    }
   }
-  /// Step 4: KL(p_NB || p_l), l_NB = la + lb, in kl_core's form (l_q <= 0); e^l = r to
-  /// rounding.
-  static double info_loss(double la, double lb, double ea, double eb, double r, double l) {
-    const double lnb = la + lb;
-    const double enb = (la >= 0.0) == (lb >= 0.0)
-                           ? ea * eb
-                           : (std::fabs(la) > std::fabs(lb) ? ea / eb : eb / ea);
-    const double s = enb / (1.0 + enb);  // sigmoid(-|l_NB|)
-    const double y = lnb > 0.0 ? -lnb : lnb;
-    const double dk = lnb > 0.0 ? lnb - l : l - lnb;
-    if (std::fabs(dk) < 0.5) return kl_core(s, y, dk);
-    const double E = lnb > 0.0 ? 1.0 / (enb * r) : r / enb;  // exp(dk)
-    const double kl = log1p_fast(s * (E - 1.0)) - s * dk;
-    return kl > 0.0 ? kl : 0.0;
+  /// Whether m is true in some lane / in every lane.
+  static bool any(const Mask& m) {
+    long long r = 0;
+    for (int i = 0; i < N; ++i) r |= m[i];
+    return r != 0;
+  }
+  static bool all(const Mask& m) {
+    long long r = -1;
+    for (int i = 0; i < N; ++i) r &= m[i];
+    return r != 0;
+  }
+  /// table[i] in each lane (i in range).
+  static V gather(const double* table, const Bits& i) {
+    V r;
+    for (int l = 0; l < N; ++l) r[l] = table[i[l]];
+    return r;
+  }
+  static V sqrt(const V& x) {
+    V r;
+    for (int i = 0; i < N; ++i) r[i] = __builtin_sqrt(x[i]);
+    return r;
   }
 };
+/// Eight doubles (four SSE2 registers), for the array kernel.
+typedef double Pack8 __attribute__((vector_size(64)));
+typedef unsigned long long PackBits8 __attribute__((vector_size(64)));
+typedef long long PackMask8 __attribute__((vector_size(64)));
+template <int N>
+struct PackOf;
+template <>
+struct PackOf<2> : PackOps<Pack2, PackBits2, PackMask2, 2> {};
+template <>
+struct PackOf<8> : PackOps<Pack8, PackBits8, PackMask8, 8> {};
+/// Lanes of the pack that fuse_logodds<Chernoff>() fills with its pair (one SSE2 register).
+inline constexpr int kPackLanes = 2;
+/// Lanes of the packs of the array kernel (four SSE2 registers per value).
+inline constexpr int kArrayLanes = 8;
+#else
+/// Other compilers: packs of one double.
+template <int N>
+struct PackOf {
+  using V = double;
+  using Bits = std::uint64_t;
+  using Mask = bool;
+  static V splat(double x) { return x; }
+  static Bits bits(V x) {
+    Bits b;
+    std::memcpy(&b, &x, sizeof b);
+    return b;
+  }
+  static V from_bits(Bits b) {
+    V x;
+    std::memcpy(&x, &b, sizeof x);
+    return x;
+  }
+  static V select(bool m, V a, V b) { return m ? a : b; }
+  static bool lt(V a, V b) { return a < b; }
+  static bool any(bool m) { return m; }
+  static bool all(bool m) { return m; }
+  static V gather(const double* table, Bits i) { return table[i]; }
+  static V sqrt(V x) { return std::sqrt(x); }
+};
+inline constexpr int kPackLanes = 1;
+inline constexpr int kArrayLanes = 1;
+#endif
 
-/// The Chernoff fusion of one pair for which ChernoffWide::applies().
-inline Fused chernoff_fuse_wide(double la, double lb) {
-  double ea, eb, r, w, l;
-  ChernoffWide::exps(la, lb, ea, eb);
-  const double dl = ChernoffWide::dlog(ea, eb);
-  if (!ChernoffWide::weight(la, lb, dl, r, w, l)) return {l, w, kl_logodds(la + lb, l)};
-  return {l, w, ChernoffWide::info_loss(la, lb, ea, eb, r, l)};
+/// The PackOf of a pack type.
+template <class V>
+using PackFor = PackOf<static_cast<int>(sizeof(V) / sizeof(double))>;
+
+/// ln 2 = kLn2Hi + kLn2Lo; kLn2Hi has 32 trailing zero bits, so k kLn2Hi is exact for |k| < 2^20.
+inline constexpr double kLn2Hi = 6.93147180369123816490e-01;
+inline constexpr double kLn2Lo = 1.90821492927058770002e-10;
+inline constexpr double kLog2e = 1.44269504088896338700e+00;
+/// 1.5 * 2^52: x + kRoundShift holds round(x) in its low bits for |x| < 2^51.
+inline constexpr double kRoundShift = 6755399441055744.0;
+
+/// Splits x (|x| <= 708) as k ln2 + r with |r| <= 0.35; returns expm1(r) and sets scale = 2^k.
+/// expm1(r) is its Taylor polynomial to r^13 (truncation below 1e-17 relative), evaluated in
+/// Estrin's scheme (short dependency chains).
+template <class V>
+inline V exp_split(const V& x, V& scale) {
+  using P = PackFor<V>;
+  const V t = x * kLog2e + kRoundShift;  // round(x / ln2) in the low bits of t
+  const V k = t - kRoundShift;
+  const V r = (x - k * kLn2Hi) - k * kLn2Lo;
+  scale = P::from_bits((P::bits(t) - P::bits(P::splat(kRoundShift)) + 1023ull) << 52);
+  const V r2 = r * r, r4 = r2 * r2, r8 = r4 * r4;
+  const V q = ((0.5 + r * 0.16666666666666666) +
+               r2 * (0.041666666666666664 + r * 0.008333333333333333)) +
+              r4 * ((0.001388888888888889 + r * 0.0001984126984126984) +
+                    r2 * (2.48015873015873e-05 + r * 2.7557319223985893e-06)) +
+              r8 * ((2.755731922398589e-07 + r * 2.505210838544172e-08) +
+                    r2 * (2.08767569878681e-09 + r * 1.6059043836821613e-10));
+  return r + r2 * q;
+}
+
+/// e^x for |x| <= 708, within about 1 ulp.
+template <class V>
+inline V pack_exp(const V& x) {
+  V scale;
+  const V p = exp_split(x, scale);
+  return scale * (1.0 + p);
+}
+
+/// e^x - 1 for |x| <= 708, within about 2 ulps (and no cancellation near 0).
+template <class V>
+inline V pack_expm1(const V& x) {
+  V scale;
+  const V p = exp_split(x, scale);
+  return scale * p + (scale - 1.0);
+}
+
+/// Splits a finite normal x > 0 as 2^k m with sqrt(1/2) <= m < sqrt(2); returns m, sets k.
+template <class V>
+inline V log_split(const V& x, V& k) {
+  using P = PackFor<V>;
+  const typename P::Bits bits = P::bits(x);
+  const V m = P::from_bits((bits & 0x000fffffffffffffull) | 0x3ff0000000000000ull);  // [1, 2)
+  // the exponent as a double: the biased exponent in the low bits of 2^52, minus 2^52 + 1023
+  k = P::from_bits((bits >> 52) | 0x4330000000000000ull) - (4503599627370496.0 + 1023.0);
+  const typename P::Mask big = P::lt(P::splat(1.4142135623730951), m);
+  k = P::select(big, k + 1.0, k);
+  return P::select(big, m * 0.5, m);
+}
+
+/// log(c_j) for the nodes c_j = 1 + j/64, j = -19..27 (index j + 19), to nearest.
+inline constexpr double kLogNode[47] = {
+    -0.3522205935893521, -0.33024168687057687, -0.3087354816496133, -0.2876820724517809,
+    -0.26706278524904525, -0.24686007793152578, -0.22705745063534608, -0.2076393647782445,
+    -0.18859116980755003, -0.16989903679539747, -0.15154989812720093, -0.13353139262452263,
+    -0.1158318155251217, -0.09844007281325252, -0.0813456394539524, -0.06453852113757118,
+    -0.048009219186360606, -0.0317486983145803, -0.015748356968139168, 0.0, 0.015504186535965254,
+    0.030771658666753687, 0.0458095360312942, 0.06062462181643484, 0.07522342123758753,
+    0.08961215868968714, 0.10379679368164356, 0.11778303565638346, 0.13157635778871926,
+    0.1451820098444979, 0.15860503017663857, 0.17185025692665923, 0.184922338494012,
+    0.19782574332991987, 0.21056476910734964, 0.22314355131420976, 0.2355660713127669,
+    0.24783616390458127, 0.25995752443692605, 0.27193371548364176, 0.2837681731306446,
+    0.2954642128938359, 0.3070250352949119, 0.3184537311185346, 0.329753286372468,
+    0.3409265869705932, 0.3519764231571782};
+/// 1 / c_j, to nearest.
+inline constexpr double kInvNode[47] = {
+    1.4222222222222223, 1.391304347826087, 1.3617021276595744, 1.3333333333333333,
+    1.3061224489795917, 1.28, 1.2549019607843137, 1.2307692307692308, 1.2075471698113207,
+    1.1851851851851851, 1.1636363636363636, 1.1428571428571428, 1.1228070175438596,
+    1.103448275862069, 1.0847457627118644, 1.0666666666666667, 1.0491803278688525,
+    1.032258064516129, 1.0158730158730158, 1.0, 0.9846153846153847, 0.9696969696969697,
+    0.9552238805970149, 0.9411764705882353, 0.927536231884058, 0.9142857142857143,
+    0.9014084507042254, 0.8888888888888888, 0.8767123287671232, 0.8648648648648649,
+    0.8533333333333334, 0.8421052631578947, 0.8311688311688312, 0.8205128205128205,
+    0.810126582278481, 0.8, 0.7901234567901234, 0.7804878048780488, 0.7710843373493976,
+    0.7619047619047619, 0.7529411764705882, 0.7441860465116279, 0.735632183908046,
+    0.7272727272727273, 0.7191011235955056, 0.7111111111111111, 0.7032967032967034};
+
+/// k ln2 + log(m + e) for sqrt(1/2) <= m < sqrt(2) and |e| <= ulp(m), within about 1 ulp
+/// (no division): with c the node nearest to m, log(m + e) = log(c) + log1p(r),
+/// r = (m - c + e) / c with m - c exact and |r| < 0.0112, and log1p(r) is its Taylor
+/// polynomial to r^8 (truncation below 3e-17 relative). Near m = 1 the node is 1 itself, so
+/// results near 0 keep their relative accuracy.
+template <class V>
+inline V log_kernel(const V& k, const V& m, const V& e) {
+  using P = PackFor<V>;
+  const V t = (m - 1.0) * 64.0 + kRoundShift;  // j = round(64 (m - 1)) in the low bits of t
+  const V c = 1.0 + (t - kRoundShift) * 0.015625;
+  const typename P::Bits j = P::bits(t) - P::bits(P::splat(kRoundShift)) + 19ull;
+  const V r = ((m - c) + e) * P::gather(kInvNode, j);
+  const V r2 = r * r, r4 = r2 * r2;
+  const V q = ((-0.5 + r * 0.3333333333333333) + r2 * (-0.25 + r * 0.2)) +
+              r4 * ((-0.16666666666666666 + r * 0.14285714285714285) - r2 * 0.125);
+  return k * kLn2Hi + (P::gather(kLogNode, j) + ((r + r2 * q) + k * kLn2Lo));
+}
+
+/// log(x) for finite normal x > 0, within about 1 ulp.
+template <class V>
+inline V pack_log(const V& x) {
+  V k;
+  const V m = log_split(x, k);
+  return log_kernel(k, m, PackFor<V>::splat(0.0));
+}
+
+/// log(1 + x) for -0.5 <= x < 1e300, within about 1 ulp: with u = fl(1 + x) = 2^k m and c
+/// its rounding error (exact, Dekker's Fast2Sum), 1 + x = 2^k (m + c 2^-k). (Unlike
+/// log1p_fast(), no division.)
+template <class V>
+inline V pack_log1p(const V& x) {
+  using P = PackFor<V>;
+  const V u = 1.0 + x;
+  V k;
+  const V m = log_split(u, k);
+  const V c = P::select(P::lt(P::splat(1.0), x), 1.0 - (u - x), x - (u - 1.0));
+  const V k_shift = k + kRoundShift;  // -k in the low bits below, for 2^-k
+  const V scale =
+      P::from_bits((P::bits(P::splat(kRoundShift)) + 1023ull - P::bits(k_shift)) << 52);
+  return log_kernel(k, m, c * scale);
+}
+
+/// Largest |log-odds| that chernoff_pack() takes (every exponential stays a normal number).
+inline constexpr double kChernoffPackMax = 150.0;
+
+/// The Chernoff fusion of N pairs (prior log-odds 0), every |a[i]|, |b[i]| <= 150: fused
+/// log-odds l, weight w on a and information loss KL(p_NB || p_l), l_NB = a + b.
+///
+/// The Chernoff point l* solves sigmoid(l*) = (softplus(v) - softplus(u)) / D, the mean of
+/// sigmoid over [u, v] = [min, max] of the inputs, D = v - u. The pair is first negated if
+/// needed so that y = l_NB <= 0 (the rule commutes with negation; the weight is unchanged):
+/// then sigmoid(l*) <= 1/2, and
+///   P = softplus(v) - softplus(u) = log1p(sigmoid(u) expm1(D)) <= D/2,   Q = D - P >= D/2
+/// both come to a few ulps (log1p of a positive number, a subtraction that cannot cancel),
+/// and e^l* = P / Q. w D is the logarithm of a ratio: w = (l* - u) / D = log(P / (Q e^u)) / D
+/// when a is the upper end, w = (v - l*) / D = log(Q e^v / P) / D otherwise (absolute error a
+/// few ulps / D). For D < 0.1 (and D = 0) w comes from its
+/// series around the midpoint m instead: w = 1/2 +- sum_k c_k(t) D^(2k-1) with
+/// t = 1 - 2 sigmoid(m), four terms (truncation below 1e-16).
+///
+/// The loss is kl_core()'s log1p(s expm1(d)) - s d with s = sigmoid(y), taken at l* (d* =
+/// l* - y) plus its first-order change (sigmoid(l*) - s) (l - l*) to the returned l, which
+/// differs from l* by rounding. For |d*| >= 0.5 it needs no exponential of its own,
+/// e^d* = P / (Q e^y), so it does not wait for w; below, expm1(d*). For |l - y| < 0.02,
+/// where the formula cancels, the Taylor series of the loss in l - y to the 8th power.
+template <int N>
+inline void chernoff_pack(const double* a, const double* b, double* l_out, double* w_out,
+                          double* loss_out) {
+  using P = PackOf<N>;
+  using V = typename P::V;
+  using M = typename P::Mask;
+  V la, lb;
+  std::memcpy(&la, a, sizeof la);
+  std::memcpy(&lb, b, sizeof lb);
+  const V zero = P::splat(0.0), one = P::splat(1.0);
+  const V sum = la + lb;
+  const V sg = P::select(P::lt(zero, sum), P::splat(-1.0), one);
+  const V xa = sg * la, xb = sg * lb, y = sg * sum;  // negated frame: y = l_NB <= 0
+  const M a_up = P::lt(xb, xa);
+  const V u = P::select(a_up, xb, xa), v = P::select(a_up, xa, xb);  // u <= y / 2 <= 0
+  const V D = v - u;
+  const V inv_d = 1.0 / D;
+  const V eu = pack_exp(u);
+  const V eD1 = pack_expm1(D);
+  const V ev = eu * (1.0 + eD1);  // e^v
+  const V enb = eu * ev;          // e^y
+  const V su = eu / (1.0 + eu), s = enb / (1.0 + enb);  // sigmoid(u), sigmoid(y)
+  const V Pv = pack_log1p(su * eD1);
+  const V Qv = D - Pv;
+  const V num = P::select(a_up, Pv, Qv * ev), den = P::select(a_up, Qv * eu, Pv);
+  const V wD = pack_log(num / den);  // w D
+  V w = wD * inv_d;
+  const M small = P::lt(D, P::splat(0.1));
+  if (P::any(small)) {
+    // t = 1 - 2 sigmoid(m) = (1 - e^m) / (1 + e^m), e^m = sqrt(e^y)
+    const V em = P::sqrt(enb);
+    const V t = (1.0 - em) / (1.0 + em), t2 = t * t, D2 = D * D;
+    const V S =
+        t * D *
+        (0.041666666666666664 +
+         D2 * ((-0.0010416666666666667 + t2 * 0.0006944444444444445) +
+               D2 * ((2.635168650793651e-05 +
+                      t2 * (-4.357501102292769e-05 + t2 * 2.273478835978836e-05)) +
+                     D2 * (-6.674038249559083e-07 +
+                           t2 * (1.976376488095238e-06 +
+                                 t2 * (-2.333760471781305e-06 + t2 * 9.214478615520283e-07))))));
+    w = P::select(small, 0.5 + P::select(a_up, S, -S), w);
+  }
+  w = P::select(P::lt(w, zero), zero, P::select(P::lt(one, w), one, w));
+  const M a_lo = P::lt(la, lb);
+  const V lo = P::select(a_lo, la, lb), hi = P::select(a_lo, lb, la);
+  V l = w * la + (1.0 - w) * lb;
+  l = P::select(P::lt(l, lo), lo, P::select(P::lt(hi, l), hi, l));
+  // the loss in the negated frame; l* to rounding (the returned l itself when D is too small
+  // for P and Q)
+  const V ln = sg * l;
+  const M has_d = P::lt(P::splat(1e-200), D);
+  const V ls = P::select(has_d, P::select(a_up, u + wD, v - wD), ln);
+  const V ds = ls - y;
+  const V ads = P::from_bits(P::bits(ds) & 0x7fffffffffffffffull);
+  const M far = has_d & P::lt(P::splat(0.5), ads);
+  V x = s * (Pv / (Qv * enb) - 1.0);
+  if (!P::all(far)) x = P::select(far, x, s * pack_expm1(ds));
+  V loss = pack_log1p(x) - s * ds + P::select(has_d, (Pv * inv_d - s) * (ln - ls), zero);
+  const V dk = ln - y;
+  const V adk = P::from_bits(P::bits(dk) & 0x7fffffffffffffffull);
+  const M near = P::lt(adk, P::splat(0.02));
+  if (P::any(near)) {
+    // sum_k sigmoid^(k-1)(y) d^k / k! with sigmoid' = vs, sigmoid'' = vs ts, ...
+    const V vs = s * (1.0 - s), ts = 1.0 - 2.0 * s, d2 = dk * dk;
+    const V even =
+        0.5 + d2 * ((0.041666666666666664 - 0.25 * vs) +
+                    d2 * ((0.001388888888888889 +
+                           vs * (-0.041666666666666664 + vs * 0.16666666666666666)) +
+                          d2 * (2.48015873015873e-05 +
+                                vs * (-0.003125 + vs * (0.041666666666666664 - vs * 0.125)))));
+    const V odd =
+        dk * ts *
+        (0.16666666666666666 +
+         d2 * ((0.008333333333333333 - 0.1 * vs) +
+               d2 * (0.0001984126984126984 +
+                     vs * (-0.011904761904761904 + vs * 0.07142857142857142))));
+    loss = P::select(near, vs * d2 * (even + odd), loss);
+  }
+  loss = P::select(P::lt(zero, loss), loss, zero);  // rounding can give -1e-17
+  std::memcpy(l_out, &l, sizeof l);
+  std::memcpy(w_out, &w, sizeof w);
+  std::memcpy(loss_out, &loss, sizeof loss);
+}
+
+/// Whether chernoff_pack() takes the pair (within its range, prior log-odds 0; false for NaN).
+inline bool chernoff_pack_applies(double la, double lb, double l0) {
+  return l0 == 0.0 && std::fabs(la) <= kChernoffPackMax && std::fabs(lb) <= kChernoffPackMax;
+}
+
+/// The Chernoff fusion of one pair for which chernoff_pack_applies(): chernoff_pack() on a pack
+/// holding the pair in every lane (so the same bits as when the pair is fused in an array).
+inline Fused chernoff_fuse_one(double la, double lb) {
+  double a[kPackLanes], b[kPackLanes], l[kPackLanes], w[kPackLanes], loss[kPackLanes];
+  for (int i = 0; i < kPackLanes; ++i) {
+    a[i] = la;
+    b[i] = lb;
+  }
+  chernoff_pack<kPackLanes>(a, b, l, w, loss);
+  return {l[0], w[0], loss[0]};
 }
 
 /// Both inputs certain or one certain (infinite log-odds): a certainty dominates.
@@ -355,7 +672,7 @@ inline Fused fuse_logodds(double la, double lb, double l0 = 0.0) {
       return {l, wep_weight<R>(la, lb, l0), l == lnb ? 0.0 : kl_logodds(lnb, l)};
     } else {
       if constexpr (R == Rule::Chernoff) {
-        if (ChernoffWide::applies(la, lb, l0)) return chernoff_fuse_wide(la, lb);
+        if (chernoff_pack_applies(la, lb, l0)) return chernoff_fuse_one(la, lb);
       }
       const double w = wep_weight<R>(la, lb, l0);
       double l = w * la + (1.0 - w) * lb;  // exact at w = 0 and w = 1
