@@ -6,6 +6,7 @@
 
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <random>
 #include <tuple>
@@ -92,6 +93,33 @@ TEST(Fuse, EqualsPerVoxelRuleOnExpandedTrees) {
         }
       }
   }
+}
+
+// Every inner node holds the max of its children, as OctoMap keeps them.
+template <class Tree, class Node>
+void expect_inner_max(const Tree& t, const Node* n, int& checked) {
+  if (!t.nodeHasChildren(n)) return;
+  float mx = -std::numeric_limits<float>::infinity();
+  for (unsigned i = 0; i < 8; ++i) {
+    if (!t.nodeChildExists(n, i)) continue;
+    const Node* c = t.getNodeChild(n, i);
+    expect_inner_max(t, c, checked);
+    mx = std::max(mx, c->getValue());
+  }
+  ASSERT_EQ(n->getValue(), mx);
+  ++checked;
+}
+
+TEST(Fuse, InnerNodesHoldTheMaxOfTheirChildren) {
+  const OccupancyMap a = random_map(21, 0.9), b = random_map(22, 0.3);
+  for (int r = 0; r < kNumRules; ++r)
+    for (UnknownPolicy pol : {UnknownPolicy::Copy, UnknownPolicy::Prior}) {
+      const FusionResult res = fuse_maps(a, b, static_cast<Rule>(r), pol);
+      int checked = 0;
+      expect_inner_max(res.map->tree(), res.map->tree().getRoot(), checked);
+      expect_inner_max(*res.info_loss, res.info_loss->getRoot(), checked);
+      EXPECT_GT(checked, 100);
+    }
 }
 
 TEST(Fuse, NaiveBayesEqualsOctomapUpdateNodeMerge) {
