@@ -34,7 +34,6 @@ import argparse
 import copy
 import gc
 import json
-import resource
 import shutil
 import statistics
 import sys
@@ -46,34 +45,12 @@ import numpy as np
 
 from octofuse.build import build, insert_scans, make_build_config, new_map, write_maps
 from octofuse.ingest import SCAN_TYPES, Scan, ScanSource
+from bench_common import log, machine, peak_rss_mib  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 DEFAULT_BAG = ROOT / "data" / "lab8.bag"
 OUT = ROOT / "build" / "bench"
-
-
-def log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
-def machine() -> str:
-    import os
-
-    mem = "unknown memory"
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemTotal:"):
-                    mem = f"{int(line.split()[1]) / 2**20:.1f} GiB memory"
-                    break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} hardware threads, {mem}"
-
-
-def peak_rss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 # -- insertion methods: each returns (seconds, maps) -------------------------------------------

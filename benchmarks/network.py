@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import resource
 import shutil
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+from bench_common import log, machine, peak_rss_mib  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -50,36 +49,6 @@ GROWTH_RULES = ("min-info-loss", "naive-bayes")
 #: the parts of a run, in the order they are printed
 PARTS = ("insertion", "exchange + fusion", "scoring: KL samples during the run", "scoring: final scores",
          "export", "outputs (plots, summary, report)", "rest of simulate (decode, bookkeeping)")
-
-
-def log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
-def machine() -> str:
-    mem = "unknown memory"
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemTotal:"):
-                    mem = f"{int(line.split()[1]) / 2**20:.1f} GiB memory"
-                    break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} hardware threads, {mem}"
-
-
-def peak_rss_mib() -> float:
-    """Peak resident memory of this process: VmHWM (reset by exec, unlike ru_maxrss, which a
-    child started with fork + exec inherits from its parent), else ru_maxrss."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 # -- one run (in its own process) --------------------------------------------------------------

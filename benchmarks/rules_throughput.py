@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import time
@@ -22,6 +21,7 @@ import time
 import numpy as np
 
 import octofuse
+from bench_common import machine  # noqa: E402
 
 #: Closed-form rules (the target: at least 20 million pairs per second on one core).
 CLOSED_FORM = ("bhattacharyya", "min-entropy", "chernoff", "min-info-loss")
@@ -48,19 +48,6 @@ def timed(fn, repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
-
-
-def machine() -> str:
-    mem = "unknown memory"
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemTotal:"):
-                    mem = f"{int(line.split()[1]) / 2**20:.1f} GiB memory"
-                    break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} hardware threads, {mem}"
 
 
 def run(pairs: int, repeats: int) -> dict:

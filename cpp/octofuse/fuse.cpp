@@ -22,20 +22,6 @@ using ScalarNode = octomap::OcTreeDataNode<float>;
 template <class Tree>
 using Src = detail::WalkNode<Tree>;
 
-/// Prunes a node whose 8 children are leaves of equal value (OctoMap's pruneNode);
-/// otherwise sets the inner node to the max of its children, as OctoMap does.
-template <class Tree, class Node, class Get, class Set>
-void finish(Tree& t, Node* n, Get get, Set set) {
-  if (t.pruneNode(n)) return;
-  float mx = -std::numeric_limits<float>::infinity();
-  for (unsigned i = 0; i < 8; ++i) {
-    if (!t.nodeChildExists(n, i)) continue;
-    const float v = get(t.getNodeChild(n, i));
-    if (v > mx) mx = v;
-  }
-  set(n, mx);
-}
-
 /// A node of an output tree that is only allocated once it is known to stay (lazily).
 /// The walk builds each subtree bottom-up: a subtree whose voxels turn out to be 8 equal
 /// leaves is returned as one value and never allocated, instead of being allocated and then

@@ -301,38 +301,6 @@ void parallel_for(std::size_t n, unsigned threads, F f) {
 
 }  // namespace
 
-ScanUpdate compute_update(const octomap::OcTree& grid, const float* xyz, std::size_t n,
-                          const float origin[3], double max_range) {
-  const std::vector<std::uint64_t> items = compute_items(grid, xyz, n, origin, max_range);
-  ScanUpdate u;
-  for (std::uint64_t m : items) {
-    if (m & kHit) {
-      u.occupied.push_back(unmorton(m & kCode));
-    } else {
-      u.free.push_back(unmorton(m));
-    }
-  }
-  return u;
-}
-
-void apply_update(octomap::OcTree& tree, const ScanUpdate& u) {
-  std::vector<std::uint64_t> items;
-  items.reserve(u.free.size() + u.occupied.size());
-  for (const auto& k : u.free) items.push_back(morton(k));
-  for (const auto& k : u.occupied) items.push_back(morton(k) | kHit);
-  std::sort(items.begin(), items.end(),
-            [](std::uint64_t a, std::uint64_t b) { return (a & kCode) < (b & kCode); });
-  const bool distinct = std::adjacent_find(items.begin(), items.end(), [](auto a, auto b) {
-                          return (a & kCode) == (b & kCode);
-                        }) == items.end();
-  if (distinct) {
-    apply_items(tree, items);
-  } else {  // a voxel updated twice: the order matters, so update key by key
-    for (const auto& k : u.free) tree.updateNode(k, false, /*lazy_eval=*/false);
-    for (const auto& k : u.occupied) tree.updateNode(k, true, /*lazy_eval=*/false);
-  }
-}
-
 void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
   std::vector<std::vector<std::uint64_t>> updates(scans.size());
   parallel_for(scans.size(), threads, [&](std::size_t i) {

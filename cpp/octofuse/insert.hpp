@@ -12,14 +12,6 @@
 
 namespace octofuse {
 
-/// The voxels one scan updates, in Morton (tree) order: OctoMap's computeUpdate() semantics
-/// (free voxels along every ray, occupied endpoints, occupied wins; rays longer than
-/// max_range clear free space up to max_range only), deduplicated.
-struct ScanUpdate {
-  std::vector<octomap::OcTreeKey> free;
-  std::vector<octomap::OcTreeKey> occupied;
-};
-
 /// One scan to insert: points in the sensor frame, its sensor-to-map pose and its targets.
 struct ScanInput {
   const void* xyz = nullptr;  ///< n x 3 points, float or double (see is_double)
@@ -29,14 +21,6 @@ struct ScanInput {
   double max_range = -1.0;
   std::vector<OccupancyMap*> targets;  ///< maps this scan updates (all of equal resolution)
 };
-
-/// Computes the update of one scan (given in the map frame, as OctoMap floats).
-ScanUpdate compute_update(const octomap::OcTree& grid, const float* xyz, std::size_t n,
-                          const float origin[3], double max_range);
-
-/// Applies an update as insertPointCloud() does: free voxels as misses, then occupied
-/// voxels as hits, each with OctoMap's updateNode() (inner nodes updated, pruned).
-void apply_update(octomap::OcTree& tree, const ScanUpdate& u);
 
 /// Inserts a batch of scans: ray keys of the scans are computed on `threads` threads, then
 /// every target map receives its scans in batch order, different maps in parallel. The

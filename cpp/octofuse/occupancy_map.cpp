@@ -315,7 +315,6 @@ std::unique_ptr<OccupancyMap> OccupancyMap::load(const std::string& path) {
 }
 
 LeafArrays OccupancyMap::leaves() const { return collect_leaves(*tree_); }
-LeafArrays occupancy_leaves(const octomap::OcTree& tree) { return collect_leaves(tree); }
 LeafArrays scalar_leaves(const ScalarTree& tree) { return collect_leaves(tree); }
 
 }  // namespace octofuse

@@ -94,7 +94,5 @@ using ScalarTree = octomap::OcTreeBase<octomap::OcTreeDataNode<float>>;
 /// Leaves of a scalar tree.
 LeafArrays scalar_leaves(const ScalarTree& tree);
 
-/// Leaves of any occupancy tree.
-LeafArrays occupancy_leaves(const octomap::OcTree& tree);
 
 }  // namespace octofuse

@@ -116,11 +116,8 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int], None]] = None) ->
                 src.stats[s.agent].seconds += dt * len(s.points) / max(n_pts, 1)
             if progress:
                 progress(len(batch))
+        src.check_placed()
         stats = src.stats
-    if not any(s.scans_used for s in stats):
-        reasons = "; ".join(f"{s.name}: {n} {why}" for s in stats for why, n in s.skipped.items())
-        raise ValueError(f"no scan of {', '.join(cfg.bags)} could be placed in the fixed frame "
-                         f"'{cfg.fixed_frame}' ({reasons or 'the scan topics are empty'})")
     total = time.perf_counter() - t_start
     timings = {"insert (C++, GIL released)": t_insert,
                "read + decode + transforms (overlapped)": sum(s.seconds for s in stats) - t_insert}

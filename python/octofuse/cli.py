@@ -28,7 +28,7 @@ def _print_config(cfg) -> None:
 
 
 def _build_config(bags, agent, pose, sensor_offset, fixed_frame, resolution, max_range, no_return,
-                  every, config, section="build"):
+                  every, config):
     """Merge a YAML config (if any) with command-line flags (flags win when given)."""
     from .build import parse_agent
     from .config import BuildConfig, RunConfig, load_yaml

@@ -157,6 +157,14 @@ class ScanSource:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def check_placed(self) -> None:
+        """After :meth:`scans`: raise ``ValueError`` saying why if no scan could be placed."""
+        if any(s.scans_used for s in self.stats):
+            return
+        reasons = "; ".join(f"{s.name}: {n} {why}" for s in self.stats for why, n in s.skipped.items())
+        raise ValueError(f"no scan of {', '.join(self.cfg.bags)} could be placed in the fixed "
+                         f"frame '{self.cfg.fixed_frame}' ({reasons or 'the scan topics are empty'})")
+
     @property
     def start_ns(self) -> int | None:
         return self.bags.start_ns

@@ -10,7 +10,7 @@ from itertools import groupby
 from typing import Callable, Optional, Sequence
 
 from . import _core
-from .build import batched, insert_scans, new_map, prefetch
+from .build import insert_scans, new_map, prefetch
 from .config import BuildConfig, FuseConfig
 from .graph import Graph, make_graph
 from .ingest import ScanSource
@@ -254,12 +254,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, rules: Sequence[str] 
         flush(batch)
         advance(float("inf"))
         net.close()
+        src.check_placed()
         stats = src.stats
-    if not any(s.scans_used for s in stats):
-        reasons = "; ".join(f"{s.name}: {n} {why}" for s in stats for why, n in s.skipped.items())
-        raise ValueError(f"no scan of {', '.join(build_cfg.bags)} could be placed in the fixed "
-                         f"frame '{build_cfg.fixed_frame}' "
-                         f"({reasons or 'the scan topics are empty'})")
     res = SimResult(agents, rules, graph, events, central, local, net.fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats)

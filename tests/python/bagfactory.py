@@ -654,19 +654,10 @@ def team_agents(robots: Sequence[Robot]) -> dict[str, str]:
 def voxel_keys(m) -> tuple[np.ndarray, np.ndarray]:
     """Finest voxels of a map (or loss map) as sorted int64 keys and their float64 values; a
     coarse leaf gives every voxel below it. Keys of maps of one resolution compare directly."""
-    lv = m.leaves()
-    res = m.resolution
-    lo = np.rint((lv.centers - lv.sizes[:, None] / 2) / res).astype(np.int64) + (1 << 20)
-    span = np.rint(lv.sizes / res).astype(np.int64)
-    keys, values = [], []
-    for s in np.unique(span):
-        sel = span == s
-        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
-        k = (lo[sel][:, None, :] + g[None]).reshape(-1, 3)
-        keys.append((k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2])
-        values.append(np.repeat(lv.values[sel].astype(np.float64), len(g)))
-    if not keys:
-        return np.empty(0, dtype=np.int64), np.empty(0)
-    keys_, values_ = np.concatenate(keys), np.concatenate(values)
-    order = np.argsort(keys_)
-    return keys_[order], values_[order]
+    from conftest import finest_voxels
+
+    k, v = finest_voxels(m.leaves(), m.resolution)
+    k = k + (1 << 20)
+    packed = (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+    order = np.argsort(packed)
+    return packed[order], v.astype(np.float64)[order]

@@ -31,6 +31,26 @@ def random_map(seed, n_scans, resolution=0.1, offset=(0.0, 0.0, 0.0)):
     return m
 
 
+def finest_voxels(leaves, resolution):
+    """Every finest voxel of a tree as integer keys (N, 3) and its leaf's value (N,); a coarse
+    leaf gives all the voxels below it."""
+    lo = np.rint((leaves.centers - leaves.sizes[:, None] / 2) / resolution).astype(np.int64)
+    span = np.rint(leaves.sizes / resolution).astype(np.int64)
+    keys, values = [np.empty((0, 3), np.int64)], [leaves.values[:0]]
+    for s in np.unique(span):
+        sel = span == s
+        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
+        keys.append((lo[sel][:, None, :] + g[None]).reshape(-1, 3))
+        values.append(np.repeat(leaves.values[sel], len(g)))
+    return np.concatenate(keys), np.concatenate(values)
+
+
+def expand(leaves, resolution):
+    """Every finest voxel (integer key tuple) of a tree with its value, as a dict."""
+    keys, values = finest_voxels(leaves, resolution)
+    return dict(zip(map(tuple, keys.tolist()), values))
+
+
 @pytest.fixture
 def shared_real():
     if not SHARED_REAL.is_dir():

@@ -6,24 +6,10 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import random_map
+from conftest import expand, random_map
 
 import octofuse
 from octofuse import OccupancyMap, fuse_logodds, fuse_maps
-
-
-def expand(leaves, resolution):
-    """Every finest voxel (integer key) of a tree with its value."""
-    lo = np.rint((leaves.centers - leaves.sizes[:, None] / 2) / resolution).astype(np.int64)
-    span = np.rint(leaves.sizes / resolution).astype(np.int64)
-    out = {}
-    for s in np.unique(span):
-        sel = span == s
-        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
-        keys = (lo[sel][:, None, :] + g[None]).reshape(-1, 3)
-        vals = np.repeat(leaves.values[sel], len(g))
-        out.update(zip(map(tuple, keys), vals))
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import random_map
+from conftest import expand, random_map
 
 import octofuse
 from octofuse import OccupancyMap, fuse_maps
@@ -62,17 +62,7 @@ def values_by_x(m: OccupancyMap) -> dict[float, float]:
 
 def finest(m: OccupancyMap) -> dict[tuple, float]:
     """Every finest voxel (integer key) with its value; a coarse leaf gives all voxels below it."""
-    lv = m.leaves()
-    res = m.resolution
-    lo = np.rint((lv.centers - lv.sizes[:, None] / 2) / res).astype(np.int64)
-    span = np.rint(lv.sizes / res).astype(np.int64)
-    out = {}
-    for s in np.unique(span):
-        sel = span == s
-        g = np.stack(np.meshgrid(*(np.arange(s),) * 3, indexing="ij"), -1).reshape(-1, 3)
-        keys = (lo[sel][:, None, :] + g[None]).reshape(-1, 3)
-        out.update(zip(map(tuple, keys.tolist()), np.repeat(lv.values[sel].astype(float), len(g))))
-    return out
+    return {k: float(v) for k, v in expand(m.leaves(), m.resolution).items()}
 
 
 def reference_score(central: OccupancyMap, agent: OccupancyMap, tol: float) -> dict:
