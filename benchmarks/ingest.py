@@ -1,20 +1,20 @@
 """Scan insertion and the whole ``octofuse build`` on a bag (default: data/lab8.bag).
 
 1. Insertion: every scan of the bag is decoded once into memory (points in the sensor frame
-   and the pose, with :class:`octofuse.ingest.ScanSource`, as a build reads them), then
+   and the pose, with :class:`octofuse.scans.source.ScanSource`, as a build reads them), then
    inserted, in the same run, by
 
    - OctoMap's own ``insertPointCloud`` (the baseline): ``OccupancyMap.insert_scan_from_sensor``
      once per scan and map, i.e. into the agent's map and into the centralized map (two
      insertions per scan, as a build needs);
-   - octofuse: ``octofuse.build.insert_scans`` in batches of the build's size (ray keys
+   - octofuse: ``octofuse.maps.build.insert_scans`` in batches of the build's size (ray keys
      computed once per scan, scans in parallel, applied to both maps, maps in parallel), on 2
      threads and on 1;
 
    and the same again into the agent's map only. Before the figures are reported the maps
    of both ways are compared leaf by leaf (centres, sizes and log-odds, bit for bit).
 
-2. The whole build: ``octofuse.build.build()`` end to end (read + decode + transforms +
+2. The whole build: ``octofuse.maps.build.build()`` end to end (read + decode + transforms +
    insertion, decoding overlapped with insertion) and ``write_maps()``, and each stage timed
    alone to show where the time goes: opening the bag and loading /tf, reading and
    deserializing the scan messages, decoding + transform look-ups, de-skewing, insertion
@@ -43,8 +43,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from octofuse.build import build, insert_scans, make_build_config, new_map, write_maps
-from octofuse.ingest import SCAN_TYPES, Scan, ScanSource
+from octofuse.maps.build import build, insert_scans, make_build_config, write_maps
+from octofuse.maps.occupancy import OccupancyMap
+from octofuse.scans.source import SCAN_TYPES, Scan, ScanSource
 from bench_common import log, machine, peak_rss_mib  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -58,8 +59,8 @@ OUT = ROOT / "build" / "bench"
 
 def baseline(scans: Sequence[Scan], cfg, n_agents: int, central: bool):
     """OctoMap's insertPointCloud, scan by scan, into the agent's map (and the centralized map)."""
-    maps = [new_map(cfg.map) for _ in range(n_agents)]
-    cmap = new_map(cfg.map)
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    cmap = OccupancyMap.from_config(cfg.map)
     t0 = time.perf_counter()
     for s in scans:
         maps[s.agent].insert_scan_from_sensor(s.points, s.pose, s.max_range)
@@ -69,9 +70,9 @@ def baseline(scans: Sequence[Scan], cfg, n_agents: int, central: bool):
 
 
 def batched_insert(scans: Sequence[Scan], cfg, n_agents: int, central: bool, threads: int):
-    """octofuse.build.insert_scans in batches of cfg.batch_size, as build() calls it."""
-    maps = [new_map(cfg.map) for _ in range(n_agents)]
-    cmap = new_map(cfg.map)
+    """octofuse.maps.build.insert_scans in batches of cfg.batch_size, as build() calls it."""
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    cmap = OccupancyMap.from_config(cfg.map)
     size = cfg.batch_size
     t0 = time.perf_counter()
     for i in range(0, len(scans), size):
@@ -274,7 +275,7 @@ def print_tables(res: dict, out=sys.stdout) -> None:
     p()
     b = res["build"]
     total = sum(b["stages_s"].values())
-    p(f"Whole build (octofuse.build.build + write_maps) of {res['bag']}: {b['end_to_end_s']:.2f} s end to end "
+    p(f"Whole build (octofuse.maps.build.build + write_maps) of {res['bag']}: {b['end_to_end_s']:.2f} s end to end "
       f"({b['build_s']:.2f} s build + {b['write_s']:.2f} s writing {b['maps_bytes'] / 1e6:.1f} MB of maps), "
       f"{fmt_rate(b['build_points_per_s'])} points/s for the build")
     p(f"   centralized map of the build = OctoMap's: {'yes' if b['same_central_as_octomap'] else 'NO'}")

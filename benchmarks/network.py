@@ -4,7 +4,7 @@
    schedule aperiodic:20, every rule, 8 samples of the KL over time, scores against the
    centralized map and the scene's ground truth, and the outputs (fused maps and heat maps of
    the first agent, plots, summary.json, report.md). The run is
-   ``octofuse.network.simulate`` + ``octofuse.report.write_outputs``; its time is split into
+   ``octofuse.fusion.simulate.simulate`` + ``octofuse.outputs.report.write_outputs``; its time is split into
    insertion (the scans into every rule's maps, the local-only maps and the centralized map),
    exchange + fusion (wall time of the communication events), scoring (KL samples during the
    run and the final scores), export (writing maps and heat maps), the rest of
@@ -57,10 +57,10 @@ PARTS = ("insertion", "exchange + fusion", "scoring: KL samples during the run",
 def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict:
     """simulate (+ write_outputs when ``out`` is given) with the demo's setting; figures as a dict."""
     from octofuse.config import RunConfig
-    from octofuse.report import write_outputs
-    from octofuse.scene import Scene
-    from octofuse import network as sim_module
-    from octofuse.network import simulate
+    from octofuse.fusion import simulate as sim_module
+    from octofuse.fusion.simulate import simulate
+    from octofuse.maps.truth import Scene
+    from octofuse.outputs.report import write_outputs
 
     # the final scores are timed apart from the KL samples taken during the run
     final_scoring = [0.0]
@@ -79,11 +79,11 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
     cfg.build.scan_stride = every
     cfg.fuse.topology = TOPOLOGY
     cfg.fuse.schedule = SCHEDULE
-    cfg.fuse.rule = ",".join(rules)
+    cfg.fuse.rules = list(rules)
     scene = Scene.beside(bag)
     truth = Scene.load(scene) if scene is not None else None
     t0 = time.perf_counter()
-    res = simulate(cfg.build, cfg.fuse, rules, samples=SAMPLES, truth=truth)
+    res = simulate(cfg.build, cfg.fuse, samples=SAMPLES, truth=truth)
     t_sim = time.perf_counter() - t0
     t_out = 0.0
     if out is not None:

@@ -1,42 +1,56 @@
-"""octofuse: conservative fusion of multi-robot OctoMap occupancy maps.
+"""octofuse: conservative fusion of multi-robot beliefs (OctoMap occupancy maps first).
 
 The per-voxel weighted exponential product (WEP) rules (Chernoff, entropy- and
 KLD-weighted Chernoff, minimum information loss) and the naive-Bayes and Bhattacharyya
 baselines, applied to whole OctoMap trees by a compiled C++ core.
+
+The package follows the data flow: ``scans`` (bags to posed scans) -> ``maps`` (scans to
+maps, map fusion, scores) -> ``fusion`` (maps exchanged over a graph) -> ``outputs``
+(reports, exports, studies); ``beliefs`` and ``targets`` hold the same rules on target
+beliefs. ``import octofuse`` loads only the rules and the map types; the pipeline's public
+names below are imported on first use.
 """
 
 from __future__ import annotations
 
-from .maps import InfoLossMap, Leaves, MapFileError, MapFusion, OccupancyMap, fuse_into, fuse_maps
+import importlib
+import importlib.metadata
+
+from .maps.infoloss import InfoLossMap, Leaves
+from .maps.occupancy import MapFileError, MapFusion, OccupancyMap, exchange_maps, fuse_into, fuse_maps
 from .rules import RULES, WEP_RULES, BernoulliFusion, LogOddsFusion, fuse_bernoulli, fuse_logodds
 
-# the workflow: bags -> maps -> network fusion -> scores (``octofuse.simulate`` is the
-# function; its module stays importable as ``from octofuse.network import ...``)
-from .build import build_maps  # noqa: E402
-from .metrics import Score, compare, score  # noqa: E402
-from .network import SimResult, fuse_finished, simulate  # noqa: E402
+try:
+    __version__ = importlib.metadata.version("octofuse")
+except importlib.metadata.PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
 
-__version__ = "0.1.0"
+#: public name -> module that defines it (imported on first access)
+_LAZY = {
+    "AgentSpec": "config", "BuildConfig": "config", "FuseConfig": "config",
+    "MapConfig": "config", "RunConfig": "config", "load_yaml": "config",
+    "build_maps": "maps.build", "BuildResult": "maps.build",
+    "Score": "maps.compare", "compare": "maps.compare", "score": "maps.compare",
+    "make_graph": "fusion.graph", "SimResult": "fusion.network",
+    "simulate": "fusion.simulate", "fuse_finished": "fusion.rounds",
+}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'octofuse' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
-    "RULES",
-    "WEP_RULES",
-    "BernoulliFusion",
-    "InfoLossMap",
-    "Leaves",
-    "LogOddsFusion",
-    "MapFileError",
-    "MapFusion",
-    "OccupancyMap",
-    "fuse_bernoulli",
-    "fuse_logodds",
-    "Score",
-    "SimResult",
-    "build_maps",
-    "compare",
-    "fuse_finished",
-    "fuse_into",
-    "fuse_maps",
-    "score",
-    "simulate",
+    "RULES", "WEP_RULES", "BernoulliFusion", "InfoLossMap", "Leaves", "LogOddsFusion",
+    "MapFileError", "MapFusion", "OccupancyMap", "exchange_maps", "fuse_bernoulli",
+    "fuse_into", "fuse_logodds", "fuse_maps", *_LAZY,
 ]

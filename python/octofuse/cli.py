@@ -1,201 +1,259 @@
-"""The ``octofuse`` command line."""
+"""The ``octofuse`` command line: flags -> one configuration -> one call -> a table.
+
+Flags and ``--config`` files take one route: both become plain data, merged (flags win), and
+:func:`octofuse.config.from_dict` validates the result once. Heavy modules load inside the
+commands, so ``octofuse --help`` is quick.
+"""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
-from typing import List, Optional
+from typing import Optional
 
-import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
+import click
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Fuse multi-robot OctoMap occupancy maps conservatively (WEP rules).")
-console = Console(width=None if sys.stdout.isatty() else 120)
-err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+from .config import BuildConfig, FuseConfig, RunConfig
+
+_DEFAULT = RunConfig()
+CONTEXT = {"help_option_names": ["-h", "--help"], "show_default": True, "max_content_width": 100}
 
 
 class CliError(Exception):
     """An error the CLI reports as one line with a non-zero exit."""
 
 
-def _print_config(cfg) -> None:
+def _console(stderr: bool = False):
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    return Console(stderr=stderr, width=None if stream.isatty() else 120)
+
+
+def say(text: str) -> None:
+    _console().print(text, highlight=False, markup=False, soft_wrap=True)
+
+
+# ---------------------------------------------------------------------------- shared options
+
+
+def _options(*decorators):
+    def apply(f):
+        for d in reversed(decorators):
+            f = d(f)
+        return f
+    return apply
+
+
+bag_arguments = click.argument("bags", nargs=-1, type=click.Path(path_type=Path))
+config_options = _options(
+    click.option("--config", type=click.Path(dir_okay=False, path_type=Path),
+                 help="YAML configuration (see --dump-config); flags given win"),
+    click.option("--dump-config", is_flag=True,
+                 help="print the configuration (defaults + config file + flags) and exit"),
+)
+build_options = _options(
+    click.option("--agent", multiple=True, help="NAME=TOPIC (repeatable)  [default: one agent per "
+                 "scan topic]"),
+    click.option("--pose", multiple=True, help="NAME=POSE_TOPIC: Odometry/PoseStamped instead of tf"),
+    click.option("--sensor-offset", multiple=True, help="NAME=x,y,z,qx,qy,qz,qw sensor pose on the robot"),
+    click.option("--fixed-frame", help="fixed frame of the maps", show_default=_DEFAULT.build.fixed_frame),
+    click.option("--resolution", type=float, help="voxel size in metres",
+                 show_default=str(_DEFAULT.build.map.resolution)),
+    click.option("--max-range", type=float, help="longer rays only clear free space; <= 0: no limit",
+                 show_default="no limit"),
+    click.option("--no-return", type=click.Choice(["skip", "free"]),
+                 help="LaserScan beams without echo", show_default=_DEFAULT.build.no_return),
+    click.option("--every", type=click.IntRange(min=1), help="use every N-th scan of each agent",
+                 show_default="1"),
+    click.option("--threads", type=click.IntRange(0, 256),
+                 help="threads for ray casting, fusion and scoring; 0: one per core", show_default="0"),
+)
+rule_option = click.option("--rule", "--rules", "rule", multiple=True,
+                           help="fusion rule(s), comma separated, or 'all'",
+                           show_default=",".join(_DEFAULT.fuse.rules))
+exchange_options = _options(
+    click.option("--schedule", help="aperiodic:MEAN_S or periodic:PERIOD_S",
+                 show_default=_DEFAULT.fuse.schedule),
+    click.option("--directions", type=click.Choice(["both", "one"]), help="messages on a link",
+                 show_default=_DEFAULT.fuse.directions),
+    click.option("--delta/--whole-maps", default=None,
+                 help="send only voxels changed since the last message on a link",
+                 show_default="whole maps"),
+    click.option("--unknown", type=click.Choice(["copy", "prior"]),
+                 help="voxels known to one map only", show_default=_DEFAULT.fuse.unknown),
+    click.option("--seed", type=int, help="seed of random topologies and schedules",
+                 show_default=str(_DEFAULT.fuse.seed)),
+    click.option("--truth", type=click.Path(dir_okay=False, path_type=Path),
+                 help="scene ground truth JSON", show_default="NAME_scene.json beside the bag"),
+)
+topology_option = click.option("--topology", help="ring, line, star, complete, grid, random:P, "
+                                "max-robust:K or a graph file", show_default=_DEFAULT.fuse.topology)
+out_option = click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+                          help="output folder (replaced whole when it holds an earlier octofuse "
+                               "output)")
+
+
+def _pairs(values, what: str) -> dict[str, str]:
+    out = {}
+    for s in values:
+        k, sep, v = s.partition("=")
+        if not sep or not k or not v:
+            raise click.BadParameter(f"{s!r}: expected {what}")
+        out[k] = v
+    return out
+
+
+def _given(**values) -> dict:
+    return {k: v for k, v in values.items() if v is not None and v != () and v != []}
+
+
+def run_config(p: dict, *, bags=None) -> RunConfig:
+    """The configuration of a command: defaults, then ``--config``, then the flags in ``p``."""
+    from .config import from_dict, merge, read_yaml
+
+    data = read_yaml(p["config"]) if p.get("config") else {}
+    build = _given(fixed_frame=p.get("fixed_frame"), max_range=p.get("max_range"),
+                   no_return=p.get("no_return"), scan_stride=p.get("every"),
+                   threads=p.get("threads"))
+    if bags:
+        build["bags"] = [str(b) for b in bags]
+    if p.get("resolution") is not None:
+        build["map"] = {"resolution": p["resolution"]}
+    if p.get("agent"):
+        build["agents"] = [dict(zip(("name", "topic"), kv))
+                           for kv in _pairs(p["agent"], "NAME=TOPIC").items()]
+    fuse = _given(rules=list(p.get("rule") or ()), topology=p.get("topology"),
+                  schedule=p.get("schedule"), directions=p.get("directions"),
+                  delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"))
+    run = _given(out=str(p["out"]) if p.get("out") else None,
+                 truth=str(p["truth"]) if p.get("truth") else None,
+                 samples=p.get("samples"), export_agents=p.get("export_agents"))
+    data = merge(data, {"build": build, "fuse": fuse, **run})
+    _agent_poses(data, p)
+    where = f"config file '{p['config']}' with the flags" if p.get("config") else "options"
+    return from_dict(RunConfig, data, where=where)
+
+
+def _agent_poses(data: dict, p: dict) -> None:
+    poses = _pairs(p.get("pose") or (), "NAME=POSE_TOPIC")
+    offsets = _pairs(p.get("sensor_offset") or (), "NAME=x,y,z,qx,qy,qz,qw")
+    agents = {a.get("name"): a for a in data.get("build", {}).get("agents", []) if isinstance(a, dict)}
+    for name in [*poses, *offsets]:
+        if name not in agents:
+            raise click.BadParameter(f"--pose/--sensor-offset name '{name}' is not an agent given "
+                                     f"with --agent (agents: {', '.join(map(str, agents)) or 'none'})")
+    for name, topic in poses.items():
+        agents[name]["pose_topic"] = topic
+    for name, text in offsets.items():
+        try:
+            agents[name]["sensor_offset"] = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise click.BadParameter(f"--sensor-offset {name}: expected 7 numbers "
+                                     "x,y,z,qx,qy,qz,qw") from None
+
+
+def _dump(cfg) -> None:
     from .config import dump_yaml
 
-    console.print(dump_yaml(cfg), end="", highlight=False, markup=False, soft_wrap=True)
+    click.echo(dump_yaml(cfg), nl=False)
 
 
-def _build_config(bags, agent, pose, sensor_offset, fixed_frame, resolution, max_range, no_return,
-                  every, config):
-    """Merge a YAML config (if any) with command-line flags (flags win when given)."""
-    from .build import parse_agent
-    from .config import BuildConfig, RunConfig, load_yaml
-
-    cfg = load_yaml(config, RunConfig).build if config else BuildConfig()
-    if bags:
-        cfg.bags = [str(b) for b in bags]
-    if agent:
-        cfg.agents = [parse_agent(a) for a in agent]
-    poses = dict(_kv(p, "--pose NAME=TOPIC") for p in (pose or []))
-    offsets = dict(_kv(o, "--sensor-offset NAME=x,y,z,qx,qy,qz,qw") for o in (sensor_offset or []))
-    names = {a.name for a in cfg.agents}
-    for name in list(poses) + list(offsets):
-        if name not in names:
-            raise CliError(f"--pose/--sensor-offset name '{name}' is not an agent given with "
-                           f"--agent (agents: {', '.join(sorted(names)) or 'none'})")
-    for a in cfg.agents:
-        if a.name in poses:
-            a.pose_topic = poses[a.name]
-        if a.name in offsets:
-            try:
-                a.sensor_offset = [float(v) for v in offsets[a.name].split(",")]
-            except ValueError:
-                raise CliError(f"--sensor-offset {a.name}: expected 7 numbers x,y,z,qx,qy,qz,qw") from None
-    if fixed_frame is not None:
-        cfg.fixed_frame = fixed_frame
-    if resolution is not None:
-        cfg.map.resolution = resolution
-    if max_range is not None:
-        cfg.max_range = max_range
-    if no_return is not None:
-        cfg.no_return = no_return
-    if every is not None:
-        cfg.scan_stride = every
-    return cfg
-
-
-def _kv(s: str, what: str) -> tuple[str, str]:
-    k, sep, v = s.partition("=")
-    if not sep or not k or not v:
-        raise CliError(f"{s!r}: expected {what}")
-    return k, v
-
-
-def _check_bags(bags) -> None:
-    for b in bags:
+def _need_bags(cfg: RunConfig, usage: str) -> None:
+    if not cfg.build.bags:
+        raise click.UsageError(f"no bag given: {usage}")
+    for b in cfg.build.bags:
         if not Path(b).exists():
             raise CliError(f"bag '{b}' does not exist")
 
 
-def _progress():
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeRemainingColumn(), console=err, transient=True, disable=not err.is_terminal)
-
-
-def _build_table(result) -> Table:
-    t = Table("agent", "topic", "scans used", "skipped", "points", "leaves", "seconds",
-              title="octofuse build")
-    for s in result.stats:
-        t.add_row(s.name, s.topic, str(s.scans_used), str(s.scans_skipped), f"{s.points:,}",
-                  f"{result.maps[s.name].num_leaves:,}", f"{s.seconds:.2f}")
-    t.add_row("centralized", "(all)", str(sum(s.scans_used for s in result.stats)),
-              str(sum(s.scans_skipped for s in result.stats)),
-              f"{sum(s.points for s in result.stats):,}", f"{result.centralized.num_leaves:,}",
-              f"{result.seconds:.2f}")
-    return t
+def _need_out(cfg: RunConfig, given: Optional[Path]) -> Path:
+    if given is None and cfg.out == _DEFAULT.out:
+        raise click.UsageError("--out DIR is required")
+    return Path(cfg.out)
 
 
-def _skip_notes(result) -> list[str]:
-    notes = []
-    for s in result.stats:
-        for reason, n in sorted(s.skipped.items()):
-            notes.append(f"{s.name}: skipped {n} scan(s): {reason}")
-    return notes
+class Progress:
+    """A progress bar on a terminal (nothing otherwise); called as ``bar(done, total)``."""
+
+    def __init__(self, description: str):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn
+        from rich.progress import TimeRemainingColumn
+
+        console = _console(stderr=True)
+        self._bar = Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeRemainingColumn(), console=console, transient=True,
+                        disable=not console.is_terminal)
+        self._task = self._bar.add_task(description, total=None)
+
+    def __enter__(self) -> "Progress":
+        self._bar.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._bar.__exit__(*exc)
+
+    def __call__(self, done: int, total: int) -> None:
+        self._bar.update(self._task, completed=done, total=total)
 
 
-BagsArg = typer.Argument(None, help="ROS 1 .bag files, ROS 2 bag folders or .mcap files")
-AgentOpt = typer.Option(None, "--agent", help="NAME=TOPIC (repeatable); default: one agent per scan topic")
-PoseOpt = typer.Option(None, "--pose", help="NAME=POSE_TOPIC: Odometry/PoseStamped instead of tf")
-OffsetOpt = typer.Option(None, "--sensor-offset", help="NAME=x,y,z,qx,qy,qz,qw sensor pose on the robot")
-FrameOpt = typer.Option(None, "--fixed-frame", help="fixed frame of the maps [default: map]")
-ResOpt = typer.Option(None, "--resolution", help="voxel size in metres [default: 0.05]")
-RangeOpt = typer.Option(None, "--max-range", help="longer rays only clear free space [default: none]")
-NoRetOpt = typer.Option(None, "--no-return", help="LaserScan beams without echo: skip (default) or free")
-EveryOpt = typer.Option(None, "--every", help="use every N-th scan of each agent [default: 1]")
-ConfigOpt = typer.Option(None, "--config", help="YAML config file (see --dump-config)")
-DumpOpt = typer.Option(False, "--dump-config", help="print the configuration (defaults + given) and exit")
+# ---------------------------------------------------------------------------------- commands
 
 
-@app.command()
-def build(
-    bags: Optional[List[Path]] = BagsArg,
-    agent: Optional[List[str]] = AgentOpt,
-    pose: Optional[List[str]] = PoseOpt,
-    sensor_offset: Optional[List[str]] = OffsetOpt,
-    fixed_frame: Optional[str] = FrameOpt,
-    resolution: Optional[float] = ResOpt,
-    max_range: Optional[float] = RangeOpt,
-    no_return: Optional[str] = NoRetOpt,
-    every: Optional[int] = EveryOpt,
-    config: Optional[Path] = ConfigOpt,
-    dump_config: bool = DumpOpt,
-    out: Optional[Path] = typer.Option(None, "--out", help="output folder for NAME.ot and centralized.ot"),
-):
+@click.group(context_settings=CONTEXT)
+@click.version_option(package_name="octofuse", prog_name="octofuse")
+def cli() -> None:
+    """Conservative fusion of multi-robot beliefs: OctoMap maps fused with WEP rules."""
+
+
+@cli.command()
+@bag_arguments
+@build_options
+@config_options
+@out_option
+def build(bags, **p):
     """Build every agent's map and the centralized map from bags."""
-    from .config import RunConfig
+    from .maps.build import build as build_maps_from, write_maps
+    from .outputs.staging import check_replaceable, staged_folder
+    from .outputs.tables import build_table, skip_notes
 
-    cfg = _build_config(bags, agent, pose, sensor_offset, fixed_frame, resolution, max_range,
-                        no_return, every, config)
-    if dump_config:
-        _print_config(RunConfig(build=cfg, out=str(out or "octofuse-out")))
-        return
-    if not cfg.bags:
-        raise CliError("no bag given: octofuse build BAG... --out DIR")
-    if out is None:
-        raise CliError("--out DIR is required")
-    _check_bags(cfg.bags)
-    from .build import ScanSource, build as run_build, write_maps
-
-    with ScanSource(cfg) as src:
-        total = src.total_scans
-    with _progress() as prog:
-        task = prog.add_task("inserting scans", total=total)
-        result = run_build(cfg, progress=lambda n: prog.advance(task, n))
-    paths = write_maps(result, out)
-    console.print(_build_table(result))
-    for note in _skip_notes(result):
-        console.print(f"[yellow]{escape(note)}[/]", highlight=False, soft_wrap=True)
-    console.print(f"wrote {len(paths)} maps to {escape(str(out))}/", highlight=False, soft_wrap=True)
+    cfg = run_config(p, bags=bags)
+    if p["dump_config"]:
+        return _dump(cfg)
+    _need_bags(cfg, "octofuse build BAG... --out DIR")
+    out = check_replaceable(_need_out(cfg, p["out"]))
+    with Progress("inserting scans") as bar:
+        result = build_maps_from(cfg.build, progress=bar)
+    with staged_folder(out, "build") as stage:
+        write_maps(result, stage)
+    _console().print(build_table(result))
+    for note in skip_notes(result):
+        say(note)
+    say(f"wrote {len(result.all_maps())} maps to {out}/")
 
 
-def _rules(rule: Optional[List[str]]) -> list[str]:
-    from .rules import RULES, rule_index
+def _run_and_report(cfg: RunConfig, title: str, command: str) -> None:
+    from .fusion.simulate import simulate
+    from .maps.truth import Scene
+    from .outputs.report import write_outputs
+    from .outputs.staging import check_replaceable, staged_folder
+    from .outputs.tables import scores_table
 
-    out: list[str] = []
-    for r in rule or []:
-        for x in r.split(","):
-            x = x.strip()
-            if x == "all":
-                out.extend(RULES)
-            elif x:
-                rule_index(x)
-                out.append(x)
-    return list(dict.fromkeys(out))
-
-
-def _truth(truth: Optional[Path], bags):
-    from .scene import Scene
-
-    if truth is not None:
-        return Scene.load(truth)
-    for b in bags:
-        p = Scene.beside(b)
-        if p is not None:
-            return Scene.load(p)
-    return None
+    out = check_replaceable(cfg.out)
+    truth = Scene.find(cfg.truth, cfg.build.bags)
+    with Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))") as bar:
+        res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar)
+    with staged_folder(out, command) as stage:
+        write_outputs(res, stage, cfg, export_agents=_export_agents(cfg.export_agents, res.agents),
+                      title=title)
+    _console().print(scores_table(res, title))
+    say(f"report: {out / 'report.md'}")
 
 
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
-    if spec == "all":
-        return agents
-    if spec == "none":
-        return []
-    if spec == "first":
-        return agents[:1]
+    if spec in ("all", "none", "first"):
+        return {"all": agents, "none": [], "first": agents[:1]}[spec]
     names = [x.strip() for x in spec.split(",") if x.strip()]
     bad = [n for n in names if n not in agents]
     if bad:
@@ -203,109 +261,26 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
     return names
 
 
-def _fuse_config(cfg, rule, topology, schedule, directions, delta, unknown, seed):
-    f = cfg.fuse
-    if rule:
-        f.rule = ",".join(rule)
-    if topology is not None:
-        f.topology = topology
-    if schedule is not None:
-        f.schedule = schedule
-    if directions is not None:
-        f.directions = directions
-    if delta is not None:
-        f.delta = delta
-    if unknown is not None:
-        f.unknown = unknown
-    if seed is not None:
-        f.seed = seed
-    return cfg
-
-
-RuleOpt = typer.Option(None, "--rule", "--rules", help="fusion rule(s), comma separated, or 'all'")
-TopoOpt = typer.Option(None, "--topology", help="ring, line, star, complete, grid, random:P, max-robust:K or a file")
-SchedOpt = typer.Option(None, "--schedule", help="aperiodic:MEAN_S or periodic:PERIOD_S")
-DirOpt = typer.Option(None, "--directions", help="both (default) or one")
-DeltaOpt = typer.Option(None, "--delta/--whole-maps", help="send only voxels changed since the last message")
-UnknownOpt = typer.Option(None, "--unknown", help="voxels known to one map only: copy (default) or prior")
-SeedOpt = typer.Option(None, "--seed", help="seed of random topologies and schedules")
-TruthOpt = typer.Option(None, "--truth", help="scene ground truth JSON (default: NAME_scene.json beside the bag)")
-
-
-def _run_job(cfg, rules, out: Path, *, samples: int, truth_path, export_agents: str, title: str):
-    from .report import mean_scores, write_outputs
-    from .network import simulate
-
-    _check_bags(cfg.build.bags)
-    if not rules:
-        rules = _rules([cfg.fuse.rule])
-    from .build import ScanSource
-
-    with ScanSource(cfg.build) as src:
-        total = src.total_scans
-        agents = [a.name for a in src.agents]
-    truth = _truth(truth_path, cfg.build.bags)
-    cfg.fuse.rule = ",".join(rules)
-    with _progress() as prog:
-        task = prog.add_task(f"mapping + fusing ({len(rules)} rule(s))", total=total)
-        res = simulate(cfg.build, cfg.fuse, rules, samples=samples, truth=truth,
-                       progress=lambda n: prog.advance(task, n))
-    paths = write_outputs(res, out, cfg, export_agents=_export_agents(export_agents, agents),
-                          title=title)
-    means = mean_scores(res.scores)
-    t = Table("rule", "KL(central‖agent)", "over-confident", "agreement", "coverage",
-              "loss mean", "loss p95", title=title)
-    for r, row in means.items():
-        def f(k, fmt):
-            return "–" if row.get(k) is None else fmt.format(row[k])
-        t.add_row(r, f("kl_mean", "{:.4f}"), f("overconfidence", "{:.1%}"), f("agreement", "{:.1%}"),
-                  f("coverage", "{:.1%}"), f("loss_mean", "{:.3f}"), f("loss_p95", "{:.3f}"))
-    console.print(t)
-    console.print(f"report: {paths['report']}", highlight=False, soft_wrap=True)
-    return res, paths
-
-
-@app.command()
-def run(
-    bags: Optional[List[Path]] = BagsArg,
-    rule: Optional[List[str]] = RuleOpt,
-    topology: Optional[str] = TopoOpt,
-    schedule: Optional[str] = SchedOpt,
-    directions: Optional[str] = DirOpt,
-    delta: Optional[bool] = DeltaOpt,
-    unknown: Optional[str] = UnknownOpt,
-    seed: Optional[int] = SeedOpt,
-    agent: Optional[List[str]] = AgentOpt,
-    pose: Optional[List[str]] = PoseOpt,
-    sensor_offset: Optional[List[str]] = OffsetOpt,
-    fixed_frame: Optional[str] = FrameOpt,
-    resolution: Optional[float] = ResOpt,
-    max_range: Optional[float] = RangeOpt,
-    no_return: Optional[str] = NoRetOpt,
-    every: Optional[int] = EveryOpt,
-    truth: Optional[Path] = TruthOpt,
-    samples: int = typer.Option(12, "--samples", help="points in time at which KL is recorded"),
-    export_agents: str = typer.Option("all", "--export-agents", help="agents whose maps and heat maps are written: all, first, none or names"),
-    config: Optional[Path] = ConfigOpt,
-    dump_config: bool = DumpOpt,
-    out: Optional[Path] = typer.Option(None, "--out", help="output folder"),
-):
+@cli.command()
+@bag_arguments
+@rule_option
+@topology_option
+@exchange_options
+@build_options
+@click.option("--samples", type=click.IntRange(0, 10_000), help="points in time at which KL is recorded",
+              show_default=str(_DEFAULT.samples))
+@click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
+              "or names", show_default=_DEFAULT.export_agents)
+@config_options
+@out_option
+def run(bags, **p):
     """The whole job in time order: build, exchange, fuse, score, export, report."""
-    from .config import RunConfig, load_yaml
-
-    cfg = load_yaml(config, RunConfig) if config else RunConfig()
-    cfg.build = _build_config(bags, agent, pose, sensor_offset, fixed_frame, resolution, max_range,
-                              no_return, every, config)
-    _fuse_config(cfg, rule, topology, schedule, directions, delta, unknown, seed)
-    if out is not None:
-        cfg.out = str(out)
-    if dump_config:
-        _print_config(cfg)
-        return
-    if not cfg.build.bags:
-        raise CliError("no bag given: octofuse run BAG... --rule R --topology T --out DIR")
-    _run_job(cfg, _rules([cfg.fuse.rule]), Path(cfg.out), samples=samples, truth_path=truth,
-             export_agents=export_agents, title="octofuse run")
+    cfg = run_config(p, bags=bags)
+    if p["dump_config"]:
+        return _dump(cfg)
+    _need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
+    _need_out(cfg, p["out"])
+    _run_and_report(cfg, "octofuse run", "run")
 
 
 def bundled_dataset() -> Path:
@@ -318,177 +293,182 @@ def bundled_dataset() -> Path:
                    "`octofuse run data/lab8.bag ...` from the source checkout)")
 
 
-@app.command()
-def demo(
-    out: Path = typer.Option(Path("octofuse-demo"), "--out", help="output folder"),
-    rule: Optional[List[str]] = typer.Option(None, "--rule", "--rules", help="rules [default: all]"),
-    every: Optional[int] = EveryOpt,
-):
+@cli.command()
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("octofuse-demo"),
+              help="output folder")
+@click.option("--rule", "--rules", "rule", multiple=True, help="rules, comma separated",
+              show_default="all")
+@click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
+@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+def demo(**p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
-    from .config import RunConfig
-
     bag = bundled_dataset()
-    cfg = RunConfig()
-    cfg.build.bags = [str(bag)]
-    cfg.fuse.topology = "max-robust:3"
-    cfg.fuse.schedule = "aperiodic:20"
-    if every is not None:
-        cfg.build.scan_stride = every
-    cfg.out = str(out)
-    console.print(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), "
-                  f"max-robust:3, aperiodic exchanges, every rule", highlight=False)
-    _run_job(cfg, _rules(rule or ["all"]), out, samples=8, truth_path=None,
-             export_agents="first", title="octofuse demo: 8 robots, max-robust:3")
+    p = {**p, "rule": p["rule"] or ("all",), "topology": "max-robust:3", "schedule": "aperiodic:20",
+         "samples": 8, "export_agents": "first"}
+    cfg = run_config(p, bags=[bag])
+    say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
+        "aperiodic exchanges, every rule")
+    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo")
 
 
-@app.command("fuse")
-def fuse_cmd(
-    maps_dir: Path = typer.Argument(..., help="folder written by `octofuse build` (NAME.ot, centralized.ot)"),
-    rule: Optional[List[str]] = RuleOpt,
-    topology: str = typer.Option("max-robust:3", "--topology"),
-    rounds: int = typer.Option(3, "--rounds", help="synchronous rounds of exchanges"),
-    seed: int = typer.Option(0, "--seed"),
-    unknown: str = typer.Option("copy", "--unknown"),
-    directions: str = typer.Option("both", "--directions"),
-    truth: Optional[Path] = TruthOpt,
-    out: Path = typer.Option(..., "--out", help="output folder"),
-):
-    """Fuse finished maps over a communication graph for R rounds."""
-    from .config import FuseConfig, RunConfig
-    from .maps import OccupancyMap
-    from .report import write_outputs
-    from .network import fuse_finished
+@cli.command("fuse")
+@click.argument("maps_dir", type=click.Path(path_type=Path))
+@rule_option
+@topology_option
+@click.option("--rounds", type=click.IntRange(1, 10_000), default=3, help="synchronous rounds of exchanges")
+@click.option("--directions", type=click.Choice(["both", "one"]), help="messages on a link",
+              show_default="both")
+@click.option("--unknown", type=click.Choice(["copy", "prior"]), help="voxels known to one map only",
+              show_default="copy")
+@click.option("--seed", type=int, help="seed of random topologies", show_default="0")
+@click.option("--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON")
+@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@config_options
+@out_option
+def fuse_cmd(maps_dir, rounds, **p):
+    """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
+    from .fusion.rounds import fuse_finished
+    from .maps.occupancy import OccupancyMap
+    from .maps.truth import Scene
+    from .outputs.report import write_outputs
+    from .outputs.staging import check_replaceable, staged_folder
 
+    cfg = run_config({**p, "schedule": f"rounds:{rounds}"}, bags=[maps_dir])
+    if p["dump_config"]:
+        return _dump(cfg)
+    out = check_replaceable(_need_out(cfg, p["out"]))
     if not maps_dir.is_dir():
         raise CliError(f"maps folder '{maps_dir}' does not exist")
-    files = sorted(p for p in maps_dir.glob("*.ot") if p.stem != "centralized")
+    files = sorted(f for f in maps_dir.glob("*.ot") if f.stem != "centralized")
     if len(files) < 2:
         raise CliError(f"'{maps_dir}' holds {len(files)} agent map(s) (*.ot besides centralized.ot); "
-                       f"fusion needs at least 2")
-    if rounds < 1:
-        raise CliError(f"--rounds {rounds}: expected 1 or more")
-    maps = {p.stem: OccupancyMap.load(p) for p in files}
-    cpath = maps_dir / "centralized.ot"
-    central = OccupancyMap.load(cpath) if cpath.is_file() else None
-    rules = _rules(rule) or ["min-info-loss"]
-    fcfg = FuseConfig(rule=",".join(rules), topology=topology, schedule=f"rounds:{rounds}",
-                      directions=directions, unknown=unknown, seed=seed)
-    from .scene import Scene
-
-    res = fuse_finished(maps, central, fcfg, rules, n_rounds=rounds,
-                        truth=Scene.load(truth) if truth else None)
-    cfg = RunConfig(fuse=fcfg, out=str(out))
-    cfg.build.bags = [str(maps_dir)]
-    paths = write_outputs(res, out, cfg, title=f"octofuse fuse: {rounds} rounds over {topology}")
-    console.print(f"fused {len(maps)} maps with {', '.join(rules)} over {topology} "
-                  f"({len(res.events)} messages); report: {paths['report']}", highlight=False,
-                  soft_wrap=True)
+                       "fusion needs at least 2")
+    maps = {f.stem: OccupancyMap.load(f) for f in files}
+    central_path = maps_dir / "centralized.ot"
+    central = OccupancyMap.load(central_path) if central_path.is_file() else None
+    res = fuse_finished(maps, central, cfg.fuse, truth=Scene.find(cfg.truth, []),
+                        threads=cfg.build.threads)
+    title = f"octofuse fuse: {rounds} rounds over {cfg.fuse.topology}"
+    with staged_folder(out, "fuse") as stage:
+        write_outputs(res, stage, cfg, title=title)
+    say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
+        f"({len(res.events)} messages); report: {out / 'report.md'}")
 
 
-@app.command()
-def bench(
-    bags: List[Path] = typer.Argument(..., help="bags (as for run)"),
-    rules: str = typer.Option("all", "--rules", help="comma separated rules or 'all'"),
-    topologies: str = typer.Option("ring,max-robust:3", "--topologies", help="comma separated topologies"),
-    schedule: Optional[str] = SchedOpt,
-    seed: Optional[int] = SeedOpt,
-    delta: Optional[bool] = DeltaOpt,
-    fixed_frame: Optional[str] = FrameOpt,
-    resolution: Optional[float] = ResOpt,
-    every: Optional[int] = EveryOpt,
-    truth: Optional[Path] = TruthOpt,
-    out: Path = typer.Option(..., "--out", help="output folder"),
-):
+@cli.command()
+@bag_arguments
+@rule_option
+@click.option("--topologies", default="ring,max-robust:3", help="comma separated topologies")
+@exchange_options
+@build_options
+@config_options
+@out_option
+def bench(bags, topologies, **p):
     """Compare rules x topologies against the centralized map: CSV, markdown and plots."""
-    from .bench import run_bench
-    from .config import RunConfig
+    from .maps.truth import Scene
+    from .outputs.staging import check_replaceable, staged_folder
+    from .outputs.study import run_study
 
-    cfg = RunConfig()
-    cfg.build = _build_config(bags, None, None, None, fixed_frame, resolution, None, None, every, None)
-    _fuse_config(cfg, None, None, schedule, None, delta, None, seed)
-    _check_bags(cfg.build.bags)
+    cfg = run_config({**p, "rule": p["rule"] or ("all",)}, bags=bags)
+    if p["dump_config"]:
+        return _dump(cfg)
+    _need_bags(cfg, "octofuse bench BAG... --out DIR")
+    out = check_replaceable(_need_out(cfg, p["out"]))
     topo = [t.strip() for t in topologies.split(",") if t.strip()]
     if not topo:
-        raise CliError("--topologies: give at least one topology")
-    paths = run_bench(cfg, _rules([rules]), topo, out, truth=_truth(truth, cfg.build.bags),
-                      console=console, progress=_progress)
-    console.print(f"wrote {', '.join(str(p) for p in paths)}", highlight=False, soft_wrap=True)
+        raise click.BadParameter("give at least one topology", param_hint="--topologies")
+    with staged_folder(out, "bench") as stage:
+        run_study(cfg, topo, stage, truth=Scene.find(cfg.truth, cfg.build.bags),
+                  progress=Progress, log=say)
+    say(f"wrote {out / 'bench.csv'}, {out / 'bench.md'} and plots")
 
 
-@app.command()
-def export(
-    src: Path = typer.Argument(..., help="map (.ot/.bt) or information-loss file (.npz)"),
-    out: Path = typer.Option(..., "--out", help="file to write: .ply/.pcd cloud, or .ot/.bt map"),
-    all_voxels: bool = typer.Option(False, "--all-voxels",
-                                    help="map clouds: every known voxel, not only occupied ones"),
-    cmap: Optional[str] = typer.Option(None, "--cmap", help="matplotlib colour map "
-                                       "(default: viridis for maps, inferno for heat maps)"),
-):
+@cli.command()
+@click.argument("src", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="file to write: .ply/.pcd cloud, or .ot/.bt map")
+@click.option("--all-voxels", is_flag=True, help="map clouds: every known voxel, not only occupied ones")
+@click.option("--cmap", help="matplotlib colour map", show_default="viridis for maps, inferno for heat maps")
+def export(src, out, all_voxels, cmap):
     """Write a map or an information-loss file as a PLY/PCD point cloud, or convert .ot/.bt."""
-    from .export import export_map
+    from .outputs.export import export_map
 
-    result = export_map(src, out, occupied_only=not all_voxels, cmap=cmap)
-    console.print(str(result), highlight=False, markup=False, soft_wrap=True)
+    say(str(export_map(src, out, occupied_only=not all_voxels, cmap=cmap)))
 
 
-@app.command()
-def info(maps: List[Path] = typer.Argument(..., help="OctoMap files (.ot or .bt)")):
+@cli.command()
+@click.argument("maps", nargs=-1, required=True, type=click.Path(path_type=Path))
+def info(maps):
     """Print resolution, size and occupancy statistics of map files."""
-    import numpy as np
+    from .outputs.tables import map_info_table
 
-    from .maps import OccupancyMap
-
-    t = Table("map", "resolution", "leaves", "occupied", "free", "memory MB")
-    for p in maps:
-        m = OccupancyMap.load(p)
-        v = m.leaves().values
-        t.add_row(str(p), f"{m.resolution:g}", f"{m.num_leaves}", f"{int(np.sum(v > 0))}",
-                  f"{int(np.sum(v <= 0))}", f"{m.memory_bytes / 1e6:.1f}")
-    console.print(t)
+    _console().print(map_info_table(maps))
 
 
-@app.command("fuse-pair")
-def fuse_pair(
-    a: Path = typer.Argument(..., help="first map (.ot/.bt)"),
-    b: Path = typer.Argument(..., help="second map (.ot/.bt)"),
-    rule: str = typer.Option("min-info-loss", help="fusion rule"),
-    unknown: str = typer.Option("copy", help="voxels known to one map only: copy or prior"),
-    out: Path = typer.Option(..., help="fused map to write (.ot or .bt)"),
-):
-    """Fuse two map files into one."""
-    from .maps import OccupancyMap, fuse_maps
+@cli.command("fuse-pair")
+@click.argument("a", type=click.Path(path_type=Path))
+@click.argument("b", type=click.Path(path_type=Path))
+@click.option("--rule", default="min-info-loss", help="fusion rule")
+@click.option("--unknown", type=click.Choice(["copy", "prior"]), default="copy",
+              help="voxels known to one map only")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="fused map to write (.ot or .bt)")
+def fuse_pair(a, b, rule, unknown, out):
+    """Fuse two map files into one (A.ot B.ot -> OUT.ot)."""
+    from .maps.compare import loss_stats
+    from .maps.occupancy import OccupancyMap, fuse_maps
+    from .rules import parse_rule
 
+    parse_rule(rule)
+    if out.suffix not in (".ot", ".bt"):
+        raise click.BadParameter(f"'{out}': expected a .ot or .bt file name", param_hint="--out")
     fused, loss = fuse_maps(OccupancyMap.load(a), OccupancyMap.load(b), rule=rule, unknown=unknown)
     fused.save(out)
-    v = loss.leaves().values
-    console.print(f"wrote {out}: {fused.num_leaves} leaves; information loss mean "
-                  f"{float(v.mean()) if len(v) else 0.0:.4f} nats over {len(v)} leaves")
+    mean, p95 = loss_stats(loss)
+    say(f"wrote {out}: {fused.num_leaves} leaves; information loss mean {mean:.4f}, p95 {p95:.4f} "
+        f"nats ({loss.voxels_fused} voxels fused, {loss.voxels_copied} copied from one map)")
+
+
+# ------------------------------------------------------------------------------ entry point
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    """Entry point: runs the CLI, turning expected errors into one line and exit code 1."""
-    from .io import BagError, TransformError
-    from .maps import MapFileError
-
+    """Run the CLI: usage errors exit 2 with click's message, bad input 1 with one line,
+    an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug)."""
     try:
-        app(args=argv, standalone_mode=False)
-    except (CliError, ValueError, OSError, MapFileError, KeyError, BagError, TransformError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        err.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
-        return 1
-    except KeyboardInterrupt:
-        err.print("interrupted")
+        cli.main(args=argv, prog_name="octofuse", standalone_mode=False)
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.ClickException as e:
+        e.show()
+        return e.exit_code
+    except click.Abort:
+        _error("interrupted")
         return 130
-    except Exception as e:  # click usage errors and the like
-        import click
-
-        if isinstance(e, click.exceptions.ClickException):
-            e.show()
-            return e.exit_code
-        if isinstance(e, click.exceptions.Exit):
-            return e.exit_code
-        raise
+    except KeyboardInterrupt:
+        _error("interrupted")
+        return 130
+    except (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError) as e:
+        _error(_message(e))
+        return 1
+    except Exception as e:  # a bug in octofuse, not bad input
+        if os.environ.get("OCTOFUSE_DEBUG"):
+            raise
+        _error(f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
+               "for the traceback")
+        return 70
     return 0
+
+
+def _message(e: BaseException) -> str:
+    if isinstance(e, MemoryError):
+        return "out of memory: " + (str(e) or "the input asks for more memory than the machine has")
+    text = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
+    return " ".join(str(text).split()) or type(e).__name__
+
+
+def _error(text: str) -> None:
+    click.echo(f"error: {text}", err=True)
 
 
 if __name__ == "__main__":

@@ -1,13 +1,25 @@
-"""One typed configuration shared by the CLI, the Python API and saved runs."""
+"""One typed configuration shared by the CLI, the Python API and saved runs.
+
+Every value has one route: YAML files and command-line flags are merged as plain data and
+turned into these dataclasses by :func:`from_dict`, which checks each value's type and range
+once and names the file and key of a bad one. ``octofuse ... --dump-config`` writes the
+merged result; feeding it back (``--config``, or :func:`load_yaml` to the API) gives the same run.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
 import yaml
+
+#: the most threads a config may ask for (the machine's cores are the useful number)
+MAX_THREADS = 256
 
 
 @dataclass
@@ -22,6 +34,15 @@ class AgentSpec:
     #: static sensor offset on the robot: x y z qx qy qz qw (with ``pose_topic``)
     sensor_offset: Optional[list[float]] = None
 
+    def validate(self, where: str) -> None:
+        if not self.name or "/" in self.name or self.name == "centralized":
+            raise ValueError(f"{where}.name = {self.name!r}: expected a name without '/' "
+                             "('centralized' is reserved)")
+        if not self.topic:
+            raise ValueError(f"{where}.topic: expected the agent's scan topic")
+        if self.sensor_offset is not None and len(self.sensor_offset) != 7:
+            raise ValueError(f"{where}.sensor_offset: expected 7 numbers x y z qx qy qz qw")
+
 
 @dataclass
 class MapConfig:
@@ -31,6 +52,19 @@ class MapConfig:
     prob_hit: float = 0.7
     prob_miss: float = 0.4
     clamping: tuple[float, float] = (0.1192, 0.971)
+
+    def validate(self, where: str) -> None:
+        if not 1e-3 <= self.resolution <= 100.0:
+            raise ValueError(f"{where}.resolution = {self.resolution}: expected a voxel size "
+                             "from 0.001 to 100 metres")
+        if not 0.5 < self.prob_hit < 1.0:
+            raise ValueError(f"{where}.prob_hit = {self.prob_hit}: expected 0.5 < p < 1")
+        if not 0.0 < self.prob_miss < 0.5:
+            raise ValueError(f"{where}.prob_miss = {self.prob_miss}: expected 0 < p < 0.5")
+        lo, hi = self.clamping
+        if not 0.0 < lo < 0.5 < hi < 1.0:
+            raise ValueError(f"{where}.clamping = {list(self.clamping)}: expected two "
+                             "probabilities min < 0.5 < max")
 
 
 @dataclass
@@ -53,15 +87,39 @@ class BuildConfig:
     scan_stride: int = 1
     #: scans inserted per call into the C++ core
     batch_size: int = 32
-    #: threads for ray casting (the machine has 2 cores)
-    threads: int = 2
+    #: threads for ray casting and fusion; 0: one per core of the machine
+    threads: int = 0
+
+    def validate(self, where: str) -> None:
+        self.map.validate(f"{where}.map")
+        for i, a in enumerate(self.agents):
+            a.validate(f"{where}.agents[{i}]")
+        if self.no_return not in ("skip", "free"):
+            raise ValueError(f"{where}.no_return = {self.no_return!r}: expected 'skip' or 'free'")
+        if not self.fixed_frame.strip("/"):
+            raise ValueError(f"{where}.fixed_frame: expected a frame name")
+        if not math.isfinite(self.max_range):
+            raise ValueError(f"{where}.max_range = {self.max_range}: expected a finite number")
+        if self.scan_stride < 1:
+            raise ValueError(f"{where}.scan_stride = {self.scan_stride}: expected 1 or more")
+        if not 1 <= self.batch_size <= 4096:
+            raise ValueError(f"{where}.batch_size = {self.batch_size}: expected 1 to 4096")
+        if not 0 <= self.threads <= MAX_THREADS:
+            raise ValueError(f"{where}.threads = {self.threads}: expected 0 (one per core) "
+                             f"to {MAX_THREADS}")
+
+    @property
+    def workers(self) -> int:
+        """The number of threads to use."""
+        return self.threads or os.cpu_count() or 1
 
 
 @dataclass
 class FuseConfig:
     """How maps are exchanged and fused (``octofuse fuse`` / ``run``)."""
 
-    rule: str = "min-info-loss"
+    #: fusion rules run side by side (each on its own copy of every agent's map); "all": every rule
+    rules: list[str] = field(default_factory=lambda: ["min-info-loss"])
     topology: str = "max-robust:3"
     #: "aperiodic:MEAN_S", "periodic:PERIOD_S" (``run``) or "rounds:N" (``fuse``)
     schedule: str = "aperiodic:10"
@@ -74,6 +132,32 @@ class FuseConfig:
     #: (in log-odds) count as over-confident
     overconfidence_tol: float = 0.1
 
+    def validate(self, where: str) -> None:
+        from .rules import RULES, UNKNOWN_POLICIES
+
+        if isinstance(self.rules, str):
+            self.rules = [self.rules]
+        names: list[str] = []
+        for r in self.rules:
+            for x in str(r).split(","):
+                x = x.strip()
+                names.extend(RULES if x == "all" else [x] if x else [])
+        bad = [r for r in names if r not in RULES]
+        if bad:
+            raise ValueError(f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
+                             f"{', '.join(RULES)} (or all)")
+        if not names:
+            raise ValueError(f"{where}.rules: give at least one fusion rule")
+        self.rules = list(dict.fromkeys(names))
+        if self.unknown not in UNKNOWN_POLICIES:
+            raise ValueError(f"{where}.unknown = {self.unknown!r}: expected one of "
+                             f"{', '.join(UNKNOWN_POLICIES)}")
+        if self.directions not in ("both", "one"):
+            raise ValueError(f"{where}.directions = {self.directions!r}: expected both or one")
+        if not (math.isfinite(self.overconfidence_tol) and self.overconfidence_tol >= 0):
+            raise ValueError(f"{where}.overconfidence_tol = {self.overconfidence_tol}: "
+                             "expected a number >= 0")
+
 
 @dataclass
 class RunConfig:
@@ -82,12 +166,26 @@ class RunConfig:
     build: BuildConfig = field(default_factory=BuildConfig)
     fuse: FuseConfig = field(default_factory=FuseConfig)
     out: str = "octofuse-out"
+    #: points in time at which KL to the centralized map is recorded
+    samples: int = 12
+    #: agents whose fused maps and heat maps are written: all, first, none or names
+    export_agents: str = "all"
+    #: scene ground truth JSON (default: NAME_scene.json beside the first bag)
+    truth: Optional[str] = None
+
+    def validate(self, where: str) -> None:
+        self.build.validate(f"{where}.build")
+        self.fuse.validate(f"{where}.fuse")
+        if not 0 <= self.samples <= 10_000:
+            raise ValueError(f"{where}.samples = {self.samples}: expected 0 to 10000")
+
+
+# ------------------------------------------------------------------------------ plain data
 
 
 def to_dict(cfg: Any) -> dict:
     """A plain dict (YAML/JSON-ready) of a config dataclass."""
-    d = dataclasses.asdict(cfg)
-    return _plain(d)
+    return _plain(dataclasses.asdict(cfg))
 
 
 def _plain(x):
@@ -100,57 +198,114 @@ def _plain(x):
     return x
 
 
-def from_dict(cls, data: dict, where: str = "config"):
-    """Build a config dataclass from a dict, rejecting unknown keys with a clear message."""
+def from_dict(cls, data: Any, where: str = "config"):
+    """Build and validate a config dataclass from plain data.
+
+    Unknown keys, values of the wrong type and values out of range raise ``ValueError``
+    naming ``where`` and the key.
+    """
+    obj = _build(cls, data, where)
+    obj.validate(where)
+    return obj
+
+
+def _build(cls, data: Any, where: str):
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ValueError(f"{where}: expected a mapping, got {type(data).__name__}")
+        raise ValueError(f"{where}: expected a mapping of keys to values, got {_kind(data)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
+    unknown = sorted(str(k) for k in set(data) - set(fields))
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; "
                          f"valid keys are {', '.join(fields)}")
-    kwargs = {}
-    for name, value in data.items():
-        f = fields[name]
-        sub = _SUBCONFIGS.get((cls, name))
-        if sub is not None:
-            if name == "agents":
-                if not isinstance(value, list):
-                    raise ValueError(f"{where}.agents: expected a list of {{name, topic}}")
-                value = [from_dict(AgentSpec, v, f"{where}.agents[{i}]") for i, v in enumerate(value)]
-            else:
-                value = from_dict(sub, value, f"{where}.{name}")
-        elif name == "clamping":
-            value = tuple(value)
-        elif name == "bags":
-            if isinstance(value, str):  # one bag
-                value = [value]
-            if not isinstance(value, list) or not all(isinstance(b, str) for b in value):
-                raise ValueError(f"{where}.bags: expected a list of bag paths")
-        kwargs[f.name] = value
-    return cls(**kwargs)
+    hints = typing.get_type_hints(cls)
+    kwargs = {name: _convert(hints[name], value, f"{where}.{name}")
+              for name, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except TypeError as e:  # a required key is missing
+        raise ValueError(f"{where}: {e}") from None
 
 
-_SUBCONFIGS = {
-    (BuildConfig, "agents"): AgentSpec,
-    (BuildConfig, "map"): MapConfig,
-    (RunConfig, "build"): BuildConfig,
-    (RunConfig, "fuse"): FuseConfig,
-}
+def _convert(tp, value: Any, where: str):
+    """``value`` as type ``tp`` (no lossy coercion: '2' is not an int)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Union:  # Optional[X]
+        if value is None:
+            return None
+        return _convert(next(a for a in args if a is not type(None)), value, where)
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, where)
+    if origin is list:
+        if tp == list[str] and isinstance(value, str):  # one item
+            value = [value]
+        if not isinstance(value, list):
+            raise ValueError(f"{where}: expected a list, got {_kind(value)}")
+        return [_convert(args[0], v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise ValueError(f"{where}: expected a list of {len(args)} numbers, got {_kind(value)}")
+        return tuple(_convert(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{where}: expected true or false, got {_kind(value)}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{where}: expected a whole number, got {_kind(value)}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{where}: expected a number, got {_kind(value)}")
+        if not math.isfinite(value):
+            raise ValueError(f"{where}: expected a finite number, got {value}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{where}: expected text, got {_kind(value)}")
+        return value
+    raise TypeError(f"{where}: unsupported config type {tp}")  # a bug, not bad input
+
+
+def _kind(value: Any) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
 def load_yaml(path: str | Path, cls=RunConfig):
-    """Read a YAML config file into ``cls``; errors name the file and the key."""
+    """Read and validate a YAML config file; errors name the file and the key."""
+    return from_dict(cls, read_yaml(path), where=str(path))
+
+
+def read_yaml(path: str | Path) -> dict:
+    """The plain data of a YAML config file (a mapping); errors name the file."""
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"config file '{p}' does not exist")
+        raise FileNotFoundError(f"config file '{p}' does not exist or is not a regular file")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"config file '{p}' is not UTF-8 text") from None
     except yaml.YAMLError as e:
-        raise ValueError(f"config file '{p}' is not valid YAML: {e}") from None
-    return from_dict(cls, data, where=str(p))
+        mark = getattr(e, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ValueError(f"config file '{p}' is not valid YAML{at}: "
+                         f"{getattr(e, 'problem', None) or 'syntax error'}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"config file '{p}': expected a mapping of keys to values, "
+                         f"got {_kind(data)}")
+    return data
+
+
+def merge(base: dict, overrides: dict) -> dict:
+    """``base`` with ``overrides`` laid over it, nested mappings merged key by key."""
+    out = dict(base)
+    for k, v in overrides.items():
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def dump_yaml(cfg: Any) -> str:

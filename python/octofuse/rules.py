@@ -31,13 +31,31 @@ class LogOddsFusion(NamedTuple):
     info_loss: np.ndarray  #: KL(p_NB || p_fused) in nats
 
 
-def rule_index(rule: str) -> int:
-    """Return the core's index of a rule name; ``ValueError`` listing the valid names."""
+#: Policies for voxels only one map knows: keep its value, or fuse it with the prior.
+UNKNOWN_POLICIES: tuple[str, ...] = ("copy", "prior")
+
+
+def parse_rule(rule):
+    """The core's rule for a rule name; ``ValueError`` listing the valid names."""
+    if isinstance(rule, int):
+        return rule
     try:
         return RULES.index(rule)
     except ValueError:
         raise ValueError(
             f"unknown fusion rule {rule!r}; valid rules are: {', '.join(RULES)}"
+        ) from None
+
+
+def parse_unknown(policy):
+    """The core's policy for voxels one map knows: ``"copy"`` or ``"prior"``."""
+    if isinstance(policy, int):
+        return policy
+    try:
+        return UNKNOWN_POLICIES.index(policy)
+    except ValueError:
+        raise ValueError(
+            f"unknown = {policy!r}: expected one of {', '.join(UNKNOWN_POLICIES)}"
         ) from None
 
 
@@ -81,7 +99,7 @@ def fuse_bernoulli(p_a, p_b, rule: str = "min-info-loss", prior: float = 0.5) ->
     ``omega`` 1 (or 0 if it is ``p_b``) and zero loss. Certainties of opposite outcomes
     (0 with 1), NaN inputs and values outside [0, 1] raise ``ValueError`` naming the index.
     """
-    idx = rule_index(rule)
+    idx = parse_rule(rule)
     if not 0.0 < prior < 1.0:
         raise ValueError(f"prior = {prior!r}: expected a probability strictly between 0 and 1")
     a, b = _pair(p_a, p_b)
@@ -96,7 +114,7 @@ def fuse_logodds(l_a, l_b, rule: str = "min-info-loss", prior_logodds: float = 0
     ``l_a``, ``l_b`` may be +-inf (certain); NaN and contradictory infinities raise
     ``ValueError``. ``prior_logodds`` is the common prior's log-odds (0 for OctoMap).
     """
-    idx = rule_index(rule)
+    idx = parse_rule(rule)
     if not np.isfinite(prior_logodds):
         raise ValueError(f"prior_logodds = {prior_logodds!r}: expected a finite number")
     a, b = _pair(l_a, l_b)

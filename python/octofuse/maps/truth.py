@@ -31,6 +31,17 @@ class Scene:
             raise ValueError(f"scene file '{p}' is not a scene description "
                              f"(expected boxes with min/max corners): {e}") from None
 
+    @classmethod
+    def find(cls, path: str | Path | None, bags) -> "Scene | None":
+        """The scene at ``path``, or else the one shipped beside the first bag that has one."""
+        if path is not None:
+            return cls.load(path)
+        for b in bags:
+            beside = cls.beside(b)
+            if beside is not None:
+                return cls.load(beside)
+        return None
+
     @staticmethod
     def beside(bag: str | Path) -> Path | None:
         """The ground-truth file shipped beside a bag (``NAME_scene.json``), if any."""

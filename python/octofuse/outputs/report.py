@@ -10,8 +10,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .config import RunConfig, to_dict
-from .network import LOCAL, SimResult
+from ..config import RunConfig, to_dict
+from ..fusion.network import LOCAL, SimResult
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [

@@ -25,13 +25,13 @@ from __future__ import annotations
 import os
 import re
 import secrets
-import zipfile
 from pathlib import Path
 from typing import Mapping, NamedTuple
 
 import numpy as np
 
-from .maps import InfoLossMap, Leaves, OccupancyMap
+from ..maps.infoloss import InfoLossMap, Leaves, read_info_loss
+from ..maps.occupancy import OccupancyMap
 
 CLOUD_SUFFIXES = (".ply", ".pcd")
 MAP_SUFFIXES = (".ot", ".bt")
@@ -44,7 +44,6 @@ _RESERVED = frozenset({
     "green", "blue", "alpha", "voxel_size", "scale", "rot", "opacity", "f_dc", "f_rest",
 })
 _FIELD_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-_LOSS_KEYS = ("centers", "sizes", "values", "depths")
 
 
 class ExportResult(NamedTuple):
@@ -192,39 +191,6 @@ def read_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
         a = pcd.point[name].numpy()
         out[name] = a.reshape(-1) if a.ndim == 2 and a.shape[1] == 1 else a
     return out
-
-
-def read_info_loss(path: str | os.PathLike) -> Leaves:
-    """Read an information-loss ``.npz`` as written by :meth:`InfoLossMap.save`.
-
-    Raises ``FileNotFoundError`` for a missing file and ``OSError`` naming the file for one
-    that is not such an archive (not a zip, missing arrays, mismatched lengths).
-    """
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"information-loss file '{p}' does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"information-loss file '{p}' is a directory")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            if not hasattr(z, "files"):
-                raise ValueError("a single array, not an .npz archive")
-            missing = [k for k in _LOSS_KEYS if k not in z.files]
-            if missing:
-                raise ValueError(f"missing arrays {', '.join(missing)}")
-            lv = Leaves(np.asarray(z["centers"], dtype=np.float64),
-                        np.asarray(z["sizes"], dtype=np.float64),
-                        np.asarray(z["values"], dtype=np.float32),
-                        np.asarray(z["depths"], dtype=np.uint8))
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
-        raise OSError(f"cannot read information-loss file '{p}': {e}") from None
-    n = len(lv.values)
-    if (lv.centers.shape != (n, 3) or lv.sizes.shape != (n,) or lv.values.shape != (n,)
-            or lv.depths.shape != (n,)):
-        raise OSError(f"cannot read information-loss file '{p}': arrays of mismatched shapes "
-                      f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
-                      f"values {lv.values.shape}, depths {lv.depths.shape})")
-    return lv
 
 
 # -- the `octofuse export` command -------------------------------------------------------

@@ -7,8 +7,8 @@ from typing import Optional
 
 import numpy as np
 
-from . import _core
-from .maps import InfoLossMap, OccupancyMap
+from .infoloss import InfoLossMap
+from .occupancy import OccupancyMap
 
 
 @dataclass
@@ -55,7 +55,7 @@ def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
 
 def compare(central: OccupancyMap, agent: OccupancyMap, tol: float = 0.1) -> Score:
     """Score ``agent`` against ``central`` over finest-level voxels."""
-    d = _core._compare_maps(central._m, agent._m, float(tol), 0.0)
+    d = agent.class_counts(central, tol)
     c = np.array(d["confusion"])  # [central class][agent class]; 0 occ, 1 free, 2 unknown
     known = c[0].sum() + c[1].sum()
     both = d["both_known"]

@@ -4,23 +4,23 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Iterator
+import queue
+import threading
+from typing import Iterable, Iterator
 
 import numpy as np
 
-from .config import AgentSpec, BuildConfig
-from .io import (
-    BagSet,
+from ..config import AgentSpec, BuildConfig
+from .bags import BagSet
+from .decode import laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
+from .se3 import transform_matrix
+from .tf import (
     ConnectivityError,
     ExtrapolationError,
     PoseSource,
     TransformError,
     UnknownFrameError,
-    laserscan_to_xyz,
     load_transforms,
-    pointcloud2_to_xyz,
-    stamp_to_ns,
-    transform_matrix,
 )
 
 LASERSCAN = "sensor_msgs/msg/LaserScan"
@@ -90,13 +90,10 @@ class ScanSource:
     """
 
     def __init__(self, cfg: BuildConfig):
+        cfg.validate("build")
         self.cfg = cfg
         if not cfg.bags:
             raise ValueError("no bag files given")
-        if cfg.no_return not in ("skip", "free"):
-            raise ValueError(f"no_return = {cfg.no_return!r}: expected 'skip' or 'free'")
-        if cfg.scan_stride < 1:
-            raise ValueError(f"scan_stride = {cfg.scan_stride}: expected 1 or more")
         self.bags = BagSet(cfg.bags).open()
         try:
             self._setup()
@@ -165,15 +162,12 @@ class ScanSource:
         raise ValueError(f"no scan of {', '.join(self.cfg.bags)} could be placed in the fixed "
                          f"frame '{self.cfg.fixed_frame}' ({reasons or 'the scan topics are empty'})")
 
-    @property
-    def start_ns(self) -> int | None:
-        return self.bags.start_ns
-
     def scans(self) -> Iterator[Scan]:
         """Scans of all agents in log-time order (skipped scans are counted, not yielded)."""
         import time
 
         cfg = self.cfg
+        self.stats = [AgentStats(a.name, a.topic) for a in self.agents]  # per pass
         seen = [0] * len(self.agents)
         fixed = cfg.fixed_frame.lstrip("/")
         for m in self.bags.messages({a.topic: list(SCAN_TYPES) for a in self.agents}):
@@ -254,3 +248,49 @@ class ScanSource:
             return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
         pts = pointcloud2_to_xyz(msg)
         return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)
+
+
+def batched(source: Iterable[Scan], size: int) -> Iterator[list[Scan]]:
+    batch: list[Scan] = []
+    for s in source:
+        batch.append(s)
+        if len(batch) >= size:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
+
+
+def prefetch(it: Iterator, depth: int = 4) -> Iterator:
+    """Run an iterator in a background thread (decoding overlaps C++ insertion)."""
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def run():
+        try:
+            for item in it:
+                if stop.is_set():
+                    return
+                q.put(item)
+            q.put(done)
+        except BaseException as e:  # handed to the consumer
+            q.put(e)
+
+    t = threading.Thread(target=run, daemon=True, name="octofuse-prefetch")
+    t.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while t.is_alive():  # unblock the producer
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                t.join(0.05)

@@ -21,7 +21,6 @@ write ``/base_link``).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -29,6 +28,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .decode import stamp_to_ns
+from .se3 import (
+    invert_transform,
+    matrix_to_quaternion,
+    normalize_quaternions,
+    quaternion_to_matrix,
+    slerp,
+    transform_matrix,
+)
 
 if TYPE_CHECKING:
     from .bags import BagSet
@@ -40,11 +47,7 @@ __all__ = [
     "TransformBuffer",
     "TransformError",
     "UnknownFrameError",
-    "invert_transform",
     "load_transforms",
-    "matrix_to_quaternion",
-    "quaternion_to_matrix",
-    "transform_matrix",
 ]
 
 _POSE_TYPES = (
@@ -90,130 +93,6 @@ class ExtrapolationError(TransformError):
         self.stamp_ns = stamp_ns
         self.first_ns = first_ns
         self.last_ns = last_ns
-
-
-# -- small rigid-transform helpers ------------------------------------------------------------
-
-
-def _normalize_quaternions(q: np.ndarray) -> np.ndarray:
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(q)) or np.any(norm < 1e-12):
-        raise ValueError("rotation quaternions must be finite and non-zero")
-    return q / norm
-
-
-def quaternion_to_matrix(q: Any) -> np.ndarray:
-    """Rotation matrices of unit quaternions ``(x, y, z, w)``.
-
-    Parameters
-    ----------
-    q : array_like, shape (..., 4)
-
-    Returns
-    -------
-    numpy.ndarray, shape (..., 3, 3)
-    """
-    q = np.asarray(q, dtype=np.float64)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    m = np.empty(q.shape[:-1] + (3, 3), dtype=np.float64)
-    m[..., 0, 0] = 1 - 2 * (yy + zz)
-    m[..., 0, 1] = 2 * (xy - wz)
-    m[..., 0, 2] = 2 * (xz + wy)
-    m[..., 1, 0] = 2 * (xy + wz)
-    m[..., 1, 1] = 1 - 2 * (xx + zz)
-    m[..., 1, 2] = 2 * (yz - wx)
-    m[..., 2, 0] = 2 * (xz - wy)
-    m[..., 2, 1] = 2 * (yz + wx)
-    m[..., 2, 2] = 1 - 2 * (xx + yy)
-    return m
-
-
-def matrix_to_quaternion(m: Any) -> np.ndarray:
-    """Unit quaternion ``(x, y, z, w)``, ``w >= 0``, of a 3x3 rotation (or 4x4 transform).
-
-    Parameters
-    ----------
-    m : array_like, shape (3, 3) or (4, 4)
-
-    Returns
-    -------
-    numpy.ndarray, shape (4,)
-    """
-    r = np.asarray(m, dtype=np.float64)[:3, :3]
-    tr = np.trace(r)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
-    qa = np.asarray(q, dtype=np.float64)
-    qa /= np.linalg.norm(qa)
-    return -qa if qa[3] < 0 else qa
-
-
-def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
-    """Homogeneous matrices from translations and quaternions ``(x, y, z, w)``.
-
-    Parameters
-    ----------
-    translation : array_like, shape (..., 3)
-    rotation : array_like, shape (..., 4)
-        Normalized here.
-
-    Returns
-    -------
-    numpy.ndarray, shape (..., 4, 4)
-    """
-    t = np.asarray(translation, dtype=np.float64)
-    q = _normalize_quaternions(np.asarray(rotation, dtype=np.float64))
-    shape = np.broadcast_shapes(t.shape[:-1], q.shape[:-1])
-    m = np.zeros(shape + (4, 4), dtype=np.float64)
-    m[..., :3, :3] = quaternion_to_matrix(q)
-    m[..., :3, 3] = t
-    m[..., 3, 3] = 1.0
-    return m
-
-
-def invert_transform(m: Any) -> np.ndarray:
-    """Inverse of rigid homogeneous transforms (``R^T``, ``-R^T t``), shape (..., 4, 4)."""
-    m = np.asarray(m, dtype=np.float64)
-    if m.ndim == 2:
-        rt = m[:3, :3].T
-        out = np.eye(4)
-        out[:3, :3] = rt
-        out[:3, 3] = -(rt @ m[:3, 3])
-        return out
-    out = np.zeros_like(m)
-    rt = np.swapaxes(m[..., :3, :3], -1, -2)
-    out[..., :3, :3] = rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, m[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """Shortest-arc slerp between unit quaternions (K, 4) at fractions a (K,)."""
-    d = np.einsum("ij,ij->i", q0, q1)
-    q1 = np.where((d < 0)[:, None], -q1, q1)
-    d = np.abs(d)
-    theta = np.arccos(np.clip(d, -1.0, 1.0))
-    sin_t = np.sin(theta)
-    small = sin_t < 1e-9
-    safe = np.where(small, 1.0, sin_t)
-    w0 = np.where(small, 1.0 - a, np.sin((1.0 - a) * theta) / safe)
-    w1 = np.where(small, a, np.sin(a * theta) / safe)
-    q = w0[:, None] * q0 + w1[:, None] * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def _fmt_ns(ns: int) -> str:
@@ -280,52 +159,10 @@ class _Link:
         )
 
     def matrix_at(self, stamp: int, tolerance_ns: int, what: str) -> np.ndarray:
-        """T_parent_child at one stamp, shape (4, 4) (scalar fast path of :meth:`matrices`)."""
+        """T_parent_child at one stamp, shape (4, 4)."""
         if self.static:
             return self.static_matrix
-        if self._pending:
-            self._finalize()
-        s = self.stamps
-        first, last = int(s[0]), int(s[-1])
-        if stamp < first - tolerance_ns or stamp > last + tolerance_ns:
-            arr = np.array([stamp], dtype=np.int64)
-            raise self._extrapolation(arr, np.array([True]), what)
-        n = s.size
-        stamp = min(max(stamp, first), last)
-        i1 = int(np.searchsorted(s, stamp, side="left"))
-        if s[min(i1, n - 1)] == stamp:
-            tx, ty, tz = self.trans[i1].tolist()
-            x, y, z, w = self.quats[i1].tolist()
-        else:
-            i0 = i1 - 1
-            s0 = int(s[i0])
-            a = (stamp - s0) / (int(s[i1]) - s0)
-            t0, t1 = self.trans[i0].tolist(), self.trans[i1].tolist()
-            tx, ty, tz = (p + a * (q - p) for p, q in zip(t0, t1, strict=True))
-            q0, q1 = self.quats[i0].tolist(), self.quats[i1].tolist()
-            d = sum(p * q for p, q in zip(q0, q1, strict=True))
-            if d < 0.0:
-                q1 = [-q for q in q1]
-                d = -d
-            theta = math.acos(min(d, 1.0))
-            sin_t = math.sin(theta)
-            if sin_t < 1e-9:
-                w0, w1 = 1.0 - a, a
-            else:
-                w0, w1 = math.sin((1.0 - a) * theta) / sin_t, math.sin(a * theta) / sin_t
-            x, y, z, w = (w0 * p + w1 * q for p, q in zip(q0, q1, strict=True))
-            norm = math.sqrt(x * x + y * y + z * z + w * w)
-            x, y, z, w = x / norm, y / norm, z / norm, w / norm
-        xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
-        wx, wy, wz = w * x, w * y, w * z
-        return np.array(
-            [
-                [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy), tx],
-                [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx), ty],
-                [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy), tz],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
+        return self.matrices(np.array([stamp], dtype=np.int64), tolerance_ns, what)[0]
 
     def matrices(self, stamps: np.ndarray, tolerance_ns: int, what: str) -> np.ndarray:
         """Transforms T_parent_child at the stamps (K,), shape (K, 4, 4)."""
@@ -350,7 +187,7 @@ class _Link:
             q0, q1 = self.quats[i0], self.quats[i1]
             t0, t1 = self.trans[i0], self.trans[i1]
             trans = t0 + a[:, None] * (t1 - t0)
-            quats = _slerp(q0, q1, a)
+            quats = slerp(q0, q1, a)
             # Exact at the samples.
             at0, at1 = (a == 0.0)[:, None], (a == 1.0)[:, None]
             trans = np.where(at0, t0, np.where(at1, t1, trans))
@@ -510,7 +347,7 @@ class TransformBuffer:
             raise ValueError("stamps, translations and rotations must have the same length")
         if not np.all(np.isfinite(trans)):
             raise ValueError("translations must be finite")
-        quats = _normalize_quaternions(quats)
+        quats = normalize_quaternions(quats)
         if stamps.size:
             self._link(parent, child, static=False).add(stamps, trans, quats)
 

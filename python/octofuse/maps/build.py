@@ -2,86 +2,24 @@
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from . import _core
-from .config import AgentSpec, BuildConfig, MapConfig
-from .ingest import AgentStats, Scan, ScanSource
-from .maps import OccupancyMap
-
-
-def new_map(cfg: MapConfig) -> OccupancyMap:
-    return OccupancyMap(cfg.resolution, cfg.prob_hit, cfg.prob_miss, tuple(cfg.clamping))
+from ..config import AgentSpec, BuildConfig, MapConfig
+from ..scans.source import AgentStats, Scan, ScanSource, batched, prefetch
+from .occupancy import OccupancyMap, insert_batch
 
 
 def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]],
-                 threads: int = 2) -> None:
-    """Insert scans (sensor frame + pose) into their target maps in one C++ call.
-
-    Each scan's ray keys are computed once (scans in parallel) and applied to each of its
-    targets, different maps in parallel; the result equals OctoMap's insertPointCloud of
-    every scan into every target, in order. The GIL is released.
-    """
-    if not scans:
-        return
-    _core._insert_batch([[m._m for m in t] for t in targets],
-                        [np.ascontiguousarray(s.points) for s in scans],
-                        np.stack([s.pose for s in scans]),
-                        np.array([s.max_range for s in scans], dtype=np.float64),
-                        int(threads))
-
-
-def batched(source: Iterable[Scan], size: int) -> Iterator[list[Scan]]:
-    batch: list[Scan] = []
-    for s in source:
-        batch.append(s)
-        if len(batch) >= size:
-            yield batch
-            batch = []
-    if batch:
-        yield batch
-
-
-def prefetch(it: Iterator, depth: int = 4) -> Iterator:
-    """Run an iterator in a background thread (decoding overlaps C++ insertion)."""
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    done = object()
-    stop = threading.Event()
-
-    def run():
-        try:
-            for item in it:
-                if stop.is_set():
-                    return
-                q.put(item)
-            q.put(done)
-        except BaseException as e:  # handed to the consumer
-            q.put(e)
-
-    t = threading.Thread(target=run, daemon=True, name="octofuse-prefetch")
-    t.start()
-    try:
-        while True:
-            item = q.get()
-            if item is done:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        while t.is_alive():  # unblock the producer
-            try:
-                q.get_nowait()
-            except queue.Empty:
-                t.join(0.05)
+                 threads: int) -> None:
+    """Insert posed scans into their target maps (``targets[k]`` for ``scans[k]``)."""
+    if scans:
+        insert_batch([s.points for s in scans], np.stack([s.pose for s in scans]),
+                     np.array([s.max_range for s in scans]), targets, threads)
 
 
 @dataclass
@@ -98,24 +36,29 @@ class BuildResult:
         return {**self.maps, "centralized": self.centralized}
 
 
-def build(cfg: BuildConfig, progress: Optional[Callable[[int], None]] = None) -> BuildResult:
-    """Read the bags and build every agent's map and the centralized map (all scans)."""
+def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = None) -> BuildResult:
+    """Read the bags and build every agent's map and the centralized map (all scans).
+
+    ``progress(done, total)`` is called with the scans inserted so far.
+    """
     t_start = time.perf_counter()
     with ScanSource(cfg) as src:
-        maps = {a.name: new_map(cfg.map) for a in src.agents}
+        maps = {a.name: OccupancyMap.from_config(cfg.map) for a in src.agents}
         agent_maps = [maps[a.name] for a in src.agents]
-        central = new_map(cfg.map)
+        central = OccupancyMap.from_config(cfg.map)
         t_insert = 0.0
+        done = 0
         for batch in prefetch(batched(src.scans(), cfg.batch_size)):
             t0 = time.perf_counter()
-            insert_scans(batch, [(agent_maps[s.agent], central) for s in batch], cfg.threads)
+            insert_scans(batch, [(agent_maps[s.agent], central) for s in batch], cfg.workers)
             dt = time.perf_counter() - t0
             t_insert += dt
             n_pts = sum(len(s.points) for s in batch)
             for s in batch:  # attribute insertion time by points
                 src.stats[s.agent].seconds += dt * len(s.points) / max(n_pts, 1)
+            done += len(batch)
             if progress:
-                progress(len(batch))
+                progress(done, src.total_scans)
         src.check_placed()
         stats = src.stats
     total = time.perf_counter() - t_start
@@ -159,13 +102,18 @@ def parse_agent(spec: str) -> AgentSpec:
 
 
 def make_build_config(bags, agents=None, fixed_frame="map", resolution=0.05, **options) -> BuildConfig:
+    """A validated :class:`BuildConfig` from API arguments (what :func:`build_maps` takes)."""
+    from ..config import from_dict
+
     if isinstance(bags, (str, Path)):
         bags = [bags]
     specs = [parse_agent(a) if isinstance(a, str) else a for a in (agents or [])]
     map_keys = {"prob_hit", "prob_miss", "clamping"}
-    mcfg = MapConfig(resolution=resolution, **{k: options.pop(k) for k in list(options) if k in map_keys})
-    return BuildConfig(bags=[str(b) for b in bags], agents=specs, fixed_frame=fixed_frame,
-                       map=mcfg, **options)
+    map_cfg = {"resolution": resolution, **{k: options.pop(k) for k in list(options) if k in map_keys}}
+    data = {"bags": [str(b) for b in bags], "fixed_frame": fixed_frame, "map": map_cfg,
+            "agents": [{k: v for k, v in vars(s).items() if v is not None} for s in specs],
+            **options}
+    return from_dict(BuildConfig, data, where="build_maps")
 
 
 def write_maps(result: BuildResult, out_dir: str | Path) -> list[Path]:

@@ -1,50 +1,52 @@
-"""Batch comparison of rules x topologies against the centralized map (``octofuse bench``)."""
+"""Studies: rules x topologies against the centralized map (``octofuse bench``)."""
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import os
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
-from .config import RunConfig
+from ..config import RunConfig
+from ..fusion.graph import make_graph
+from ..fusion.network import LOCAL
+from ..fusion.simulate import simulate
+from ..scans.source import ScanSource
 from .report import COLUMNS, mean_scores
-from .network import LOCAL, simulate
 
 
-def run_bench(cfg: RunConfig, rules: Sequence[str], topologies: Sequence[str], out: str | Path, *,
-              truth=None, console=None, progress: Optional[Callable] = None) -> list[Path]:
-    """Run every rule on every topology (one pass over the scans per topology) and write
-    ``bench.csv``, ``bench.md`` and ``bench_*.png``; returns the paths."""
-    from .graph import make_graph
-    from .ingest import ScanSource
+def run_study(cfg: RunConfig, topologies: Sequence[str], out: str | Path, *, truth=None,
+              progress: Optional[Callable] = None, log: Optional[Callable[[str], None]] = None
+              ) -> list[Path]:
+    """Run every rule of ``cfg.fuse.rules`` on every topology and write ``bench.csv``,
+    ``bench.md`` and ``bench_*.png`` into ``out``; returns the paths.
 
+    The bags are opened and their transforms read once; each topology is one pass over the
+    scans. ``progress(description)`` makes a context manager called as ``bar(done, total)``.
+    """
+    cfg.validate("config")
     out = Path(out)
-    with ScanSource(cfg.build) as src:
-        total = src.total_scans
-        names = [a.name for a in src.agents]
-    for t in topologies:  # fail early on a bad topology, before hours of work
-        make_graph(t, len(names), seed=cfg.fuse.seed, names=names)
     rows = []
     timings = {}
-    for topo in topologies:
-        fcfg = copy.deepcopy(cfg.fuse)
-        fcfg.topology = topo
-        ctx = progress() if progress else None
-        if ctx is not None:
-            with ctx as prog:
-                task = prog.add_task(f"{topo}: {len(rules)} rule(s)", total=total)
-                res = simulate(cfg.build, fcfg, rules, samples=0, truth=truth,
-                               progress=lambda k: prog.advance(task, k))
-        else:
-            res = simulate(cfg.build, fcfg, rules, samples=0, truth=truth)
-        timings[topo] = dict(res.timings)
-        for rule, row in mean_scores(res.scores).items():
-            rows.append({"topology": topo, "rule": rule,
-                         "messages": res.traffic[rule].messages if rule != LOCAL else 0, **row})
-        if console is not None:
-            console.print(f"{topo}: done in {res.timings['total']:.1f} s", highlight=False)
+    with ScanSource(cfg.build) as src:
+        names = [a.name for a in src.agents]
+        for t in topologies:  # fail early on a bad topology, before hours of work
+            make_graph(t, len(names), seed=cfg.fuse.seed, names=names)
+        for topo in topologies:
+            fcfg = copy.deepcopy(cfg.fuse)
+            fcfg.topology = topo
+            bar = progress(f"{topo}: {len(fcfg.rules)} rule(s)") if progress else contextlib.nullcontext()
+            with bar:
+                res = simulate(cfg.build, fcfg, samples=0, truth=truth, source=src,
+                               progress=bar if progress else None)
+            timings[topo] = dict(res.timings)
+            for rule, row in mean_scores(res.scores).items():
+                rows.append({"topology": topo, "rule": rule,
+                             "messages": res.traffic[rule].messages if rule != LOCAL else 0, **row})
+            if log is not None:
+                log(f"{topo}: done in {res.timings['total']:.1f} s")
     out.mkdir(parents=True, exist_ok=True)
     keys = ["topology", "rule", "messages"] + [k for k, _, _ in COLUMNS]
     tmp = out / "bench.csv.tmp"

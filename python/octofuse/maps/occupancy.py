@@ -1,32 +1,19 @@
-"""Occupancy maps (OctoMap trees), information-loss maps and tree fusion."""
+"""Occupancy maps (OctoMap trees) and tree fusion: the only caller of the C++ map core."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from . import _core
-from .rules import rule_index
+from .. import _core
+from ..config import MapConfig
+from ..rules import parse_rule, parse_unknown
+from .infoloss import InfoLossMap, Leaves, leaves_from_core
 
 MapFileError = _core.MapFileError
-
-_UNKNOWN_POLICIES = ("copy", "prior")
-
-
-class Leaves(NamedTuple):
-    """Leaves of a tree as arrays (one row per leaf)."""
-
-    centers: np.ndarray  #: (N, 3) float64 voxel centres, metres
-    sizes: np.ndarray  #: (N,) float64 edge lengths, metres
-    values: np.ndarray  #: (N,) float32 stored value (log-odds for occupancy maps)
-    depths: np.ndarray  #: (N,) uint8 tree depth (16 = finest voxel)
-
-
-def _leaves(raw: dict) -> Leaves:
-    return Leaves(raw["centers"], raw["sizes"], raw["values"], raw["depths"])
 
 
 def _existing_file(path: str | os.PathLike) -> str:
@@ -58,6 +45,11 @@ class OccupancyMap:
         cmin, cmax = clamping
         self._m = _core._OccupancyMap(float(resolution), float(prob_hit), float(prob_miss),
                                       float(cmin), float(cmax))
+
+    @classmethod
+    def from_config(cls, cfg: MapConfig) -> "OccupancyMap":
+        """An empty map with the resolution, sensor model and clamping of ``cfg``."""
+        return cls(cfg.resolution, cfg.prob_hit, cfg.prob_miss, tuple(cfg.clamping))
 
     @classmethod
     def _wrap(cls, raw) -> "OccupancyMap":
@@ -115,11 +107,21 @@ class OccupancyMap:
     # -- contents ----------------------------------------------------------------------
     def leaves(self) -> Leaves:
         """Leaf centres (N, 3), sizes (N,), log-odds (N,) and depths (N,)."""
-        return _leaves(self._m.leaves())
+        return leaves_from_core(self._m.leaves())
 
     def copy(self) -> "OccupancyMap":
         """A deep copy of the map."""
         return OccupancyMap._wrap(self._m.copy())
+
+    def changed_since(self, previous: "OccupancyMap") -> "OccupancyMap":
+        """The voxels whose value differs from ``previous`` (a delta message)."""
+        return OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m))
+
+    def class_counts(self, reference: "OccupancyMap", tol: float) -> dict:
+        """Voxel counts of this map against ``reference`` over finest voxels: the class
+        confusion (occupied/free/unknown), KL(reference || self) and |l| differences summed,
+        and voxels where this map is more certain than the reference by more than ``tol``."""
+        return _core._compare_maps(reference._m, self._m, float(tol), 0.0)
 
     @property
     def num_leaves(self) -> int:
@@ -160,71 +162,6 @@ class OccupancyMap:
                 f"memory={self.memory_bytes / 1e6:.1f} MB)")
 
 
-class InfoLossMap:
-    """Per-voxel information loss KL(p_NB || p_fused) (nats) of one or more fusions.
-
-    A tree over the same voxel keys as the maps. :meth:`accumulate` adds another loss map
-    voxel by voxel, which is how an agent's loss over all its fusions is kept.
-    """
-
-    __slots__ = ("_t", "voxels_fused", "voxels_copied")
-
-    def __init__(self, resolution: float):
-        self._t = _core._ScalarTree(float(resolution))
-        self.voxels_fused = 0
-        self.voxels_copied = 0
-
-    @classmethod
-    def _wrap(cls, raw, fused: int = 0, copied: int = 0) -> "InfoLossMap":
-        obj = cls.__new__(cls)
-        obj._t, obj.voxels_fused, obj.voxels_copied = raw, fused, copied
-        return obj
-
-    def leaves(self) -> Leaves:
-        """Leaf centres, sizes, loss values (nats) and depths."""
-        return _leaves(self._t.leaves())
-
-    def accumulate(self, other: "InfoLossMap") -> None:
-        """Add ``other`` into this map voxel by voxel (in place)."""
-        self._t.accumulate(other._t)
-        self.voxels_fused += other.voxels_fused
-        self.voxels_copied += other.voxels_copied
-
-    def copy(self) -> "InfoLossMap":
-        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied)
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the leaves: ``.npz`` (arrays), or ``.ply`` / ``.pcd`` (a heat-map cloud)."""
-        p = Path(path)
-        if p.suffix == ".npz":
-            lv = self.leaves()
-            tmp = p.with_name(p.name + ".tmp.npz")
-            np.savez_compressed(tmp, centers=lv.centers, sizes=lv.sizes, values=lv.values,
-                                depths=lv.depths, resolution=self.resolution)
-            os.replace(tmp, p)
-            return p
-        if p.suffix in (".ply", ".pcd"):
-            from .export import write_heatmap
-
-            return write_heatmap(self, p)
-        raise ValueError(f"cannot save information loss to '{p}': expected .npz, .ply or .pcd")
-
-    @property
-    def num_leaves(self) -> int:
-        return self._t.num_leaves
-
-    @property
-    def resolution(self) -> float:
-        return self._t.resolution
-
-    @property
-    def memory_bytes(self) -> int:
-        return self._t.memory_bytes
-
-    def __repr__(self) -> str:
-        return f"InfoLossMap(resolution={self.resolution}, leaves={self.num_leaves})"
-
-
 class MapFusion(NamedTuple):
     """Result of :func:`fuse_maps`."""
 
@@ -247,11 +184,8 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     """
     if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
         raise TypeError("fuse_maps expects two OccupancyMap objects")
-    idx = rule_index(rule)
-    if unknown not in _UNKNOWN_POLICIES:
-        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
-    raw_map, raw_loss, fused, copied = _core._fuse_maps(a._m, b._m, idx,
-                                                        _UNKNOWN_POLICIES.index(unknown))
+    rule, unknown = parse_rule(rule), parse_unknown(unknown)
+    raw_map, raw_loss, fused, copied = _core._fuse_maps(a._m, b._m, rule, unknown)
     return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, fused, copied))
 
 
@@ -265,10 +199,8 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
     """
     if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
         raise TypeError("fuse_into expects two OccupancyMap objects")
-    idx = rule_index(rule)
-    if unknown not in _UNKNOWN_POLICIES:
-        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
-    fused, copied = _core._fuse_into(dst._m, msg._m, idx, _UNKNOWN_POLICIES.index(unknown),
+    rule, unknown = parse_rule(rule), parse_unknown(unknown)
+    fused, copied = _core._fuse_into(dst._m, msg._m, rule, unknown,
                                      None if loss is None else loss._t)
     if loss is not None:
         loss.voxels_fused += fused
@@ -285,16 +217,28 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     """
     if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
         raise TypeError("exchange_maps expects two OccupancyMap objects")
-    idx = rule_index(rule)
-    if unknown not in _UNKNOWN_POLICIES:
-        raise ValueError(f"unknown = {unknown!r}: expected one of {', '.join(_UNKNOWN_POLICIES)}")
-    fa, ca, fb, cb = _core._fuse_mutual(a._m, b._m, idx, _UNKNOWN_POLICIES.index(unknown),
+    rule, unknown = parse_rule(rule), parse_unknown(unknown)
+    fa, ca, fb, cb = _core._fuse_mutual(a._m, b._m, rule, unknown,
                                         None if loss_a is None else loss_a._t,
                                         None if loss_b is None else loss_b._t)
     for loss, f, c in ((loss_a, fa, ca), (loss_b, fb, cb)):
         if loss is not None:
             loss.voxels_fused += f
             loss.voxels_copied += c
+
+
+def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np.ndarray,
+                 targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:
+    """Insert scans (sensor frame, 4x4 poses) into their target maps in one C++ call.
+
+    Each scan's ray keys are computed once (scans in parallel) and applied to each of its
+    targets, different maps in parallel; the result equals OctoMap's insertPointCloud of
+    every scan into every target, in order. The GIL is released.
+    """
+    _core._insert_batch([[m._m for m in t] for t in targets],
+                        [np.ascontiguousarray(p) for p in points],
+                        np.ascontiguousarray(poses, dtype=np.float64),
+                        np.ascontiguousarray(max_ranges, dtype=np.float64), int(threads))
 
 
 def _points(points) -> np.ndarray:

@@ -1,6 +1,6 @@
-"""Reading recorded bags, decoding lidar messages and looking up transforms.
+"""Stage 1, bags to posed scans: reading bags, decoding lidar messages, transforms.
 
-``octofuse.io`` depends only on numpy and rosbags (no ROS installation):
+``octofuse.scans`` depends only on numpy and rosbags (no ROS installation):
 
 * :class:`BagSet` reads ROS 1 bags, ROS 2 bag folders (sqlite3 or MCAP) and
   bare ``.mcap``/``.db3`` files as one message stream in log time order;
@@ -12,6 +12,7 @@
 
 from .bags import BagError, BagMessage, BagSet, TopicInfo, normalize_msgtype
 from .decode import POINTFIELD_DTYPES, laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
+from .se3 import invert_transform, matrix_to_quaternion, quaternion_to_matrix, transform_matrix
 from .tf import (
     ConnectivityError,
     ExtrapolationError,
@@ -19,11 +20,7 @@ from .tf import (
     TransformBuffer,
     TransformError,
     UnknownFrameError,
-    invert_transform,
     load_transforms,
-    matrix_to_quaternion,
-    quaternion_to_matrix,
-    transform_matrix,
 )
 
 __all__ = [

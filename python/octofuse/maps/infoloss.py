@@ -1,0 +1,122 @@
+"""Information-loss maps: per-voxel KL(p_NB || p_fused) trees and their ``.npz`` file format."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import _core
+
+_LOSS_KEYS = ("centers", "sizes", "values", "depths")
+
+
+class Leaves(NamedTuple):
+    """Leaves of a tree as arrays (one row per leaf)."""
+
+    centers: np.ndarray  #: (N, 3) float64 voxel centres, metres
+    sizes: np.ndarray  #: (N,) float64 edge lengths, metres
+    values: np.ndarray  #: (N,) float32 stored value (log-odds for occupancy maps)
+    depths: np.ndarray  #: (N,) uint8 tree depth (16 = finest voxel)
+
+
+def leaves_from_core(raw: dict) -> Leaves:
+    return Leaves(raw["centers"], raw["sizes"], raw["values"], raw["depths"])
+
+
+class InfoLossMap:
+    """Per-voxel information loss KL(p_NB || p_fused) (nats) of one or more fusions.
+
+    A tree over the same voxel keys as the maps. :meth:`accumulate` adds another loss map
+    voxel by voxel, which is how an agent's loss over all its fusions is kept.
+    """
+
+    __slots__ = ("_t", "voxels_fused", "voxels_copied")
+
+    def __init__(self, resolution: float):
+        self._t = _core._ScalarTree(float(resolution))
+        self.voxels_fused = 0
+        self.voxels_copied = 0
+
+    @classmethod
+    def _wrap(cls, raw, fused: int = 0, copied: int = 0) -> "InfoLossMap":
+        obj = cls.__new__(cls)
+        obj._t, obj.voxels_fused, obj.voxels_copied = raw, fused, copied
+        return obj
+
+    def leaves(self) -> Leaves:
+        """Leaf centres, sizes, loss values (nats) and depths."""
+        return leaves_from_core(self._t.leaves())
+
+    def accumulate(self, other: "InfoLossMap") -> None:
+        """Add ``other`` into this map voxel by voxel (in place)."""
+        self._t.accumulate(other._t)
+        self.voxels_fused += other.voxels_fused
+        self.voxels_copied += other.voxels_copied
+
+    def copy(self) -> "InfoLossMap":
+        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the leaves as ``.npz`` arrays (read back by :func:`read_info_loss`)."""
+        p = Path(path)
+        if p.suffix != ".npz":
+            raise ValueError(f"cannot save information loss to '{p}': expected a .npz file "
+                             "(heat-map clouds: octofuse.outputs.export.write_heatmap)")
+        lv = self.leaves()
+        tmp = p.with_name(p.name + ".tmp.npz")
+        np.savez_compressed(tmp, centers=lv.centers, sizes=lv.sizes, values=lv.values,
+                            depths=lv.depths, resolution=self.resolution)
+        os.replace(tmp, p)
+        return p
+
+    @property
+    def num_leaves(self) -> int:
+        return self._t.num_leaves
+
+    @property
+    def resolution(self) -> float:
+        return self._t.resolution
+
+    @property
+    def memory_bytes(self) -> int:
+        return self._t.memory_bytes
+
+    def __repr__(self) -> str:
+        return f"InfoLossMap(resolution={self.resolution}, leaves={self.num_leaves})"
+
+
+def read_info_loss(path: str | os.PathLike) -> Leaves:
+    """Read an information-loss ``.npz`` as written by :meth:`InfoLossMap.save`.
+
+    Raises ``FileNotFoundError`` for a missing file and ``OSError`` naming the file for one
+    that is not such an archive (not a zip, missing arrays, mismatched lengths).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"information-loss file '{p}' does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"information-loss file '{p}' is a directory")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            if not hasattr(z, "files"):
+                raise ValueError("a single array, not an .npz archive")
+            missing = [k for k in _LOSS_KEYS if k not in z.files]
+            if missing:
+                raise ValueError(f"missing arrays {', '.join(missing)}")
+            lv = Leaves(np.asarray(z["centers"], dtype=np.float64),
+                        np.asarray(z["sizes"], dtype=np.float64),
+                        np.asarray(z["values"], dtype=np.float32),
+                        np.asarray(z["depths"], dtype=np.uint8))
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise OSError(f"cannot read information-loss file '{p}': {e}") from None
+    n = len(lv.values)
+    if (lv.centers.shape != (n, 3) or lv.sizes.shape != (n,) or lv.values.shape != (n,)
+            or lv.depths.shape != (n,)):
+        raise OSError(f"cannot read information-loss file '{p}': arrays of mismatched shapes "
+                      f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
+                      f"values {lv.values.shape}, depths {lv.depths.shape})")
+    return lv

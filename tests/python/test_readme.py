@@ -1,0 +1,43 @@
+"""The README tells the truth: its Python code blocks run as written on the bundled data,
+and its layout section names the folders the package has."""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+README = (REPO / "README.md").read_text()
+
+
+def python_blocks() -> list[str]:
+    return re.findall(r"```python\n(.*?)```", README, flags=re.S)
+
+
+def test_the_readme_has_python_examples():
+    assert len(python_blocks()) >= 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(python_blocks())))
+def test_each_python_block_runs_as_written(tmp_path, index):
+    (tmp_path / "data").symlink_to(REPO / "data")
+    script = tmp_path / "example.py"
+    script.write_text(python_blocks()[index])
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
+def test_the_layout_section_matches_the_package():
+    layout = README.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    package = REPO / "python" / "octofuse"
+    folders = sorted(p.name for p in package.iterdir() if p.is_dir() and p.name != "__pycache__")
+    for name in folders:
+        assert f"{name}/" in layout, f"the README's layout does not mention {name}/"
+    for name in re.findall(r"python/octofuse/(\w+)/", layout):
+        assert (package / name).is_dir(), f"the README names python/octofuse/{name}/, which is gone"
