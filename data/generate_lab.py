@@ -21,6 +21,7 @@ Only numpy and rosbags are needed::
     python data/generate_lab.py                      # data/lab8.bag + data/lab8_scene.json
     python data/generate_lab.py --robots 32 --out /tmp/lab32.bag
     python data/generate_lab.py --duration 600 --rate 10 --out /tmp/lab8_long.bag
+    python data/generate_lab.py --bias-robot 3 --bias-offset 0.4 -0.2 --bias-yaw 3 --out /tmp/lab8_bias.bag
 """
 
 from __future__ import annotations
@@ -384,6 +385,35 @@ def yaw_quat(yaw: float) -> tuple[float, float, float, float]:
     return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
 
 
+@dataclass
+class PoseBias:
+    """Error of what one robot's /tf reports: its poses are rotated by ``yaw + yaw_drift * t`` about
+    its true start position, then shifted by ``offset + drift * t`` (t: seconds since the bag start).
+    The scans are still taken at the true pose."""
+
+    robot: int  # 1-based
+    offset: tuple[float, float]
+    yaw_deg: float
+    drift: tuple[float, float]
+    yaw_drift_deg: float
+    pivot: tuple[float, float]
+
+    def apply(self, t: float, x: float, y: float, yaw: float) -> tuple[float, float, float]:
+        b = math.radians(self.yaw_deg + self.yaw_drift_deg * t)
+        c, s = math.cos(b), math.sin(b)
+        px, py = x - self.pivot[0], y - self.pivot[1]
+        return (self.pivot[0] + c * px - s * py + self.offset[0] + self.drift[0] * t,
+                self.pivot[1] + s * px + c * py + self.offset[1] + self.drift[1] * t, yaw + b)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"robot": self.robot, "offset": list(self.offset), "yaw_deg": self.yaw_deg,
+                "drift_per_s": list(self.drift), "yaw_drift_deg_per_s": self.yaw_drift_deg,
+                "pivot": [r6(v) for v in self.pivot],
+                "model": "reported = R(yaw_deg + yaw_drift * t) (true - pivot) + pivot + offset + drift * t, "
+                         "yaw + yaw_deg + yaw_drift * t; t in s since the bag start; scans are cast at "
+                         "the true pose"}
+
+
 class Messages:
     def __init__(self, store: Any):
         self.store = store
@@ -435,9 +465,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     help="every surface within range_max returns (no reflectivity / incidence model)")
     ap.add_argument("--snapshot", action="store_true",
                     help="all beams of a scan at the header stamp (time_increment = 0) instead of a sweep")
+    bias = ap.add_argument_group("pose bias", "make one robot's /tf wrong (its scans stay true)")
+    bias.add_argument("--bias-robot", type=int, default=None, metavar="K",
+                      help="robot whose reported poses are biased (1-based); none by default")
+    bias.add_argument("--bias-offset", type=float, nargs=2, default=(0.0, 0.0), metavar=("DX", "DY"),
+                      help="constant offset of the reported position, m")
+    bias.add_argument("--bias-yaw", type=float, default=0.0, metavar="DEG",
+                      help="constant rotation of the reported poses about the robot's start, degrees")
+    bias.add_argument("--bias-drift", type=float, nargs=2, default=(0.0, 0.0), metavar=("VX", "VY"),
+                      help="offset growing with time, m/s")
+    bias.add_argument("--bias-yaw-drift", type=float, default=0.0, metavar="DEG_PER_S",
+                      help="rotation growing with time, degrees/s")
     args = ap.parse_args(argv)
     if not 1 <= args.robots <= 256:
         ap.error("--robots must be in 1..256")
+    biased = (tuple(args.bias_offset) != (0.0, 0.0) or args.bias_yaw != 0.0
+              or tuple(args.bias_drift) != (0.0, 0.0) or args.bias_yaw_drift != 0.0)
+    if args.bias_robot is None and biased:
+        ap.error("--bias-offset, --bias-yaw, --bias-drift and --bias-yaw-drift need --bias-robot")
+    if args.bias_robot is not None and not 1 <= args.bias_robot <= args.robots:
+        ap.error(f"--bias-robot must be in 1..{args.robots}")
     if args.rate <= 0 or args.duration <= 0 or args.noise_scale < 0:
         ap.error("--rate and --duration must be positive, --noise-scale non-negative")
     return args
@@ -494,6 +541,12 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
         c = path_clearance(np.column_stack([tr.x, tr.y]), boxes)
         if c < CLEARANCE - 1e-6:
             raise RuntimeError(f"path {s.name} passes {c:.2f} m from a box or wall")
+
+    bias = None
+    if args.bias_robot is not None:
+        x0, y0, _ = (float(a[0]) for a in trajs[args.bias_robot - 1].pose(np.array([0.0])))
+        bias = PoseBias(args.bias_robot, tuple(args.bias_offset), args.bias_yaw, tuple(args.bias_drift),
+                        args.bias_yaw_drift, (x0, y0))
 
     store = make_typestore()
     msgs = Messages(store)
@@ -574,6 +627,8 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
         tfs = []
         for r in range(n):
             x, y, yaw = (float(a[0]) for a in trajs[r].pose(tsec))
+            if bias is not None and r == bias.robot - 1:
+                x, y, yaw = bias.apply(ts_ns / 1e9, x, y, yaw)
             tfs.append(msgs.transform(k, ts_ns + BAG_START_NS, "map", f"{robot_ns[r]}/base_link",
                                       (x, y, 0.0), yaw_quat(yaw)))
         records.append((BAG_START_NS + ts_ns, 1, 1, msgs.tf(tfs)))
@@ -620,6 +675,9 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
         "bag_bytes": out.stat().st_size,
     }
     scene = scene_json(args, boxes, specs, trajs, f32, stats)
+    if bias is not None:
+        scene["generator"]["pose_bias"] = bias.to_json()
+        scene["bag"]["topics"]["/tf"] += f"; robot{bias.robot}'s poses are biased (generator.pose_bias)"
     scene_path = out.with_name(out.stem + "_scene.json")
     scene_path.write_text(dump_json(scene))
     stats["seconds"] = time.perf_counter() - t_wall

@@ -33,6 +33,8 @@ _LAZY = {
     "Score": "maps.compare", "compare": "maps.compare", "score": "maps.compare",
     "make_graph": "fusion.graph", "SimResult": "fusion.network",
     "simulate": "fusion.simulate", "fuse_finished": "fusion.rounds",
+    "dynamic_vote": "fusion.voting", "static_vote": "fusion.voting_baselines",
+    "maximum_likelihood": "fusion.voting_baselines",
 }
 
 
