@@ -35,6 +35,7 @@ _LAZY = {
     "simulate": "fusion.simulate", "fuse_finished": "fusion.rounds",
     "dynamic_vote": "fusion.voting", "static_vote": "fusion.voting_baselines",
     "maximum_likelihood": "fusion.voting_baselines",
+    "ExPoly2D": "beliefs.expoly", "Gaussian": "beliefs.gaussian",
 }
 
 
