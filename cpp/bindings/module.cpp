@@ -5,4 +5,7 @@ PYBIND11_MODULE(_core, m) {
   m.doc() = "octofuse compiled core (internal; use the octofuse package)";
   octofuse::bindings::define_rules(m);
   octofuse::bindings::define_maps(m);
+  octofuse::bindings::define_insert(m);
+  octofuse::bindings::define_fusion(m);
+  octofuse::bindings::define_compare(m);
 }

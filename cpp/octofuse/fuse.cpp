@@ -2,15 +2,11 @@
 #include "octofuse/fuse.hpp"
 
 #include "octofuse/tree_access.hpp"
-#include "octofuse/walk.hpp"
 
-#include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <limits>
 #include <memory>
-#include <stdexcept>
-#include <string>
+#include <type_traits>
 
 namespace octofuse {
 
@@ -18,9 +14,6 @@ namespace {
 
 using OcNode = octomap::OcTreeNode;
 using ScalarNode = octomap::OcTreeDataNode<float>;
-
-template <class Tree>
-using Src = detail::WalkNode<Tree>;
 
 /// A node of an output tree that is only allocated once it is known to stay (lazily).
 /// The walk builds each subtree bottom-up: a subtree whose voxels turn out to be 8 equal
@@ -78,83 +71,25 @@ struct Kids {
 void set_logodds(OcNode* n, float v) { n->setLogOdds(v); }
 void set_scalar(ScalarNode* n, float v) { n->setValue(v); }
 
-/// The last results of the rule for a few thousand pairs of stored values (direct mapped).
-/// The values of a map built from scans are sums of a few sensor-model increments, clamped,
-/// so the same pairs come back again and again; a hit costs a few ns where the rule costs
-/// 30-300 ns. The entries are exact results of the rule for their key (the pair of float
-/// bit patterns), so a hit returns exactly what computing would.
-struct Memo {
-  static constexpr unsigned kBits = 12;
-  struct Entry {
-    std::uint64_t key;
-    float value, loss;
-  };
-  std::unique_ptr<Entry[]> entries;
-
-  static std::uint64_t key_of(float a, float b) {
-    std::uint32_t ua, ub;
-    std::memcpy(&ua, &a, sizeof ua);
-    std::memcpy(&ub, &b, sizeof ub);
-    return (std::uint64_t{ua} << 32) | ub;
-  }
-  Entry& slot(float a, float b) {
-    return entries[(key_of(a, b) * 0x9E3779B97F4A7C15ull) >> (64 - kBits)];
-  }
-  /// Fills every entry with the (exact) result for the pair whose key is 0: (+0, +0).
-  void init(float value, float loss) {
-    entries.reset(new Entry[1u << kBits]);
-    for (unsigned i = 0; i < (1u << kBits); ++i) entries[i] = {key_of(0.0f, 0.0f), value, loss};
-  }
-};
-
-/// The simultaneous walk, with the rule and the unknown-voxel policy fixed at compile time.
-template <Rule R, UnknownPolicy U>
+/// The simultaneous walk; the per-voxel policy (rule, unknown voxels) is fixed at compile time.
+template <class Fusion>
 struct Walker {
   const octomap::OcTree& ta;
   const octomap::OcTree& tb;
-  double lmin, lmax;  // clamping in log-odds
+  Fusion& fusion;
   octomap::OcTree& out;
   ScalarTree& loss;
   std::size_t fused = 0, copied = 0;
 
-  Memo memo;
-
-  /// The clamped fused value and the loss of one pair of stored log-odds.
-  void compute(float fa, float fb, float& value, float& info_loss) const {
-    const Fused f = fuse_logodds<R>(fa, fb, 0.0);
-    const double l = f.l < lmin ? lmin : (f.l > lmax ? lmax : f.l);
-    value = static_cast<float>(l);
-    info_loss = static_cast<float>(f.info_loss);
-  }
-
   /// Values of a voxel (or a block of voxels) given the input nodes covering it (null =
   /// unknown; not both null).
   void leaf(const OcNode* a, const OcNode* b, float& value, float& info_loss) {
-    float fa, fb;
-    if (a != nullptr && b != nullptr) {
-      fa = a->getLogOdds();
-      fb = b->getLogOdds();
-    } else if (U == UnknownPolicy::Copy) {
-      value = (a != nullptr ? a : b)->getLogOdds();
-      info_loss = 0.0f;
-      ++copied;
-      return;
-    } else {
-      fa = a != nullptr ? a->getLogOdds() : 0.0f;
-      fb = b != nullptr ? b->getLogOdds() : 0.0f;
-    }
-    ++fused;
-    if constexpr (R == Rule::NaiveBayes) {
-      compute(fa, fb, value, info_loss);  // cheaper than a look-up
-    } else {
-      Memo::Entry& e = memo.slot(fa, fb);
-      if (e.key != Memo::key_of(fa, fb)) {
-        e.key = Memo::key_of(fa, fb);
-        compute(fa, fb, e.value, e.loss);
-      }
-      value = e.value;
-      info_loss = e.loss;
-    }
+    const VoxelValue v = a == nullptr   ? fusion.only_b(b->getLogOdds())
+                         : b == nullptr ? fusion.only_a(a->getLogOdds())
+                                        : fusion.both(a->getLogOdds(), b->getLogOdds());
+    value = v.value;
+    info_loss = v.loss;
+    ++(v.fused ? fused : copied);
   }
 
   /// Child i of an input node of tree t as seen by the walk: a leaf stands for all its
@@ -224,48 +159,7 @@ struct Walker {
   }
 };
 
-template <Rule R, UnknownPolicy U>
-void run_walk(const octomap::OcTree& a, const octomap::OcTree& b, double lmin, double lmax,
-              FusionResult& res) {
-  Walker<R, U> w{a, b, lmin, lmax, res.map->tree(), *res.info_loss, 0, 0, Memo{}};
-  if constexpr (R != Rule::NaiveBayes) {
-    float v, l;
-    w.compute(0.0f, 0.0f, v, l);
-    w.memo.init(v, l);
-  }
-  w.run();
-  res.voxels_fused = w.fused;
-  res.voxels_copied = w.copied;
-}
-
-template <Rule R>
-void run_walk(const octomap::OcTree& a, const octomap::OcTree& b, UnknownPolicy unknown,
-              double lmin, double lmax, FusionResult& res) {
-  if (unknown == UnknownPolicy::Copy) {
-    run_walk<R, UnknownPolicy::Copy>(a, b, lmin, lmax, res);
-  } else {
-    run_walk<R, UnknownPolicy::Prior>(a, b, lmin, lmax, res);
-  }
-}
-
-
 }  // namespace
-
-void check_compatible(const OccupancyMap& a, const OccupancyMap& b) {
-  const MapParams &pa = a.params(), &pb = b.params();
-  if (std::fabs(pa.resolution - pb.resolution) > 1e-9 * pa.resolution) {
-    throw std::invalid_argument("maps have different resolutions (" + std::to_string(pa.resolution) +
-                                " m and " + std::to_string(pb.resolution) +
-                                " m); fuse maps built at the same resolution");
-  }
-  if (a.clamp_min_logodds() != b.clamp_min_logodds() ||
-      a.clamp_max_logodds() != b.clamp_max_logodds()) {
-    throw std::invalid_argument(
-        "maps have different clamping thresholds ([" + std::to_string(pa.clamp_min) + ", " +
-        std::to_string(pa.clamp_max) + "] and [" + std::to_string(pb.clamp_min) + ", " +
-        std::to_string(pb.clamp_max) + "]); fuse maps built with the same clamping");
-  }
-}
 
 FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
                        UnknownPolicy unknown) {
@@ -274,34 +168,16 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
   res.map = std::make_unique<OccupancyMap>(a.params());
   res.info_loss = std::make_unique<ScalarTree>(a.params().resolution);
   if (a.tree().getRoot() != nullptr || b.tree().getRoot() != nullptr) {
-    const octomap::OcTree &ta = a.tree(), &tb = b.tree();
-    const double lmin = a.clamp_min_logodds(), lmax = a.clamp_max_logodds();
-    switch (rule) {
-      case Rule::NaiveBayes:
-        run_walk<Rule::NaiveBayes>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::Bhattacharyya:
-        run_walk<Rule::Bhattacharyya>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::MinEntropy:
-        run_walk<Rule::MinEntropy>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::Chernoff:
-        run_walk<Rule::Chernoff>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::EntropyWeightedChernoff:
-        run_walk<Rule::EntropyWeightedChernoff>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::KldWeightedChernoff:
-        run_walk<Rule::KldWeightedChernoff>(ta, tb, unknown, lmin, lmax, res);
-        break;
-      case Rule::MinInfoLoss:
-        run_walk<Rule::MinInfoLoss>(ta, tb, unknown, lmin, lmax, res);
-        break;
-    }
+    with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
+                      [&](auto& fusion) {
+                        Walker<std::decay_t<decltype(fusion)>> w{
+                            a.tree(), b.tree(), fusion, res.map->tree(), *res.info_loss};
+                        w.run();
+                        res.voxels_fused = w.fused;
+                        res.voxels_copied = w.copied;
+                      });
   }
   return res;
 }
-
 
 }  // namespace octofuse

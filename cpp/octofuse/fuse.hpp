@@ -3,17 +3,12 @@
 
 #include "octofuse/occupancy_map.hpp"
 #include "octofuse/rules.hpp"
+#include "octofuse/voxel_fusion.hpp"
 
 #include <cstddef>
 #include <memory>
 
 namespace octofuse {
-
-/// What to do with a voxel that only one of the two maps knows.
-enum class UnknownPolicy : std::uint8_t {
-  Copy = 0,   ///< keep the known value (no common information; exact fusion)
-  Prior = 1,  ///< treat the missing value as the prior (p = 0.5, log-odds 0) and apply the rule
-};
 
 /// Result of fusing two maps: the fused map and the per-voxel information loss
 /// KL(p_NB || p_fused) (nats), a tree over the same keys as the fused map.
@@ -24,17 +19,12 @@ struct FusionResult {
   std::size_t voxels_copied = 0;  ///< result leaves known to only one input (policy Copy)
 };
 
-/// Fuses `a` and `b` voxel by voxel: the result equals fuse_logodds(rule, l_a, l_b) on every
+/// Fuses `a` and `b` voxel by voxel: the result equals VoxelFusion<rule, unknown> on every
 /// voxel of the two trees expanded to the finest level (a coarse leaf stands for all the
-/// voxels below it), clamped to the maps' clamping thresholds. Both trees are walked once,
-/// together, from the root. Requires equal resolution and clamping (checked by the caller
-/// with check_compatible()). Inner nodes hold the max of their children; nodes whose eight
-/// children are equal leaves are pruned.
+/// voxels below it). Both trees are walked once, together, from the root. Throws
+/// std::invalid_argument for incompatible maps (check_compatible()). Inner nodes hold the max
+/// of their children; nodes whose eight children are equal leaves are pruned.
 FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
                        UnknownPolicy unknown);
-
-/// Throws std::invalid_argument saying what differs if two maps cannot be fused.
-void check_compatible(const OccupancyMap& a, const OccupancyMap& b);
-
 
 }  // namespace octofuse

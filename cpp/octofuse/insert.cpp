@@ -1,131 +1,41 @@
-// octofuse: scan insertion into OccupancyMaps.
+// octofuse: batched scan insertion (ray keys once per scan, applied to several maps).
 #include "octofuse/insert.hpp"
 
+#include "octofuse/detail/key_codes.hpp"
+#include "octofuse/detail/parallel_for.hpp"
+#include "octofuse/scan_check.hpp"
 #include "octofuse/tree_access.hpp"
 
-#include <octomap/Pointcloud.h>
-
 #include <Eigen/Core>
-#include <Eigen/Geometry>
 
 #include <algorithm>
-#include <atomic>
 #include <map>
+#include <stdexcept>
+#include <string>
 #include <thread>
 
 namespace octofuse {
 
 namespace {
 
-// Morton code of a key: bit i of key[0] (x) goes to bit 3i, of key[1] (y) to 3i+1, of key[2]
-// (z) to 3i+2. At every level the three bits are OctoMap's child index (computeChildIdx), so
-// ascending codes are the tree's depth-first order and the keys under one node are contiguous.
-inline std::uint64_t spread3(std::uint64_t v) {
-  v &= 0xffff;
-  v = (v | (v << 32)) & 0x001f00000000ffffULL;
-  v = (v | (v << 16)) & 0x001f0000ff0000ffULL;
-  v = (v | (v << 8)) & 0x100f00f00f00f00fULL;
-  v = (v | (v << 4)) & 0x10c30c30c30c30c3ULL;
-  v = (v | (v << 2)) & 0x1249249249249249ULL;
-  return v;
-}
-
-inline std::uint64_t morton(const octomap::OcTreeKey& k) {
-  return spread3(k[0]) | spread3(k[1]) << 1 | spread3(k[2]) << 2;
-}
-
-inline octomap::OcTreeKey unmorton(std::uint64_t m) {
-  auto compact = [](std::uint64_t v) {
-    v &= 0x1249249249249249ULL;
-    v = (v | (v >> 2)) & 0x10c30c30c30c30c3ULL;
-    v = (v | (v >> 4)) & 0x100f00f00f00f00fULL;
-    v = (v | (v >> 8)) & 0x001f0000ff0000ffULL;
-    v = (v | (v >> 16)) & 0x001f00000000ffffULL;
-    v = (v | (v >> 32)) & 0xffffULL;
-    return static_cast<octomap::key_type>(v);
-  };
-  return octomap::OcTreeKey(compact(m), compact(m >> 1), compact(m >> 2));
-}
-
-// An update item: the Morton code of a voxel, bit 63 set for a hit (occupied), clear for a
-// miss (free). Codes use 48 bits, so the flag never collides with them.
-constexpr std::uint64_t kHit = 1ULL << 63;
-constexpr std::uint64_t kCode = kHit - 1;
-
-void sort_unique(std::vector<std::uint64_t>& v) {
-  std::sort(v.begin(), v.end());
-  v.erase(std::unique(v.begin(), v.end()), v.end());
-}
-
-// Set of Morton codes (open addressing, linear probing). A ray passes through voxels that the
-// neighbouring rays of the scan also pass through, so most keys repeat; the set keeps each
-// once, and only the distinct ones are sorted afterwards.
-class CodeSet {
- public:
-  explicit CodeSet(std::size_t expected) {
-    std::fill(std::begin(recent_), std::end(recent_), kEmpty);
-    std::size_t cap = 1024;
-    while (cap < 2 * expected) cap *= 2;
-    rehash(cap);
-  }
-  void insert(std::uint64_t c) {
-    std::uint64_t& recent = recent_[c & (kRecent - 1)];
-    if (recent == c) return;
-    recent = c;
-    if (put(c) && ++size_ * 2 > table_.size()) rehash(table_.size() * 2);
-  }
-  /// The codes in ascending order.
-  std::vector<std::uint64_t> sorted() const {
-    std::vector<std::uint64_t> out;
-    out.reserve(size_);
-    for (std::uint64_t s : table_)
-      if (s != kEmpty) out.push_back(s);
-    std::sort(out.begin(), out.end());
-    return out;
-  }
-
- private:
-  static constexpr std::uint64_t kEmpty = ~0ULL;  // never a code (codes use 48 bits)
-  // Adds c to the table; false if it was there.
-  bool put(std::uint64_t c) {
-    std::size_t i = slot(c);
-    while (true) {
-      const std::uint64_t s = table_[i];
-      if (s == c) return false;
-      if (s == kEmpty) break;
-      i = (i + 1) & mask_;
-    }
-    table_[i] = c;
-    return true;
-  }
-  std::size_t slot(std::uint64_t c) const {
-    return static_cast<std::size_t>((c * 0x9E3779B97F4A7C15ULL) >> shift_);
-  }
-  void rehash(std::size_t cap) {
-    std::vector<std::uint64_t> old(cap, kEmpty);
-    old.swap(table_);
-    mask_ = cap - 1;
-    shift_ = 64;
-    for (std::size_t c = cap; c > 1; c >>= 1) --shift_;
-    for (std::uint64_t s : old)
-      if (s != kEmpty) put(s);
-  }
-  // direct-mapped by the low code bits (a few voxels' neighbourhood): the keys of the
-  // previous rays, tested before the table
-  static constexpr std::size_t kRecent = 1024;
-  std::uint64_t recent_[kRecent];
-  std::vector<std::uint64_t> table_;
-  std::size_t mask_ = 0;
-  unsigned shift_ = 64;
-  std::size_t size_ = 0;
-};
+using detail::CodeSet;
+using detail::kCode;
+using detail::kHit;
+using detail::morton;
+using detail::sort_unique;
+using detail::unmorton;
 
 // The update of one scan as items in ascending code order (free and occupied merged;
-// occupied wins over free), with computeUpdate()'s semantics.
+// occupied wins over free), with computeUpdate()'s semantics. Every ray is checked first
+// (std::invalid_argument prefixed by `where`).
 std::vector<std::uint64_t> compute_items(const octomap::OcTree& grid, const float* xyz,
                                          std::size_t n, const float origin[3],
-                                         double max_range) {
+                                         double max_range, const std::string& where) {
   const octomap::point3d o(origin[0], origin[1], origin[2]);
+  const ScanCheck check(grid, o, max_range, where);
+  for (std::size_t i = 0; i < n; ++i) {
+    check.check(i, octomap::point3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]));
+  }
   octomap::KeyRay ray;
   CodeSet free(n * 4);
   std::vector<std::uint64_t> occ;
@@ -281,29 +191,20 @@ std::vector<float> to_map_frame(const Real* xyz, std::size_t n, const double pos
   return out;
 }
 
-// Runs f(i) for i in [0, n) on `threads` threads (dynamic scheduling).
-template <class F>
-void parallel_for(std::size_t n, unsigned threads, F f) {
-  threads = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(n)));
-  if (threads <= 1) {
-    for (std::size_t i = 0; i < n; ++i) f(i);
-    return;
-  }
-  std::atomic<std::size_t> next{0};
-  auto work = [&] {
-    for (std::size_t i = next++; i < n; i = next++) f(i);
-  };
-  std::vector<std::thread> pool;
-  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
-  work();
-  for (auto& th : pool) th.join();
-}
-
 }  // namespace
 
+unsigned default_threads() {
+  const unsigned hw = std::thread::hardware_concurrency();
+  return std::min(kMaxThreads, std::max(1u, hw));
+}
+
 void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
+  if (threads < 1 || threads > kMaxThreads) {
+    throw std::invalid_argument("threads = " + std::to_string(threads) + ": expected 1 to " +
+                                std::to_string(kMaxThreads));
+  }
   std::vector<std::vector<std::uint64_t>> updates(scans.size());
-  parallel_for(scans.size(), threads, [&](std::size_t i) {
+  detail::parallel_for(scans.size(), threads, [&](std::size_t i) {
     const ScanInput& s = scans[i];
     if (s.targets.empty()) return;
     const std::vector<float> pts =
@@ -311,7 +212,8 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
                     : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
-    updates[i] = compute_items(s.targets.front()->tree(), pts.data(), s.n, origin, s.max_range);
+    updates[i] = compute_items(s.targets.front()->tree(), pts.data(), s.n, origin, s.max_range,
+                               "scan " + std::to_string(i) + ": ");
   });
   // every map gets its scans in order; distinct maps go to threads by amount of work
   std::map<OccupancyMap*, std::vector<std::size_t>> per_map;
@@ -325,7 +227,7 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
   std::vector<OccupancyMap*> maps;
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
-  const unsigned nt = std::max(1u, threads);
+  const unsigned nt = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(maps.size(), 1)));
   std::vector<std::vector<OccupancyMap*>> lanes(nt);
   std::vector<std::size_t> load(nt, 0);
   for (OccupancyMap* m : maps) {
@@ -333,51 +235,10 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
     lanes[t].push_back(m);
     load[t] += work[m];
   }
-  parallel_for(nt, nt, [&](std::size_t t) {
+  detail::parallel_for(nt, nt, [&](std::size_t t) {
     for (OccupancyMap* m : lanes[t])
       for (std::size_t i : per_map[m]) apply_items(m->tree(), updates[i]);
   });
 }
-
-// Single scans through OctoMap's own insertPointCloud().
-template <class Real>
-void OccupancyMap::insert_scan(const Real* xyz, std::size_t n, const double origin[3],
-                               double max_range) {
-  octomap::Pointcloud cloud;
-  cloud.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    cloud.push_back(static_cast<float>(xyz[3 * i]), static_cast<float>(xyz[3 * i + 1]),
-                    static_cast<float>(xyz[3 * i + 2]));
-  }
-  const octomap::point3d o(static_cast<float>(origin[0]), static_cast<float>(origin[1]),
-                           static_cast<float>(origin[2]));
-  tree_->insertPointCloud(cloud, o, max_range, /*lazy_eval=*/false, /*discretize=*/false);
-}
-
-template <class Real>
-void OccupancyMap::insert_scan_from_sensor(const Real* xyz, std::size_t n, const double pose[16],
-                                           double max_range) {
-  const Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> T(pose);
-  const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
-  const Eigen::Vector3d t = T.topRightCorner<3, 1>();
-  octomap::Pointcloud cloud;
-  cloud.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
-    const Eigen::Vector3d q = R * p + t;
-    cloud.push_back(static_cast<float>(q.x()), static_cast<float>(q.y()),
-                    static_cast<float>(q.z()));
-  }
-  const octomap::point3d o(static_cast<float>(t.x()), static_cast<float>(t.y()),
-                           static_cast<float>(t.z()));
-  tree_->insertPointCloud(cloud, o, max_range, /*lazy_eval=*/false, /*discretize=*/false);
-}
-
-template void OccupancyMap::insert_scan<float>(const float*, std::size_t, const double*, double);
-template void OccupancyMap::insert_scan<double>(const double*, std::size_t, const double*, double);
-template void OccupancyMap::insert_scan_from_sensor<float>(const float*, std::size_t,
-                                                           const double*, double);
-template void OccupancyMap::insert_scan_from_sensor<double>(const double*, std::size_t,
-                                                            const double*, double);
 
 }  // namespace octofuse

@@ -22,9 +22,19 @@ struct ScanInput {
   std::vector<OccupancyMap*> targets;  ///< maps this scan updates (all of equal resolution)
 };
 
+/// Most threads insert_batch() takes.
+inline constexpr unsigned kMaxThreads = 256;
+
+/// The machine's hardware threads, within 1..kMaxThreads: the default thread count.
+unsigned default_threads();
+
 /// Inserts a batch of scans: ray keys of the scans are computed on `threads` threads, then
 /// every target map receives its scans in batch order, different maps in parallel. The
 /// result equals inserting each scan with insertPointCloud() into each of its targets.
+/// Every scan is checked (ScanCheck) before any map changes: throws std::invalid_argument
+/// naming the scan and point row if a ray cannot be traced, or if threads is not in
+/// 1..kMaxThreads. An exception of a worker thread (std::bad_alloc included) is rethrown on
+/// the calling thread; if it happens while maps are updated, they may hold part of the batch.
 void insert_batch(const std::vector<ScanInput>& scans, unsigned threads);
 
 }  // namespace octofuse

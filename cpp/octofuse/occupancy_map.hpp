@@ -1,4 +1,4 @@
-// octofuse: the one adapter around octomap::OcTree (insertion, file I/O, leaf export).
+// octofuse: the one adapter around octomap::OcTree (parameters, insertion, leaf export).
 #pragma once
 
 #include <octomap/OcTree.h>
@@ -18,6 +18,12 @@ class MapFileError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+/// Smallest and largest voxel edge length (metres) a map may have: OctoMap's 16-bit keys
+/// address 65536 voxels per axis, so the map spans +-3.3 m at the smallest and the float
+/// coordinates of its points keep sub-voxel precision at the largest.
+inline constexpr double kMinResolution = 1e-4;
+inline constexpr double kMaxResolution = 1e3;
 
 /// Sensor model and clamping of an occupancy map, as probabilities.
 struct MapParams {
@@ -50,7 +56,9 @@ class OccupancyMap {
 
   /// Inserts one scan with OctoMap's ray casting update (octomap::OcTree::insertPointCloud).
   /// `xyz` holds n points (x y z interleaved) in the map frame; rays longer than max_range
-  /// (if > 0) clear free space up to max_range only. Inner nodes are updated.
+  /// (if >= 0) clear free space up to max_range only. Inner nodes are updated. The scan is
+  /// checked first (check_scan()) and inserted only if every ray can be traced: throws
+  /// std::invalid_argument naming the first point that cannot, and leaves the map unchanged.
   template <class Real>
   void insert_scan(const Real* xyz, std::size_t n, const double origin[3], double max_range);
 
@@ -60,13 +68,10 @@ class OccupancyMap {
   void insert_scan_from_sensor(const Real* xyz, std::size_t n, const double pose[16],
                                double max_range);
 
-  /// Writes the map: ".bt" writes OctoMap's maximum-likelihood binary (probabilities are
-  /// lost), anything else the full ".ot" format. Written to a temporary file first and
-  /// renamed, so an existing file is never left half-written. Throws MapFileError.
+  /// Writes the map (write_map_file(): ".bt" or ".ot", atomically). Throws MapFileError.
   void save(const std::string& path) const;
 
-  /// Reads a ".ot" (OcTree) or ".bt" file after validating its structure. Throws
-  /// MapFileError naming the file for missing, truncated or foreign files.
+  /// Reads a ".ot" or ".bt" file (read_map_file()). Throws MapFileError naming the file.
   static std::unique_ptr<OccupancyMap> load(const std::string& path);
 
   /// Leaf centres, sizes and log-odds.
@@ -94,5 +99,7 @@ using ScalarTree = octomap::OcTreeBase<octomap::OcTreeDataNode<float>>;
 /// Leaves of a scalar tree.
 LeafArrays scalar_leaves(const ScalarTree& tree);
 
-
+/// Throws std::invalid_argument saying what differs if two maps cannot be combined voxel by
+/// voxel (different resolution or clamping).
+void check_compatible(const OccupancyMap& a, const OccupancyMap& b);
 }  // namespace octofuse

@@ -8,7 +8,7 @@ import numpy as np
 
 from . import _core
 
-#: Names of the fusion rules, in the order of the C++ core's ``Rule`` enum.
+#: Names of the fusion rules, in the order of the C++ core's ``Rule`` enum (the one source).
 RULES: tuple[str, ...] = tuple(_core.RULE_NAMES)
 
 #: The weighted exponential product (WEP) rules, i.e. every rule but naive Bayes.
@@ -32,31 +32,20 @@ class LogOddsFusion(NamedTuple):
 
 
 #: Policies for voxels only one map knows: keep its value, or fuse it with the prior.
-UNKNOWN_POLICIES: tuple[str, ...] = ("copy", "prior")
+UNKNOWN_POLICIES: tuple[str, ...] = tuple(_core.UNKNOWN_POLICY_NAMES)
+
+Rule = _core.Rule
+UnknownPolicy = _core.UnknownPolicy
 
 
-def parse_rule(rule):
-    """The core's rule for a rule name; ``ValueError`` listing the valid names."""
-    if isinstance(rule, int):
-        return rule
-    try:
-        return RULES.index(rule)
-    except ValueError:
-        raise ValueError(
-            f"unknown fusion rule {rule!r}; valid rules are: {', '.join(RULES)}"
-        ) from None
+def parse_rule(rule: "str | Rule") -> "Rule":
+    """The core's :class:`Rule` for a rule name; ``ValueError`` listing the valid names."""
+    return rule if isinstance(rule, Rule) else _core.rule_from_name(str(rule))
 
 
-def parse_unknown(policy):
-    """The core's policy for voxels one map knows: ``"copy"`` or ``"prior"``."""
-    if isinstance(policy, int):
-        return policy
-    try:
-        return UNKNOWN_POLICIES.index(policy)
-    except ValueError:
-        raise ValueError(
-            f"unknown = {policy!r}: expected one of {', '.join(UNKNOWN_POLICIES)}"
-        ) from None
+def parse_unknown(policy: "str | UnknownPolicy") -> "UnknownPolicy":
+    """The core's policy for voxels one map knows, from ``"copy"`` or ``"prior"``."""
+    return policy if isinstance(policy, UnknownPolicy) else _core.unknown_policy_from_name(str(policy))
 
 
 def _pair(a, b) -> tuple[np.ndarray, np.ndarray]:
@@ -99,12 +88,12 @@ def fuse_bernoulli(p_a, p_b, rule: str = "min-info-loss", prior: float = 0.5) ->
     ``omega`` 1 (or 0 if it is ``p_b``) and zero loss. Certainties of opposite outcomes
     (0 with 1), NaN inputs and values outside [0, 1] raise ``ValueError`` naming the index.
     """
-    idx = parse_rule(rule)
+    rule = parse_rule(rule)
     if not 0.0 < prior < 1.0:
         raise ValueError(f"prior = {prior!r}: expected a probability strictly between 0 and 1")
     a, b = _pair(p_a, p_b)
     l0 = float(np.log(prior) - np.log1p(-prior))
-    p, w, loss = _core._fuse(idx, a, b, True, l0, "p_a", "p_b")
+    p, w, loss = _core._fuse(rule, a, b, True, l0, "p_a", "p_b")
     return BernoulliFusion(p, w, loss)
 
 
@@ -114,9 +103,9 @@ def fuse_logodds(l_a, l_b, rule: str = "min-info-loss", prior_logodds: float = 0
     ``l_a``, ``l_b`` may be +-inf (certain); NaN and contradictory infinities raise
     ``ValueError``. ``prior_logodds`` is the common prior's log-odds (0 for OctoMap).
     """
-    idx = parse_rule(rule)
+    rule = parse_rule(rule)
     if not np.isfinite(prior_logodds):
         raise ValueError(f"prior_logodds = {prior_logodds!r}: expected a finite number")
     a, b = _pair(l_a, l_b)
-    l, w, loss = _core._fuse(idx, a, b, False, float(prior_logodds), "l_a", "l_b")
+    l, w, loss = _core._fuse(rule, a, b, False, float(prior_logodds), "l_a", "l_b")
     return LogOddsFusion(l, w, loss)

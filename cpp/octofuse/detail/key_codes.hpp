@@ -1,0 +1,117 @@
+// octofuse: voxel keys as Morton codes, and a set of them, for the batched scan update.
+#pragma once
+
+#include <octomap/OcTreeKey.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <iterator>
+#include <vector>
+
+namespace octofuse::detail {
+
+// Morton code of a key: bit i of key[0] (x) goes to bit 3i, of key[1] (y) to 3i+1, of key[2]
+// (z) to 3i+2. At every level the three bits are OctoMap's child index (computeChildIdx), so
+// ascending codes are the tree's depth-first order and the keys under one node are contiguous.
+inline std::uint64_t spread3(std::uint64_t v) {
+  v &= 0xffff;
+  v = (v | (v << 32)) & 0x001f00000000ffffULL;
+  v = (v | (v << 16)) & 0x001f0000ff0000ffULL;
+  v = (v | (v << 8)) & 0x100f00f00f00f00fULL;
+  v = (v | (v << 4)) & 0x10c30c30c30c30c3ULL;
+  v = (v | (v << 2)) & 0x1249249249249249ULL;
+  return v;
+}
+
+inline std::uint64_t morton(const octomap::OcTreeKey& k) {
+  return spread3(k[0]) | spread3(k[1]) << 1 | spread3(k[2]) << 2;
+}
+
+inline octomap::OcTreeKey unmorton(std::uint64_t m) {
+  auto compact = [](std::uint64_t v) {
+    v &= 0x1249249249249249ULL;
+    v = (v | (v >> 2)) & 0x10c30c30c30c30c3ULL;
+    v = (v | (v >> 4)) & 0x100f00f00f00f00fULL;
+    v = (v | (v >> 8)) & 0x001f0000ff0000ffULL;
+    v = (v | (v >> 16)) & 0x001f00000000ffffULL;
+    v = (v | (v >> 32)) & 0xffffULL;
+    return static_cast<octomap::key_type>(v);
+  };
+  return octomap::OcTreeKey(compact(m), compact(m >> 1), compact(m >> 2));
+}
+
+// An update item: the Morton code of a voxel, bit 63 set for a hit (occupied), clear for a
+// miss (free). Codes use 48 bits, so the flag never collides with them.
+constexpr std::uint64_t kHit = 1ULL << 63;
+constexpr std::uint64_t kCode = kHit - 1;
+
+void sort_unique(std::vector<std::uint64_t>& v) {
+  std::sort(v.begin(), v.end());
+  v.erase(std::unique(v.begin(), v.end()), v.end());
+}
+
+// Set of Morton codes (open addressing, linear probing). A ray passes through voxels that the
+// neighbouring rays of the scan also pass through, so most keys repeat; the set keeps each
+// once, and only the distinct ones are sorted afterwards.
+class CodeSet {
+ public:
+  explicit CodeSet(std::size_t expected) {
+    std::fill(std::begin(recent_), std::end(recent_), kEmpty);
+    std::size_t cap = 1024;
+    while (cap < 2 * expected) cap *= 2;
+    rehash(cap);
+  }
+  void insert(std::uint64_t c) {
+    std::uint64_t& recent = recent_[c & (kRecent - 1)];
+    if (recent == c) return;
+    recent = c;
+    if (put(c) && ++size_ * 2 > table_.size()) rehash(table_.size() * 2);
+  }
+  /// The codes in ascending order.
+  std::vector<std::uint64_t> sorted() const {
+    std::vector<std::uint64_t> out;
+    out.reserve(size_);
+    for (std::uint64_t s : table_)
+      if (s != kEmpty) out.push_back(s);
+    std::sort(out.begin(), out.end());
+    return out;
+  }
+
+ private:
+  static constexpr std::uint64_t kEmpty = ~0ULL;  // never a code (codes use 48 bits)
+  // Adds c to the table; false if it was there.
+  bool put(std::uint64_t c) {
+    std::size_t i = slot(c);
+    while (true) {
+      const std::uint64_t s = table_[i];
+      if (s == c) return false;
+      if (s == kEmpty) break;
+      i = (i + 1) & mask_;
+    }
+    table_[i] = c;
+    return true;
+  }
+  std::size_t slot(std::uint64_t c) const {
+    return static_cast<std::size_t>((c * 0x9E3779B97F4A7C15ULL) >> shift_);
+  }
+  void rehash(std::size_t cap) {
+    std::vector<std::uint64_t> old(cap, kEmpty);
+    old.swap(table_);
+    mask_ = cap - 1;
+    shift_ = 64;
+    for (std::size_t c = cap; c > 1; c >>= 1) --shift_;
+    for (std::uint64_t s : old)
+      if (s != kEmpty) put(s);
+  }
+  // direct-mapped by the low code bits (a few voxels' neighbourhood): the keys of the
+  // previous rays, tested before the table
+  static constexpr std::size_t kRecent = 1024;
+  std::uint64_t recent_[kRecent];
+  std::vector<std::uint64_t> table_;
+  std::size_t mask_ = 0;
+  unsigned shift_ = 64;
+  std::size_t size_ = 0;
+};
+
+}  // namespace octofuse::detail
