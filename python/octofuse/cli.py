@@ -114,6 +114,8 @@ def run_config(p: dict, *, bags=None) -> RunConfig:
     from .config import from_dict, merge, read_yaml
 
     data = read_yaml(p["config"]) if p.get("config") else {}
+    if data:  # the file's own errors name the file and the key
+        from_dict(RunConfig, data, where=str(p["config"]))
     build = _given(fixed_frame=p.get("fixed_frame"), max_range=p.get("max_range"),
                    no_return=p.get("no_return"), scan_stride=p.get("every"),
                    threads=p.get("threads"))
@@ -132,8 +134,7 @@ def run_config(p: dict, *, bags=None) -> RunConfig:
                  samples=p.get("samples"), export_agents=p.get("export_agents"))
     data = merge(data, {"build": build, "fuse": fuse, **run})
     _agent_poses(data, p)
-    where = f"config file '{p['config']}' with the flags" if p.get("config") else "options"
-    return from_dict(RunConfig, data, where=where)
+    return from_dict(RunConfig, data, where="options")
 
 
 def _agent_poses(data: dict, p: dict) -> None:
@@ -152,6 +153,16 @@ def _agent_poses(data: dict, p: dict) -> None:
         except ValueError:
             raise click.BadParameter(f"--sensor-offset {name}: expected 7 numbers "
                                      "x,y,z,qx,qy,qz,qw") from None
+
+
+def _config_sets(p: dict, section: str, key: str) -> bool:
+    """Whether the ``--config`` file sets ``section.key`` (a command's own default yields to it)."""
+    from .config import read_yaml
+
+    if not p.get("config"):
+        return False
+    part = read_yaml(p["config"]).get(section)
+    return isinstance(part, dict) and key in part
 
 
 def _dump(cfg) -> None:
@@ -315,7 +326,8 @@ def demo(**p):
 @click.argument("maps_dir", type=click.Path(path_type=Path))
 @rule_option
 @topology_option
-@click.option("--rounds", type=click.IntRange(1, 10_000), default=3, help="synchronous rounds of exchanges")
+@click.option("--rounds", type=click.IntRange(1, 10_000), help="synchronous rounds of exchanges",
+              show_default="3")
 @click.option("--directions", type=click.Choice(["both", "one"]), help="messages on a link",
               show_default="both")
 @click.option("--unknown", type=click.Choice(["copy", "prior"]), help="voxels known to one map only",
@@ -333,7 +345,10 @@ def fuse_cmd(maps_dir, rounds, **p):
     from .outputs.report import write_outputs
     from .outputs.staging import check_replaceable, staged_folder
 
-    cfg = run_config({**p, "schedule": f"rounds:{rounds}"}, bags=[maps_dir])
+    if rounds is None and not _config_sets(p, "fuse", "schedule"):
+        rounds = 3
+    cfg = run_config({**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
+                     bags=[maps_dir])
     if p["dump_config"]:
         return _dump(cfg)
     out = check_replaceable(_need_out(cfg, p["out"]))
@@ -348,7 +363,7 @@ def fuse_cmd(maps_dir, rounds, **p):
     central = OccupancyMap.load(central_path) if central_path.is_file() else None
     res = fuse_finished(maps, central, cfg.fuse, truth=Scene.find(cfg.truth, []),
                         threads=cfg.build.threads)
-    title = f"octofuse fuse: {rounds} rounds over {cfg.fuse.topology}"
+    title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     with staged_folder(out, "fuse") as stage:
         write_outputs(res, stage, cfg, title=title)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
@@ -369,7 +384,8 @@ def bench(bags, topologies, **p):
     from .outputs.staging import check_replaceable, staged_folder
     from .outputs.study import run_study
 
-    cfg = run_config({**p, "rule": p["rule"] or ("all",)}, bags=bags)
+    default_rules = () if _config_sets(p, "fuse", "rules") else ("all",)
+    cfg = run_config({**p, "rule": p["rule"] or default_rules}, bags=bags)
     if p["dump_config"]:
         return _dump(cfg)
     _need_bags(cfg, "octofuse bench BAG... --out DIR")
@@ -452,12 +468,24 @@ def main(argv: Optional[list[str]] = None) -> int:
         _error(_message(e))
         return 1
     except Exception as e:  # a bug in octofuse, not bad input
+        if _bad_input(e):
+            _error(_message(e))
+            return 1
         if os.environ.get("OCTOFUSE_DEBUG"):
             raise
         _error(f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
                "for the traceback")
         return 70
     return 0
+
+
+def _bad_input(e: BaseException) -> bool:
+    """A bag or transform error (bad input); their modules are imported only if they ran."""
+    for module, name in (("octofuse.scans.bags", "BagError"), ("octofuse.scans.tf", "TransformError")):
+        cls = getattr(sys.modules.get(module), name, None)
+        if cls is not None and isinstance(e, cls):
+            return True
+    return False
 
 
 def _message(e: BaseException) -> str:

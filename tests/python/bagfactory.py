@@ -287,7 +287,7 @@ def header(ts, stamp_ns: int, frame: str):
 
 def _pose_msg(ts, m: np.ndarray):
     T = ts.types
-    from octofuse.io import matrix_to_quaternion
+    from octofuse.scans import matrix_to_quaternion
 
     q = matrix_to_quaternion(m)
     return T["geometry_msgs/msg/Pose"](
@@ -299,7 +299,7 @@ def _pose_msg(ts, m: np.ndarray):
 def tf_message(ts, stamp_ns: int, links: Iterable[tuple[str, str, np.ndarray]]):
     """TFMessage of (parent, child, 4x4 T_parent_child) links."""
     T = ts.types
-    from octofuse.io import matrix_to_quaternion
+    from octofuse.scans import matrix_to_quaternion
 
     out = []
     for parent, child, m in links:

@@ -23,7 +23,7 @@ import bagfactory as bf  # noqa: E402
 from bagfactory import KINDS, LAYOUTS, S, T0, Recording, Robot, run_cli  # noqa: E402
 
 from octofuse import OccupancyMap  # noqa: E402
-from octofuse.build import build, build_maps, make_build_config  # noqa: E402
+from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.config import AgentSpec, BuildConfig, MapConfig, RunConfig, load_yaml  # noqa: E402
 
 RES = "0.1"
@@ -88,7 +88,7 @@ def test_every_bag_format_gives_the_reference_maps(tmp_path, capsys, kind):
     bag = rec.write(tmp_path / "run", kind)
     out = tmp_path / "maps"
     stdout = build_cli(capsys, bag, out)
-    assert sorted(p.name for p in out.iterdir()) == ["centralized.ot", "r1.ot", "r2.ot"]
+    assert sorted(p.name for p in out.iterdir()) == [".octofuse-output", "centralized.ot", "r1.ot", "r2.ot"]
     assert "wrote 3 maps" in stdout
     assert table_row(stdout, "r1", "/r1/points") == (4, 0)
     assert table_row(stdout, "r2", "/r2/scan") == (4, 0)

@@ -36,7 +36,7 @@ def good(tmp_path_factory):
     out = root / "maps"
     assert main(["build", str(bags["ros1"]), "--resolution", "0.1", "--out", str(out)]) == 0
     files = {p.name: p.read_bytes() for p in out.iterdir()}
-    assert sorted(files) == ["centralized.ot", "r1.ot"]
+    assert sorted(files) == [".octofuse-output", "centralized.ot", "r1.ot"]
     return {"root": root, "bags": bags, "out": out, "files": files}
 
 
@@ -135,7 +135,7 @@ def case_cloud_without_xyz_fields(good, tmp):
 def case_config_bags_not_a_list(good, tmp):
     p = tmp / "bags.yaml"
     p.write_text("build:\n  bags: {a: 1}\n")
-    return ["--config", p], ["bags.yaml.build.bags: expected a list of bag paths"]
+    return ["--config", p], ["bags.yaml.build.bags: expected a list, got dict"]
 
 
 def case_missing_config_file(good, tmp):
@@ -148,8 +148,11 @@ def case_config_with_unknown_key(good, tmp):
     return ["--config", p], ["typo.yaml", "unknown key(s) resolutoin"]
 
 
-def case_every_zero(good, tmp):
-    return [good["bags"]["ros1"], "--every", "0"], ["scan_stride = 0"]
+def case_config_scan_stride_zero(good, tmp):
+    # ``--every 0`` is a usage error (exit 2, test_cli_usage.py); from a file it is bad input
+    p = tmp / "stride.yaml"
+    p.write_text(f"build:\n  bags: [{good['bags']['ros1']}]\n  scan_stride: 0\n")
+    return ["--config", p], ["stride.yaml.build.scan_stride = 0"]
 
 
 CASES = {name[5:]: f for name, f in list(globals().items()) if name.startswith("case_")}

@@ -39,7 +39,8 @@ def test_intel_four_agents(shared_real, tmp_path, capsys):
                                 "--out", out)
     assert code == 0, err
     names = [f"robot{k}" for k in range(1, 5)]
-    assert sorted(p.name for p in out.iterdir()) == sorted(f"{n}.ot" for n in [*names, "centralized"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [".octofuse-output", *(f"{n}.ot" for n in [*names, "centralized"])])
     used = {n: int(re.search(rf"{n}\W+/{n}/scan\W+(\d+)\W+0\W", stdout).group(1)) for n in names}
     assert sum(used.values()) == 910 and min(used.values()) >= 220
     assert re.search(r"centralized\W+\(all\)\W+910\W+0\W", stdout)

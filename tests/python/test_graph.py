@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 
 
-from octofuse import graph  # noqa: E402
+from octofuse.fusion import graph  # noqa: E402
 make_graph = graph.make_graph
 Graph = graph.Graph
 

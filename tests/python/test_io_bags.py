@@ -14,7 +14,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-import octofuse.io as oio
+import octofuse.scans as oio
 
 S = 1_000_000_000
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import octofuse.io as oio
+import octofuse.scans as oio
 
 FLOAT32, FLOAT64, UINT16, UINT8, INT32 = 7, 8, 4, 2, 5
 CODE = {np.dtype(v).str[1:]: k for k, v in oio.POINTFIELD_DTYPES.items()}

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-import octofuse.io as oio
+import octofuse.scans as oio
 
 S = 1_000_000_000  # ns per second
 

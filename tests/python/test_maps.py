@@ -83,7 +83,7 @@ def test_incompatible_maps_are_rejected():
         fuse_maps(a, OccupancyMap(0.1, clamping=(0.12, 0.97)))
     with pytest.raises(ValueError, match="valid rules are"):
         fuse_maps(a, a, rule="chernov")
-    with pytest.raises(ValueError, match="unknown = 'zero'"):
+    with pytest.raises(ValueError, match="'zero'; valid policies are: copy, prior"):
         fuse_maps(a, a, unknown="zero")
 
 
@@ -265,7 +265,7 @@ def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unkn
     octofuse.fuse_into(rb, a, rule, unknown, lb_ref)
     xa, xb = a.copy(), b.copy()
     la, lb = octofuse.InfoLossMap(0.1), octofuse.InfoLossMap(0.1)
-    octofuse.maps.exchange_maps(xa, xb, rule, unknown, la, lb)
+    octofuse.exchange_maps(xa, xb, rule, unknown, la, lb)
     assert expand(xa.leaves(), 0.1) == expand(ra.leaves(), 0.1)
     assert expand(xb.leaves(), 0.1) == expand(rb.leaves(), 0.1)
     assert expand(la.leaves(), 0.1) == expand(la_ref.leaves(), 0.1)

@@ -16,8 +16,8 @@ from conftest import expand, random_map
 
 import octofuse
 from octofuse import OccupancyMap, fuse_maps
-from octofuse.metrics import compare, finest_centers, loss_stats, score, weighted_percentile
-from octofuse.scene import Scene
+from octofuse.maps.compare import compare, finest_centers, loss_stats, score, weighted_percentile
+from octofuse.maps.truth import Scene
 
 RES = 0.1
 L_MISS = float(np.float32(math.log(0.4 / 0.6)))  #: a voxel a ray passed through once

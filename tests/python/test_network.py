@@ -23,12 +23,14 @@ from bagfactory import S, T0, Robot, assert_same_map, voxel_keys  # noqa: E402
 import octofuse  # noqa: E402
 from octofuse import InfoLossMap, OccupancyMap, fuse_into, fuse_maps  # noqa: E402
 from octofuse import _core  # noqa: E402
-from octofuse.build import make_build_config  # noqa: E402
+from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
-from octofuse.graph import make_graph  # noqa: E402
-from octofuse.ingest import ScanSource  # noqa: E402
-from octofuse.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
-from octofuse.network import LOCAL, fuse_finished, simulate  # noqa: E402
+from octofuse.fusion.graph import make_graph  # noqa: E402
+from octofuse.scans.source import ScanSource  # noqa: E402
+from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
+from octofuse.fusion.network import LOCAL
+from octofuse.fusion.rounds import fuse_finished
+from octofuse.fusion.simulate import simulate  # noqa: E402
 
 RES = 0.2
 WEP = [r for r in octofuse.RULES if r != "naive-bayes"]
@@ -140,8 +142,8 @@ def four():
 def ring_result(four):
     """Every rule on a ring of 4 (a loop), 4 synchronous rounds of exchanges."""
     maps, central = four
-    return fuse_finished(maps, central, FuseConfig(topology="ring"), list(octofuse.RULES),
-                         n_rounds=4)
+    return fuse_finished(maps, central, FuseConfig(topology="ring", rules=list(octofuse.RULES),
+                                                   schedule="rounds:4"))
 
 
 #: scans at 0.25 + 0.05 i + 0.5 k s (robot i, k = 0..3): none at a multiple of 0.33 s
@@ -230,8 +232,8 @@ def test_finished_maps_are_not_modified(four, ring_result):
 def test_a_two_way_exchange_fuses_both_maps_from_before(rule, delta):
     maps, central = finished_maps(2)
     a, b = maps["a"].copy(), maps["b"].copy()
-    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta), [rule],
-                        n_rounds=1)
+    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta, rules=[rule],
+                                                  schedule="rounds:1"))
     assert res.events == [Exchange(0.0, 0, 1), Exchange(0.0, 1, 0)]
     want_a, loss_a = fuse_maps(a, b, rule=rule)
     want_b, loss_b = fuse_maps(b, a, rule=rule)
@@ -248,8 +250,8 @@ def test_messages_of_a_round_carry_the_maps_from_its_start(delta):
     round, in the order of the schedule (first in, first out)."""
     maps, central = finished_maps(3)
     rule = "naive-bayes"  # sums: any map sent after its sender fused would show
-    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta), [rule],
-                        n_rounds=1)
+    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta, rules=[rule],
+                                                  schedule="rounds:1"))
     m = {a: x.copy() for a, x in maps.items()}
     want = {
         "a": fuse_maps(fuse_maps(m["a"], m["b"], rule).map, m["c"], rule).map,  # b then c
@@ -264,8 +266,9 @@ def test_messages_of_a_round_carry_the_maps_from_its_start(delta):
 @pytest.mark.parametrize("delta", [False, True], ids=["whole", "delta"])
 def test_rounds_on_a_line_equal_a_replay(delta, directions):
     maps, central = finished_maps(4)
-    fcfg = FuseConfig(topology="line", delta=delta, directions=directions)
-    res = fuse_finished(maps, central, fcfg, SOME_RULES, n_rounds=3)
+    fcfg = FuseConfig(topology="line", delta=delta, directions=directions, rules=SOME_RULES,
+                      schedule="rounds:3")
+    res = fuse_finished(maps, central, fcfg)
     graph = make_graph("line", 4)
     for rule in SOME_RULES:
         rep = Replay(maps, rule, delta)
@@ -283,8 +286,8 @@ def test_information_travels_one_hop_per_round():
     only_d = known["d"] - known["a"] - known["b"] - known["c"]
     assert len(only_d) > 100
     for n_rounds, reached in [(1, {"c", "d"}), (2, {"b", "c", "d"}), (3, {"a", "b", "c", "d"})]:
-        res = fuse_finished(maps, central, FuseConfig(topology="line"), ["chernoff"],
-                            n_rounds=n_rounds)
+        res = fuse_finished(maps, central, FuseConfig(topology="line", rules=["chernoff"],
+                                                      schedule=f"rounds:{n_rounds}"))
         for a in maps:
             has = set(voxel_keys(res.fused["chernoff"][a])[0].tolist())
             assert (only_d <= has) == (a in reached), (n_rounds, a)
@@ -296,8 +299,8 @@ def test_information_travels_one_hop_per_round():
 
 def test_traffic_of_one_round_is_five_bytes_per_node(four):
     maps, central = four
-    res = fuse_finished(maps, central, FuseConfig(topology="ring"), ["chernoff", "naive-bayes"],
-                        n_rounds=1)
+    res = fuse_finished(maps, central, FuseConfig(topology="ring", rules=["chernoff", "naive-bayes"],
+                                                  schedule="rounds:1"))
     graph = make_graph("ring", 4)
     names = list(maps)
     assert len(res.events) == 2 * len(graph.edges) == 8
@@ -318,12 +321,16 @@ def test_traffic_of_one_round_is_five_bytes_per_node(four):
 def test_fuse_finished_errors(four):
     maps, central = four
     with pytest.raises(ValueError, match="at least 2 agent maps"):
-        fuse_finished({"a": maps["a"]}, central, FuseConfig(topology="ring"))
+        fuse_finished({"a": maps["a"]}, central, FuseConfig(topology="ring", schedule="rounds:3"))
     with pytest.raises(ValueError, match="valid rules are: naive-bayes"):
-        fuse_finished(maps, central, FuseConfig(topology="ring"), ["bayes"])
+        fuse_finished(maps, central, FuseConfig(topology="ring", rules=["bayes"],
+                                                schedule="rounds:3"))
     with pytest.raises(ValueError, match="max-robust"):
-        fuse_finished(maps, central, FuseConfig(topology="max-robust:4"))
-    res = fuse_finished(maps, None, FuseConfig(topology="ring"), ["chernoff"], n_rounds=1)
+        fuse_finished(maps, central, FuseConfig(topology="max-robust:4", schedule="rounds:3"))
+    with pytest.raises(ValueError, match="finished maps are fused in rounds"):
+        fuse_finished(maps, central, FuseConfig(topology="ring", schedule="periodic:1"))
+    res = fuse_finished(maps, None, FuseConfig(topology="ring", rules=["chernoff"],
+                                               schedule="rounds:1"))
     assert res.central is None and res.scores == {}
 
 
@@ -354,8 +361,8 @@ def whole_and_delta(team_bag):
     cfg = run_config(team_bag)
     out = {}
     for delta in (False, True):
-        out[delta] = simulate(cfg, FuseConfig(topology="ring", schedule=PERIOD, delta=delta),
-                              SOME_RULES, samples=0)
+        out[delta] = simulate(cfg, FuseConfig(topology="ring", schedule=PERIOD, delta=delta,
+                                              rules=SOME_RULES), samples=0)
     return out
 
 
@@ -381,8 +388,8 @@ def test_deltas_send_fewer_bytes_and_reach_the_same_voxels(whole_and_delta):
 def test_a_first_message_on_a_link_is_the_whole_map(team_bag):
     cfg = run_config(team_bag)
     # one round of exchanges, after the last scan: deltas and whole maps are the same messages
-    runs = [simulate(cfg, FuseConfig(topology="ring", schedule="periodic:2", delta=d),
-                     ["min-info-loss"], samples=0) for d in (False, True)]
+    runs = [simulate(cfg, FuseConfig(topology="ring", schedule="periodic:2", delta=d,
+                                      rules=["min-info-loss"]), samples=0) for d in (False, True)]
     assert len(runs[0].events) == 8
     for a in runs[0].agents:
         assert_same_map(runs[1].fused["min-info-loss"][a], runs[0].fused["min-info-loss"][a], a)
@@ -444,8 +451,8 @@ def test_a_run_interleaves_scans_and_exchanges_in_time_order(team_bag, whole_and
 
 
 def test_events_follow_the_schedule_and_the_timeline_ends_at_the_final_scores(team_bag):
-    res = simulate(run_config(team_bag), FuseConfig(topology="star", schedule=PERIOD),
-                   ["chernoff", "naive-bayes"], samples=5)
+    res = simulate(run_config(team_bag), FuseConfig(topology="star", schedule=PERIOD,
+                                                    rules=["chernoff", "naive-bayes"]), samples=5)
     duration = (T0 + int(2.0 * S) + bf.LATENCY_NS - T0) / 1e9  # the last tf message
     graph = make_graph("star", 4)
     want = periodic(graph, period_s=0.33, duration_s=duration)
@@ -487,7 +494,7 @@ def test_a_region_seen_late_reaches_no_one_before_it_is_seen(tmp_path):
     ek, lk = voxel_keys(early)[0], voxel_keys(late)[0]
     late_only = np.setdiff1d(lk, ek)
     assert len(late_only) > 100
-    res = simulate(cfg, FuseConfig(topology="complete", schedule="periodic:2.1"), SOME_RULES,
+    res = simulate(cfg, FuseConfig(topology="complete", schedule="periodic:2.1", rules=SOME_RULES),
                    samples=4)
     assert {e.time_s for e in res.events} == {2.1}
     c_early = np.setdiff1d(voxel_keys(res.local["c"])[0], late_only)

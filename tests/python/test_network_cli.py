@@ -19,11 +19,12 @@ import bagfactory as bf  # noqa: E402
 from bagfactory import S, T0, assert_same_map, run_cli  # noqa: E402
 
 import octofuse  # noqa: E402
-import octofuse.report  # noqa: E402
+import octofuse.outputs.report  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
-from octofuse.export import read_cloud  # noqa: E402
-from octofuse.network import LOCAL, fuse_finished  # noqa: E402
+from octofuse.outputs.export import read_cloud  # noqa: E402
+from octofuse.fusion.network import LOCAL
+from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]
@@ -61,14 +62,14 @@ def run_out(bag, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("run") / "out"
     kept = {}
-    write = octofuse.report.write_outputs
+    write = octofuse.outputs.report.write_outputs
 
     def keep(res, *args, **kw):
         kept["res"] = res
         return write(res, *args, **kw)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(octofuse.report, "write_outputs", keep)
+        mp.setattr(octofuse.outputs.report, "write_outputs", keep)
         code = main(["run", str(bag), *RUN_ARGS, "--out", str(out)])
     assert code == 0
     return out, kept["res"]
@@ -101,7 +102,7 @@ def test_run_summary_numbers(run_out):
     assert s["graph"] == {"spec": "ring", "edges": [[0, 1], [0, 3], [1, 2], [2, 3]]}
     # periodic:1 over the 2.01 s of the bag: rounds at 1 s and 2 s, 4 links, both directions
     assert s["events"] == 16 and s["messages"] == {"chernoff": 16}
-    assert s["config"]["fuse"]["rule"] == "chernoff"
+    assert s["config"]["fuse"]["rules"] == ["chernoff"]
     assert s["config"]["fuse"]["schedule"] == "periodic:1"
     assert s["config"]["build"]["map"]["resolution"] == 0.2
     assert set(s["mean"]) == {LOCAL, "chernoff"}
@@ -179,7 +180,7 @@ def test_run_dump_config_then_run_it(bag, tmp_path, capsys):
                               "--out", out, "--dump-config")
     assert code == 0, err
     cfg = yaml.safe_load(text)
-    assert cfg["fuse"]["rule"] == "chernoff,naive-bayes"
+    assert cfg["fuse"]["rules"] == ["chernoff", "naive-bayes"]
     assert cfg["fuse"]["topology"] == "star" and cfg["fuse"]["schedule"] == "periodic:0.7"
     assert cfg["fuse"]["delta"] is True
     assert cfg["build"]["bags"] == [str(bag)] and cfg["build"]["map"]["resolution"] == 0.2
@@ -217,8 +218,8 @@ def test_build_then_fuse(built, tmp_path, capsys):
     assert "fused 4 maps with min-info-loss over complete (24 messages)" in text
     maps = {a: OccupancyMap.load(built / f"{a}.ot") for a in AGENTS}
     central = OccupancyMap.load(built / "centralized.ot")
-    want = fuse_finished(maps, central, FuseConfig(topology="complete"), ["min-info-loss"],
-                         n_rounds=2)
+    want = fuse_finished(maps, central, FuseConfig(topology="complete", rules=["min-info-loss"],
+                                                   schedule="rounds:2"))
     for a in AGENTS:
         assert_same_map(OccupancyMap.load(out / "min-info-loss" / f"{a}.ot"),
                         want.fused["min-info-loss"][a], a)
@@ -263,7 +264,7 @@ def test_bench_rules_by_topologies(bag, run_out, tmp_path, capsys):
                               "--resolution", RES, "--out", out)
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == [
-        "bench.csv", "bench.md", "bench_kl_mean.png", "bench_loss_mean.png",
+        ".octofuse-output", "bench.csv", "bench.md", "bench_kl_mean.png", "bench_loss_mean.png",
         "bench_overconfidence.png"]
     assert all(is_png(p) for p in out.glob("*.png"))
     with (out / "bench.csv").open() as f:
@@ -386,14 +387,38 @@ def test_run_without_a_placeable_scan_is_an_error(tmp_path, capsys):
     (["--rule", "bayes"], ["unknown fusion rule 'bayes'", "valid rules are"]),
     (["--topology", "max-robust:4"], ["K=4 with n=4"]),
     (["--topology", "SPLIT"], ["is disconnected"]),
-    (["--rounds", "0"], ["--rounds 0: expected 1 or more"]),
-    (["--directions", "sideways"], ["directions must be one of both, one"]),
+    # flags are checked by click (usage errors, below); the same values from a config file
+    # are bad input, and a config's schedule is not overridden by the default of --rounds
+    (["--config", "fuse:\n  schedule: rounds:0\n"], ["rounds:R needs a whole number of rounds >= 1"]),
+    (["--config", "fuse:\n  schedule: periodic:1\n"], ["finished maps are fused in rounds"]),
+    (["--config", "fuse:\n  directions: sideways\n"], ["fuse.directions = 'sideways'",
+                                                         "expected both or one"]),
 ])
 def test_fuse_bad_input_is_one_error_line(built, split_graph, tmp_path, capsys, args, needles):
     args = [str(split_graph) if a == "SPLIT" else a for a in args]
+    if args[0] == "--config":
+        (tmp_path / "fuse.yaml").write_text(args[1])
+        args = ["--config", tmp_path / "fuse.yaml"]
     code, _, err = run_cli(capsys, "fuse", built, "--topology", "ring", *args,
                            "--out", tmp_path / "o")
     assert_one_error(code, err, *needles)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command, args, needles", [
+    ("fuse", ["--rounds", "0"], ["--rounds", "0 is not in the range 1<=x<=10000"]),
+    ("fuse", ["--directions", "sideways"], ["--directions", "'sideways' is not one of 'both', 'one'"]),
+    ("bench", ["--topologies", " , "], ["--topologies", "give at least one topology"]),
+])
+def test_bad_flag_values_are_usage_errors(bag, built, tmp_path, capsys, command, args, needles):
+    out = tmp_path / "o"
+    code, text, err = run_cli(capsys, command, built if command == "fuse" else bag, *args,
+                              "--out", out)
+    assert code == 2, err
+    assert "Traceback" not in err and err.startswith(f"Usage: octofuse {command} ")
+    for n in needles:
+        assert n in err, (n, err)
+    assert "done in" not in text and not out.exists()
 
 
 def test_fuse_needs_a_folder_of_maps(built, tmp_path, capsys):
@@ -411,7 +436,6 @@ def test_fuse_needs_a_folder_of_maps(built, tmp_path, capsys):
     (["--topologies", "ring,hexagon"], ["unknown topology 'hexagon'"]),
     (["--topologies", "ring,SPLIT"], ["is disconnected"]),
     (["--rules", "chernoff,bayes"], ["unknown fusion rule 'bayes'"]),
-    (["--topologies", " , "], ["give at least one topology"]),
 ])
 def test_bench_bad_input_fails_before_any_run(bag, split_graph, tmp_path, capsys, args, needles):
     args = [a.replace("SPLIT", str(split_graph)) for a in args]

@@ -6,8 +6,8 @@ import pytest
 
 
 
-from octofuse import graph  # noqa: E402
-from octofuse import schedule  # noqa: E402
+from octofuse.fusion import graph  # noqa: E402
+from octofuse.fusion import schedule  # noqa: E402
 Exchange = schedule.Exchange
 
 RING8 = graph.make_graph("ring", 8)

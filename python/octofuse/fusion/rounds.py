@@ -29,7 +29,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     if len(agents) < 2:
         raise ValueError(f"fusion needs at least 2 agent maps, got {len(agents)}")
     graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
-    rounds = make_rounds(graph, spec.value, directions=fuse_cfg.directions)
+    rounds = make_rounds(graph, int(spec.value), directions=fuse_cfg.directions)
     first = next(iter(maps.values()))
     net = Network(agents, rules, fuse_cfg, lambda: OccupancyMap(first.resolution), threads)
     for r in rules:

@@ -1,0 +1,281 @@
+"""The installed ``octofuse`` command: usage errors exit 2 with click's message, ``--version``
+and ``--help``; output folders written all-or-nothing; a light ``import octofuse``."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bagfactory as bf  # noqa: E402
+from bagfactory import run_cli  # noqa: E402
+
+from octofuse.cli import cli  # noqa: E402
+from octofuse.outputs.staging import MARKER  # noqa: E402
+
+OCTOFUSE = Path(sys.executable).parent / "octofuse"
+RES = "0.2"
+ENV = {k: v for k, v in os.environ.items() if k not in ("FORCE_COLOR", "COLUMNS", "OCTOFUSE_DEBUG")}
+
+
+def octofuse(*args, cwd=None) -> subprocess.CompletedProcess:
+    """The installed console script, as a user runs it."""
+    assert OCTOFUSE.is_file(), f"the octofuse command is not installed at {OCTOFUSE}"
+    return subprocess.run([str(OCTOFUSE), *map(str, args)], capture_output=True, text=True,
+                          timeout=120, env=ENV, cwd=cwd)
+
+
+# -- usage errors ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("args, usage, needle", [
+    (["build", "--foo"], "octofuse build", "No such option '--foo'"),
+    (["launch"], "octofuse", "No such command 'launch'"),
+    (["fuse"], "octofuse fuse", "Missing argument 'MAPS_DIR'"),
+    (["run", "--every", "two"], "octofuse run", "Invalid value for '--every': 'two'"),
+    (["build", "x.bag", "--every", "0"], "octofuse build", "Invalid value for '--every': 0"),
+    (["fuse", "x", "--rounds", "-1"], "octofuse fuse", "Invalid value for '--rounds': -1"),
+    (["run", "x.bag", "--directions", "sideways"], "octofuse run",
+     "Invalid value for '--directions': 'sideways'"),
+    ([], "octofuse", "Commands:"),
+], ids=["unknown_option", "unknown_command", "missing_argument", "every_not_a_number",
+        "every_zero", "negative_rounds", "bad_choice", "bare"])
+def test_usage_errors_exit_2_with_clicks_message(tmp_path, args, usage, needle):
+    p = octofuse(*args, cwd=tmp_path)
+    assert p.returncode == 2, (p.stdout, p.stderr)
+    assert "Traceback" not in p.stderr and "Traceback" not in p.stdout
+    assert p.stderr.startswith(f"Usage: {usage} [OPTIONS]"), p.stderr
+    assert needle in p.stderr, p.stderr
+    if args:  # an error, not the help: one "Error:" line and a pointer to --help
+        assert f"Try '{usage} --help' for help." in p.stderr
+        assert [line for line in p.stderr.splitlines() if line.startswith("Error: ")] != []
+    assert p.stdout == ""
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_version():
+    p = octofuse("--version")
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == f"octofuse, version {importlib.metadata.version('octofuse')}"
+    assert p.stderr == ""
+    p = octofuse("run", "--help")
+    assert p.returncode == 0 and p.stderr == "" and p.stdout.startswith("Usage: octofuse run ")
+    assert "[default: (max-robust:3)]" in p.stdout
+
+
+def test_bad_input_exits_1_with_one_line(tmp_path):
+    p = octofuse("build", tmp_path / "nothere.bag", "--out", tmp_path / "o")
+    assert p.returncode == 1
+    assert p.stderr.strip() == f"error: bag '{tmp_path / 'nothere.bag'}' does not exist"
+    assert not (tmp_path / "o").exists()
+
+
+#: command -> defaults its --help must show
+HELP_DEFAULTS = {
+    "build": ["map", "0.05", "skip", "no limit"],
+    "run": ["min-info-loss", "max-robust:3", "aperiodic:10", "both", "copy", "12"],
+    "bench": ["ring,max-robust:3", "aperiodic:10", "0.05"],
+    "fuse": ["3", "both", "copy", "max-robust:3"],
+    "demo": ["octofuse-demo", "all"],
+    "export": ["viridis for maps, inferno for heat maps"],
+    "fuse-pair": ["min-info-loss", "copy"],
+    "info": [],
+}
+
+
+def test_every_command_has_help_defaults():
+    assert sorted(cli.commands) == sorted(HELP_DEFAULTS)
+
+
+@pytest.mark.parametrize("command", list(HELP_DEFAULTS))
+def test_help_of_each_command_shows_its_defaults(capsys, command):
+    code, out, err = run_cli(capsys, command, "--help")
+    assert code == 0, err
+    assert out.startswith(f"Usage: octofuse {command} ")
+    text = " ".join(re.sub(r"-\n\s+", "-", out).split())  # help is wrapped to the terminal
+    shown = re.findall(r"\[default: \(?([^)\];]*)\)?[;\]]", text)
+    for value in HELP_DEFAULTS[command]:
+        assert value in shown, (value, shown)
+    code, short, _ = run_cli(capsys, command, "-h")
+    assert code == 0 and short == out
+
+
+# -- --out: all or nothing ------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    robots = bf.team(2)
+    rec = bf.robot_recording(robots, bf.team_times(robots, 4))
+    return rec.write(tmp_path_factory.mktemp("bag") / "pair", "mcap")
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def no_leftovers(parent: Path, keep: set[str]) -> bool:
+    """Only ``keep`` in ``parent``: no staging or old folders of octofuse stayed behind."""
+    return {p.name for p in parent.iterdir()} == keep
+
+
+def build(capsys, bag, out, *extra):
+    return run_cli(capsys, "build", bag, "--resolution", RES, *extra, "--out", out)
+
+
+def test_a_rerun_replaces_its_own_folder_whole(bag, tmp_path, capsys):
+    out = tmp_path / "maps"
+    code, _, err = build(capsys, bag, out)
+    assert code == 0, err
+    assert sorted(snapshot(out)) == [MARKER, "a.ot", "b.ot", "centralized.ot"]
+    assert (out / MARKER).read_text() == "written by octofuse build\n"
+    (out / "stale.txt").write_text("from an earlier run")
+    (out / "old").mkdir()
+    (out / "old" / "x.ot").write_bytes(b"x")
+    first = (out / "a.ot").read_bytes()
+    code, _, err = build(capsys, bag, out, "--every", "2")
+    assert code == 0, err
+    assert sorted(snapshot(out)) == [MARKER, "a.ot", "b.ot", "centralized.ot"]
+    assert (out / "a.ot").read_bytes() != first  # half the scans: the new maps
+    assert no_leftovers(tmp_path, {"maps"})
+
+
+def test_an_empty_folder_is_used(bag, tmp_path, capsys):
+    out = tmp_path / "empty"
+    out.mkdir()
+    code, _, err = build(capsys, bag, out)
+    assert code == 0, err
+    assert sorted(snapshot(out)) == [MARKER, "a.ot", "b.ot", "centralized.ot"]
+
+
+@pytest.mark.parametrize("command", ["build", "run", "bench", "fuse"])
+def test_a_folder_octofuse_did_not_write_is_refused(bag, tmp_path, capsys, command):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.tex").write_text("months of work")
+    (out / "data").mkdir()
+    (out / "data" / "a.ot").write_bytes(b"not octofuse's")
+    before = snapshot(out)
+    if command == "fuse":  # a folder of maps to fuse
+        assert build(capsys, bag, tmp_path / "maps")[0] == 0
+    args = {"build": [bag, "--resolution", RES],
+            "run": [bag, "--resolution", RES, "--topology", "line", "--schedule", "periodic:1"],
+            "bench": [bag, "--resolution", RES, "--topologies", "line", "--schedule", "periodic:1"],
+            "fuse": [tmp_path / "maps", "--topology", "line"]}[command]
+    code, text, err = run_cli(capsys, command, *args, "--out", out)
+    assert code == 1, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err
+    assert lines[0] == (f"error: --out '{out}' is a folder that octofuse did not write; refusing "
+                        "to replace it (give a new or empty folder)")
+    assert snapshot(out) == before
+    assert "wrote" not in text and "done in" not in text
+
+
+def test_a_file_as_out_is_refused(bag, tmp_path, capsys):
+    out = tmp_path / "notes.txt"
+    out.write_text("keep")
+    code, _, err = build(capsys, bag, out)
+    assert code == 2 and "Invalid value for '--out'" in err and "is a file" in err
+    assert out.read_text() == "keep"
+
+
+@pytest.fixture
+def previous(bag, tmp_path, capsys):
+    """A run's outputs and a build's maps, written by octofuse: what failures must keep."""
+    run_out, maps = tmp_path / "run", tmp_path / "maps"
+    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
+                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
+                           "--out", run_out)
+    assert code == 0, err
+    assert build(capsys, bag, maps)[0] == 0
+    return {"run": run_out, "maps": maps,
+            "before": {"run": snapshot(run_out), "maps": snapshot(maps)}}
+
+
+def failing_commands(bag, tmp, previous):
+    """(args, exit code, error text) of commands that fail after --out is known."""
+    run, maps = previous["run"], previous["maps"]
+    line = ["--schedule", "periodic:1", "--resolution", RES]
+    return [
+        (["build", tmp / "nothere.bag", "--out", maps], 1, "does not exist"),
+        (["build", bag, "--fixed-frame", "world", "--out", maps], 1, "fixed frame 'world'"),
+        (["run", bag, "--topology", "hexagon", *line, "--out", run], 1, "unknown topology"),
+        (["run", bag, "--topology", "max-robust:3", *line, "--out", run], 1, "K=3 with n=2"),
+        (["run", bag, "--topology", "line", "--export-agents", "z", *line, "--out", run], 1,
+         "unknown agent(s) z"),
+        (["bench", bag, "--topologies", "line,hexagon", *line, "--out", run], 1,
+         "unknown topology"),
+        (["fuse", maps, "--topology", "max-robust:3", "--out", run], 1, "K=3 with n=2"),
+        (["run", bag, "--every", "0", "--out", run], 2, "Invalid value for '--every'"),
+    ]
+
+
+def test_a_failing_command_leaves_the_previous_outputs_byte_identical(bag, tmp_path, capsys,
+                                                                      previous):
+    for args, want, needle in failing_commands(bag, tmp_path, previous):
+        code, text, err = run_cli(capsys, *args)
+        assert code == want, (args, err)
+        assert needle in err and "Traceback" not in err, (args, err)
+        for name in ("run", "maps"):
+            assert snapshot(previous[name]) == previous["before"][name], (args, name)
+        assert no_leftovers(tmp_path, {"run", "maps"}), (args, sorted(os.listdir(tmp_path)))
+
+
+def test_an_interrupted_write_leaves_the_previous_outputs(bag, tmp_path, capsys, previous,
+                                                          monkeypatch):
+    import octofuse.outputs.report
+
+    def interrupted(res, out, *args, **kw):
+        (Path(out) / "report.md").write_text("half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(octofuse.outputs.report, "write_outputs", interrupted)
+    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
+                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
+                           "--out", previous["run"])
+    assert code == 130 and err.strip() == "error: interrupted"
+    assert snapshot(previous["run"]) == previous["before"]["run"]
+    assert no_leftovers(tmp_path, {"run", "maps"})
+
+
+def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
+    assert (previous["run"] / MARKER).read_text() == "written by octofuse run\n"
+    out = tmp_path / "fused"
+    code, _, err = run_cli(capsys, "fuse", previous["maps"], "--topology", "line", "--rounds", "1",
+                           "--out", out)
+    assert code == 0, err
+    assert (out / MARKER).read_text() == "written by octofuse fuse\n"
+    # a run's folder may be replaced by another command's outputs: octofuse wrote it
+    code, _, err = run_cli(capsys, "bench", bag, "--rules", "chernoff", "--topologies", "line",
+                           "--schedule", "periodic:1", "--resolution", RES, "--every", "2",
+                           "--out", previous["run"])
+    assert code == 0, err
+    assert (previous["run"] / MARKER).read_text() == "written by octofuse bench\n"
+    assert not (previous["run"] / "report.md").exists()
+    assert (previous["run"] / "bench.csv").is_file()
+
+
+# -- a light import -------------------------------------------------------------------------------
+
+
+def test_import_octofuse_loads_no_heavy_module():
+    heavy = ["rosbags", "open3d", "matplotlib", "click"]
+    code = ("import sys, octofuse, octofuse.config\n"
+            "assert octofuse.OccupancyMap and octofuse.RULES\n"
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
+            "octofuse.simulate\n"  # a lazy name: loads the pipeline
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env=ENV)
+    assert p.returncode == 0, p.stderr
+    light, after = p.stdout.splitlines()
+    assert light == "[]"
+    assert after == "['rosbags']"  # the check above can see a module that was imported
