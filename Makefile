@@ -10,7 +10,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := build-essential cmake git python3-venv python3-dev \
                 liboctomap-dev libeigen3-dev libgtest-dev octomap-tools libusb-1.0-0
 
-.PHONY: all deps venv install test test-cpp test-python demo bench clean
+.PHONY: all deps venv install test test-cpp test-python demo bench fuzz clean
 
 all: install
 
@@ -47,6 +47,9 @@ demo: install ## the main job on the bundled dataset
 
 bench: install ## benchmarks (see benchmarks/README.md)
 	$(PY) benchmarks/run_all.py
+
+fuzz: install ## seeded fuzz campaign against the installed command (about 5 minutes)
+	$(PY) benchmarks/fuzz_campaign.py --cases 3000 --minutes 5 --seed 1
 
 clean:
 	rm -rf build $(VENV) octofuse-demo

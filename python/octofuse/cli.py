@@ -452,7 +452,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     """Run the CLI: usage errors exit 2 with click's message, bad input 1 with one line,
     an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug)."""
     try:
-        cli.main(args=argv, prog_name="octofuse", standalone_mode=False)
+        args = sys.argv[1:] if argv is None else list(argv)
+        with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below
+            cli.invoke(ctx)
     except click.exceptions.Exit as e:
         return e.exit_code
     except click.ClickException as e:

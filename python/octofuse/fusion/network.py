@@ -48,6 +48,11 @@ class SimResult:
     timings: dict[str, float] = field(default_factory=lambda: defaultdict(float))
     scores: dict[str, dict[str, Score]] = field(default_factory=dict)  #: rule|local-only -> agent
     build_stats: list = field(default_factory=list)
+    build_notes: list[str] = field(default_factory=list)  #: skipped transforms, dropped points
+    #: robust fusion: the robots voted out (their messages were not fused) and the vote
+    #: (:class:`octofuse.fusion.robust.RobustOutcome`, None without robust fusion)
+    excluded: list[str] = field(default_factory=list)
+    robust: Optional[object] = None
 
 
 class Network:

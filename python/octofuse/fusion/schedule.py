@@ -28,6 +28,14 @@ import numpy as np
 
 DIRECTIONS = ("both", "one")
 SCHEDULE_KINDS = ("periodic:SECONDS", "aperiodic:SECONDS", "rounds:R")
+#: most exchange events one schedule may hold (each one is a map fusion)
+MAX_EXCHANGES = 100_000
+
+
+def _check_count(what: str, count: float) -> None:
+    if not count <= MAX_EXCHANGES:
+        raise ValueError(f"{what} would create {count:.3g} exchanges, more than the "
+                         f"{MAX_EXCHANGES:,} a run can use; choose a longer interval or fewer rounds")
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,6 +63,9 @@ def periodic(
     _check_directions(directions)
     if start_s > duration_s:
         return []
+    per_round = len(graph.edges) * (2 if directions == "both" else 1)
+    _check_count(f"periodic:{period_s:g} over {duration_s:g} s on {len(graph.edges)} link(s)",
+                 ((duration_s - start_s) / period_s + 1) * per_round)
     events = []
     for k in range(math.floor((duration_s - start_s) / period_s + 1e-9) + 1):
         events.extend(_fire(graph.edges, start_s + k * period_s, k, directions))
@@ -76,6 +87,9 @@ def aperiodic(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     _check_directions(directions)
+    per_firing = 2 if directions == "both" else 1
+    _check_count(f"aperiodic:{mean_interval_s:g} over {duration_s:g} s on {len(graph.edges)} "
+                 "link(s)", duration_s / mean_interval_s * len(graph.edges) * per_firing)
     keyed = []
     for link, (a, b) in enumerate(graph.edges):
         times = _poisson_times(np.random.default_rng([int(seed), a, b]), mean_interval_s, duration_s)
@@ -97,6 +111,8 @@ def rounds(graph, n_rounds: int, directions: str = "both") -> list[list[Exchange
     if isinstance(n_rounds, bool) or not isinstance(n_rounds, (int, np.integer)) or n_rounds < 0:
         raise ValueError(f"n_rounds must be a non-negative integer, got {n_rounds!r}")
     _check_directions(directions)
+    _check_count(f"rounds:{int(n_rounds)} on {len(graph.edges)} link(s)",
+                 int(n_rounds) * len(graph.edges) * (2 if directions == "both" else 1))
     return [_fire(graph.edges, float(r), r, directions) for r in range(int(n_rounds))]
 
 

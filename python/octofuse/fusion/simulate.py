@@ -30,6 +30,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     KL to the centralized map (``samples`` points in time) and the scores.
     """
     fuse_cfg.validate("fuse")
+    if not 0 <= samples <= 10_000:
+        raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
@@ -66,6 +68,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # exchange groups and KL samples, merged in time order: (time, kind, payload)
         timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
         timed += [(t, 1, None) for t in sample_times]
+        vote: list = []  # robust fusion: the vote, once taken
+        if fuse_cfg.robust:  # before the exchanges of its instant
+            timed.append((min(fuse_cfg.robust_time, duration), -1, None))
         timed.sort(key=lambda x: (x[0], x[1]))
         next_i = 0
 
@@ -87,8 +92,15 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             nonlocal next_i
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
-                if kind == 0:
-                    net.exchange(group)
+                if kind == -1:
+                    vote.append(_vote(local, graph, fuse_cfg, t))
+                elif kind == 0:
+                    if fuse_cfg.robust:  # held before the vote, voted-out senders dropped after
+                        out = set(vote[0].excluded) if vote else set()
+                        held = fuse_cfg.robust_hold and not vote
+                        group = [] if held else [e for e in group if agents[e.sender] not in out]
+                    if group:
+                        net.exchange(group)
                 else:
                     sample(t)
                 next_i += 1
@@ -108,12 +120,24 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         advance(float("inf"))
         net.close()
         src.check_placed()
-        stats = src.stats
+        stats, notes = src.stats, src.notes()
     res = SimResult(agents, rules, graph, events, central, local, net.fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
-                     for r in rules}, net.traffic, timeline, timings, build_stats=stats)
+                     for r in rules}, net.traffic, timeline, timings, build_stats=stats,
+                    build_notes=notes)
+    if vote:
+        res.robust, res.excluded = vote[0], list(vote[0].excluded)
     t0 = time.perf_counter()
     res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, build_cfg.workers)
     timings["scoring"] += time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     return res
+
+
+def _vote(local, graph, fuse_cfg: FuseConfig, t: float):
+    """Robust fusion's vote on the robots' own maps at time ``t`` (:mod:`.robust`)."""
+    from .robust import vote_on_maps
+
+    return vote_on_maps(local, graph, p_in=fuse_cfg.robust_p_in, success=fuse_cfg.robust_success,
+                        iterations=fuse_cfg.robust_iterations,
+                        confidence=fuse_cfg.robust_confidence, seed=fuse_cfg.seed, time_s=t)

@@ -31,6 +31,7 @@ class BuildResult:
     stats: list[AgentStats]
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)  #: where the time went
+    notes: list[str] = field(default_factory=list)  #: skipped transforms and dropped points
 
     def all_maps(self) -> dict[str, OccupancyMap]:
         return {**self.maps, "centralized": self.centralized}
@@ -60,11 +61,11 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
             if progress:
                 progress(done, src.total_scans)
         src.check_placed()
-        stats = src.stats
+        stats, notes = src.stats, src.notes()
     total = time.perf_counter() - t_start
     timings = {"insert (C++, GIL released)": t_insert,
                "read + decode + transforms (overlapped)": sum(s.seconds for s in stats) - t_insert}
-    return BuildResult(maps, central, stats, total, timings)
+    return BuildResult(maps, central, stats, total, timings, notes)
 
 
 def build_maps(bags, agents: Optional[Sequence[AgentSpec | str]] = None, fixed_frame: str = "map",

@@ -22,6 +22,8 @@ def _existing_file(path: str | os.PathLike) -> str:
         raise FileNotFoundError(f"map file '{p}' does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"map file '{p}' is a directory, expected a .ot or .bt file")
+    if not p.is_file():  # a FIFO would block, a device never ends
+        raise MapFileError(f"map file '{p}' is not a regular file (a device, FIFO or socket)")
     return str(p)
 
 
@@ -103,6 +105,31 @@ class OccupancyMap:
         ``OSError``) naming the file for a truncated, corrupt or foreign one.
         """
         return cls._wrap(_core._OccupancyMap.load(_existing_file(path)))
+
+    def to_bytes(self, fmt: str = "ot") -> bytes:
+        """The map as an OctoMap stream: exactly the bytes of :meth:`save` to a ``.ot`` file
+        (full log-odds; ``fmt="bt"``: the maximum-likelihood binary stream). This is what a
+        robot sends; :meth:`from_bytes` reads it back."""
+        if fmt not in ("ot", "bt"):
+            raise ValueError(f"fmt must be 'ot' or 'bt', got {fmt!r}")
+        with _ram_file(fmt) as p:
+            self._m.save(p)
+            with open(p, "rb") as f:
+                return f.read()
+
+    @classmethod
+    def from_bytes(cls, data: bytes | bytearray | memoryview) -> "OccupancyMap":
+        """A map from an OctoMap ``.ot`` or ``.bt`` stream (validated like :meth:`load`:
+        :class:`MapFileError` for a truncated, corrupt or foreign stream)."""
+        buf = bytes(data)
+        fmt = "bt" if buf.startswith(b"# Octomap OcTree binary file") else "ot"
+        with _ram_file(fmt) as p:
+            with open(p, "wb") as f:
+                f.write(buf)
+            try:
+                return cls._wrap(_core._OccupancyMap.load(p))
+            except MapFileError as e:
+                raise MapFileError(str(e).replace(f"'{p}'", "stream")) from None
 
     # -- contents ----------------------------------------------------------------------
     def leaves(self) -> Leaves:
@@ -248,3 +275,25 @@ def _points(points) -> np.ndarray:
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
     return np.ascontiguousarray(pts)
+
+
+_RAM_DIR = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+
+
+class _ram_file:
+    """A fresh temporary file name in a RAM directory (``/dev/shm`` where there is one), removed
+    on exit: the map core reads and writes OctoMap streams through files."""
+
+    def __init__(self, suffix: str):
+        self.suffix = suffix
+
+    def __enter__(self) -> str:
+        import tempfile
+
+        self.dir = tempfile.mkdtemp(prefix="octofuse-", dir=_RAM_DIR)
+        return os.path.join(self.dir, f"map.{self.suffix}")
+
+    def __exit__(self, *exc) -> None:
+        import shutil
+
+        shutil.rmtree(self.dir, ignore_errors=True)

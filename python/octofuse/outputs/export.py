@@ -22,9 +22,11 @@ neither Open3D's PLY nor its PCD writer stores one, and its PCD reader rejects `
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import secrets
+import sys
 from pathlib import Path
 from typing import Mapping, NamedTuple
 
@@ -173,8 +175,7 @@ def read_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise FileNotFoundError(f"point cloud '{p}' does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"point cloud '{p}' is a directory")
-    if p.suffix == ".ply":
-        _check_ply_length(p)
+    _check_ply_length(p)
     o3d = _open3d()
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         pcd = o3d.t.io.read_point_cloud(str(p))
@@ -301,31 +302,100 @@ _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16":
               "float": 4, "float32": 4, "double": 8, "float64": 8}
 
 
-def _check_ply_length(p: Path) -> None:
-    """Refuse a truncated binary PLY (Open3D's reader fills the missing points silently)."""
-    with open(p, "rb") as fh:
-        head = fh.read(65536)
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
-        return  # Open3D's reader reports it
+def _ply_layout(head: bytes, end: int) -> tuple[int, int] | None:
+    """(points, data bytes) a binary PLY header declares, ``None`` if not fixed-size binary."""
     body = head[:end].decode("ascii", "replace").splitlines()
     if not any(line.startswith("format binary") for line in body):
-        return
-    need, count = 0, 0
+        return None
+    need, count, points = 0, 0, 0
     for line in body:
         w = line.split()
         if w and w[0] == "element" and len(w) == 3:
             count = int(w[2]) if w[2].isdigit() else 0
+            if w[1] == "vertex":
+                points = count
         elif w and w[0] == "property":
             if len(w) != 3 or w[1] not in _PLY_SIZES:
-                return  # list properties: no fixed record size
+                return None  # list properties: no fixed record size
             need += count * _PLY_SIZES[w[1]]
-    nl = head.find(b"\n", end)
+    return points, need
+
+
+def _pcd_layout(head: bytes, end: int) -> tuple[int, int] | None:
+    """(points, data bytes) a binary PCD header declares, ``None`` if not uncompressed binary."""
+    fields: dict[str, list[str]] = {}
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        w = line.split()
+        if w and not w[0].startswith("#"):
+            fields[w[0].upper()] = w[1:]
+    if fields.get("DATA", [""])[0] != "binary":
+        return None
+    try:
+        sizes = [int(x) for x in fields["SIZE"]]
+        counts = [int(x) for x in fields.get("COUNT", ["1"] * len(sizes))]
+        points = int(fields["POINTS"][0])
+    except (KeyError, IndexError, ValueError):
+        return None
+    return points, points * sum(a * b for a, b in zip(sizes, counts))
+
+
+def _cloud_data(p: Path) -> tuple[int, int, int] | None:
+    """(points declared, data bytes present, data bytes needed) of a binary PLY/PCD file."""
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    if head.startswith(b"ply"):
+        end = head.find(b"end_header")
+        layout = _ply_layout(head, end) if end >= 0 else None
+    else:
+        end = head.find(b"\nDATA ")
+        layout = _pcd_layout(head, head.find(b"\n", end + 1)) if end >= 0 else None
+    if layout is None:
+        return None  # Open3D's reader reports it
+    nl = head.find(b"\n", end + 1)
     data_start = (nl + 1) if nl >= 0 else len(head)
-    have = p.stat().st_size - data_start
-    if have < need:
-        raise OSError(f"cannot read point cloud '{p}': truncated ({have:,} of {need:,} data "
-                      f"bytes)")
+    return layout[0], p.stat().st_size - data_start, layout[1]
+
+
+def _check_ply_length(p: Path) -> None:
+    """Refuse a truncated binary PLY or PCD (Open3D's reader fills missing points silently)."""
+    found = _cloud_data(p)
+    if found is not None and found[1] < found[2]:
+        raise OSError(f"cannot read point cloud '{p}': truncated ({found[1]:,} of {found[2]:,} "
+                      f"data bytes)")
+
+
+def _check_written(tmp: Path, p: Path, n: int) -> None:
+    """Verify a file Open3D says it wrote (its writers report success on write errors)."""
+    try:
+        found = _cloud_data(tmp)
+    except OSError as err:
+        raise OSError(f"could not write point cloud '{p}': {err.strerror or err}") from None
+    if found is None:
+        raise OSError(f"could not write point cloud '{p}': the written file has no valid header")
+    points, have, need = found
+    if points != n or have != need:
+        raise OSError(f"could not write point cloud '{p}': the file holds {have:,} of {need:,} "
+                      f"data bytes for {points:,} of {n:,} points (disk full or write error?)")
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Silence the C writers' own messages on fd 2 (RPly prints one per failed write); the
+    result is checked and reported by the caller."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        yield
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
@@ -336,12 +406,18 @@ def _write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
         raise FileNotFoundError(f"cannot write '{p}': folder '{folder}' does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"cannot write '{p}': it is a directory")
+    n = len(centers)
+    pos32 = np.asarray(centers, dtype=np.float64).reshape(n, 3)
+    with np.errstate(over="ignore"):
+        pos32 = pos32.astype(np.float32)
+    if not np.isfinite(pos32).all():
+        raise ValueError(f"cannot write '{p}': voxel coordinates beyond the float32 range of "
+                         f"point clouds (largest {np.abs(np.asarray(centers)).max():.3g} m)")
     o3d = _open3d()
     o3c = o3d.core
-    n = len(centers)
     pcd = o3d.t.geometry.PointCloud()
     pcd.point["positions"] = o3c.Tensor.from_numpy(
-        np.ascontiguousarray(centers, dtype=np.float32).reshape(n, 3))
+        np.ascontiguousarray(pos32))
     pcd.point["colors"] = o3c.Tensor.from_numpy(np.ascontiguousarray(colors, dtype=np.uint8))
     for name, values in fields.items():
         pcd.point[name] = o3c.Tensor.from_numpy(
@@ -349,11 +425,13 @@ def _write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
     # the writer picks the format from the suffix, so the temporary name keeps it
     tmp = folder / f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp{p.suffix}"
     try:
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), \
+                _quiet_stderr():
             ok = o3d.t.io.write_point_cloud(str(tmp), pcd, write_ascii=False, compressed=False,
                                             print_progress=False)
         if not ok:
-            raise OSError(f"could not write point cloud '{p}' (is the folder writable?)")
+            raise OSError(f"could not write point cloud '{p}' (disk full or folder not writable?)")
+        _check_written(tmp, p, n)
         os.replace(tmp, p)
     finally:
         tmp.unlink(missing_ok=True)

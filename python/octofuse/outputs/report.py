@@ -156,7 +156,8 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title("Information loss over all fusions, all agents")
     fig.tight_layout()
@@ -207,6 +208,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "timings_s": dict(res.timings),
         "findings": findings(means) if means else [],
         "machine": f"{os.cpu_count()} cores",
+        "robust": res.robust.to_dict() if res.robust is not None else None,
     }
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1, default=float))
@@ -227,6 +229,10 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
              "KL(p_NB ‖ p_fused) accumulated over all of an agent's fusions, per fused voxel; "
              "MB sent: OctoMap's stream (5 bytes per node) beside the 32 bytes per voxel of "
              "sending centre + log-odds in doubles.", ""]
+    if res.robust is not None:
+        from ..fusion.robust import markdown_section
+
+        lines += markdown_section(res.robust)
     if summary["findings"]:
         lines += ["## Findings", ""] + [f"- {f}" for f in summary["findings"]] + [""]
     for name, p in paths.items():

@@ -25,7 +25,7 @@ def build_table(result) -> Table:
 def skip_notes(result) -> list[str]:
     """One line per agent and reason for scans a build skipped."""
     return [f"{s.name}: skipped {n} scan(s): {reason}"
-            for s in result.stats for reason, n in sorted(s.skipped.items())]
+            for s in result.stats for reason, n in sorted(s.skipped.items())] + list(result.notes)
 
 
 def scores_table(res, title: str) -> Table:

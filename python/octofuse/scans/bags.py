@@ -32,7 +32,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
-from rosbags.interfaces import Connection, MessageDefinitionFormat
+from rosbags.interfaces import Connection, MessageDefinitionFormat, Nodetype
 from rosbags.rosbag1 import Reader as Reader1
 from rosbags.rosbag2 import Reader as Reader2
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
@@ -118,8 +118,57 @@ def normalize_msgtype(msgtype: str) -> str:
 
 
 def _describe_error(err: BaseException) -> str:
-    text = str(err).strip()
+    text = " ".join(str(err).split())
+    if len(text) > 300:  # parser errors quote whole definitions
+        text = text[:300] + "..."
     return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
+_REFERENCE: Any = None
+
+
+def _reference_store() -> Any:
+    global _REFERENCE
+    if _REFERENCE is None:
+        _REFERENCE = get_typestore(Stores.LATEST)
+    return _REFERENCE
+
+
+def _field_kind(node: Any) -> str:
+    """A field's type as text, e.g. ``uint32``, ``std_msgs/msg/Header``, ``float32[]``."""
+    ntype, detail = node
+    if ntype == Nodetype.BASE:
+        return str(detail[0])
+    if ntype == Nodetype.NAME:
+        return str(detail)
+    return f"{_field_kind(detail[0])}[{detail[1] if ntype == Nodetype.ARRAY else ''}]"
+
+
+def _definition_mismatch(store: Any, msgtype: str, depth: int = 0) -> str | None:
+    """How the definition of ``msgtype`` in ``store`` departs from the standard ROS one.
+
+    Every field of the standard definition must be present with the same type (extra fields,
+    such as ROS 1's ``Header.seq``, are allowed). ``None`` if it conforms or is not standard.
+    """
+    ref = _reference_store().fielddefs.get(msgtype)
+    own = store.fielddefs.get(msgtype)
+    if ref is None or own is None or own is ref or depth > 8:
+        return None
+    fields = dict(own[1])
+    for name, node in ref[1]:
+        if name not in fields:
+            return f"{msgtype} has no field {name!r}"
+        want, got = _field_kind(node), _field_kind(fields[name])
+        if want != got:
+            return f"{msgtype} field {name!r} is {got}, expected {want}"
+        sub = node
+        while sub[0] in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            sub = sub[1][0]
+        if sub[0] == Nodetype.NAME:
+            why = _definition_mismatch(store, str(sub[1]), depth + 1)
+            if why:
+                return why
+    return None
 
 
 def _register_types(connections: Iterable[Connection]) -> tuple[Any, set[str]]:
@@ -167,6 +216,9 @@ class _Input:
         if path.is_file() and path.name == "metadata.yaml":
             path = path.parent
             self.path = path
+        if not path.is_dir() and not path.is_file():
+            raise BagError(f"{path}: not a regular file or folder (a device, FIFO or socket);"
+                           " give a bag file or a ROS 2 bag folder")
         if path.is_dir():
             if not (path / "metadata.yaml").is_file():
                 raise BagError(f"{path}: directory is not a ROS 2 bag (it has no metadata.yaml)")
@@ -244,6 +296,17 @@ class _Input:
             func = lambda raw: store.deserialize_ros1(raw, msgtype)  # noqa: E731
         self._deserializers[msgtype] = func
         return func
+
+    def check_definition(self, topic: str, msgtype: str) -> None:
+        """Refuse a standard message type whose definition in the bag is not the standard one."""
+        if msgtype in self.lacking:
+            return
+        why = _definition_mismatch(self.typestore, msgtype)
+        if why:
+            raise self._fail(
+                f"topic {topic!r}: the bag's definition of {msgtype} is not the standard one"
+                f" ({why}); damaged or foreign message definition"
+            )
 
     def raw_messages(
         self, connections: Sequence[Connection], start_ns: int | None, stop_ns: int | None
@@ -431,6 +494,10 @@ class BagSet:
                     f"topic {topic!r} in {', '.join(map(str, info.paths))} has type "
                     f"{info.msgtype!r}, expected {' or '.join(map(repr, sorted(accepted)))}"
                 )
+            if accepted is not None:  # the message will be decoded: check its fields
+                for inp in self._inputs:
+                    if any(c.topic == topic for c in inp.connections):
+                        inp.check_definition(topic, info.msgtype)
             out[topic] = info
         return out
 

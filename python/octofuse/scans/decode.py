@@ -89,8 +89,14 @@ def pointcloud2_to_xyz(msg: Any) -> np.ndarray:
         raise ValueError(
             f"PointCloud2 has no {'/'.join(missing)} field(s); fields present: {present}"
         )
-    height, width = int(msg.height), int(msg.width)
-    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    try:
+        height, width = int(msg.height), int(msg.width)
+        point_step, row_step = int(msg.point_step), int(msg.row_step)
+    except (TypeError, ValueError, OverflowError) as e:
+        raise ValueError(f"PointCloud2 layout is not a set of whole numbers ({e})") from None
+    if min(height, width, point_step, row_step) < 0:
+        raise ValueError(f"PointCloud2 layout has a negative size (height {height}, width {width},"
+                         f" point_step {point_step}, row_step {row_step})")
     order = ">" if msg.is_bigendian else "<"
     formats, offsets = [], []
     for name in ("x", "y", "z"):
@@ -179,9 +185,11 @@ def laserscan_to_xyz(
         r = ranges[hit]
         a = angles[hit]
         hits = np.column_stack((r * np.cos(a), r * np.sin(a), np.zeros_like(r)))
+        hits = hits[np.isfinite(hits).all(axis=1)]  # a non-finite angle maps nowhere
         if no_return == "skip":
             return hits, np.empty((0, 3), dtype=np.float64)
         none = (ranges == np.inf) | (np.isfinite(ranges) & (ranges > rmax))
         a = angles[none]
         free_dirs = np.column_stack((np.cos(a), np.sin(a), np.zeros_like(a)))
+        free_dirs = free_dirs[np.isfinite(free_dirs).all(axis=1)]
     return hits, free_dirs

@@ -28,6 +28,10 @@ POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 SCAN_TYPES = (LASERSCAN, POINTCLOUD2)
 POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
 RESERVED_NAMES = ("centralized",)
+#: OctoMap's keys reach 32768 voxels from the origin; a voxel less, for float rounding
+EXTENT_VOXELS = 32767.0
+#: longest ray, in voxels crossed (OctoMap traces a ray into a buffer of 100,000 keys)
+MAX_RAY_VOXELS = 90_000
 
 
 @dataclass
@@ -50,6 +54,7 @@ class AgentStats:
     scans_used: int = 0
     skipped: Counter = field(default_factory=Counter)  #: reason -> count
     points: int = 0
+    dropped: Counter = field(default_factory=Counter)  #: reason -> points dropped
     seconds: float = 0.0  #: decode + transform + insertion time attributed to the agent
 
     @property
@@ -145,6 +150,19 @@ class ScanSource:
         info = self.bags.topics()
         self.total_scans = sum(-(-info[a.topic].count // cfg.scan_stride) for a in self.agents)
 
+    @property
+    def tf_skipped(self) -> list[str]:
+        """One line per topic, link and reason for transform samples skipped while loading."""
+        return self.tf.skipped_notes()
+
+    def notes(self) -> list[str]:
+        """Transform samples skipped and points dropped, one line each (scans skipped are in
+        :attr:`stats`)."""
+        out = list(self.tf_skipped)
+        out += [f"{s.name}: dropped {n} point(s): {why}"
+                for s in self.stats for why, n in sorted(s.dropped.items())]
+        return out
+
     def close(self) -> None:
         self.bags.close()
 
@@ -178,8 +196,16 @@ class ScanSource:
             t0 = time.perf_counter()
             st = self.stats[i]
             msg = m.msg
-            stamp = stamp_to_ns(msg.header)
-            frame = self._pose_frames.get(i, msg.header.frame_id)
+            try:
+                stamp = stamp_to_ns(msg.header)
+                frame = self._pose_frames.get(i, str(msg.header.frame_id))
+            except (AttributeError, TypeError, ValueError, OverflowError) as e:
+                raise ValueError(f"the message on '{m.topic}' logged at {m.log_time_ns} ns has no "
+                                 f"usable header ({type(e).__name__}: {e})") from None
+            bad = _laserscan_problem(msg) if hasattr(msg, "ranges") else None
+            if bad:
+                st.skipped[bad] += 1
+                continue
             if not frame.strip("/"):
                 st.skipped["empty header.frame_id"] += 1
                 continue
@@ -198,13 +224,18 @@ class ScanSource:
             except TransformError as e:
                 st.skipped[f"transform error: {e}"] += 1
                 continue
+            if not self._in_extent(pose[:3, 3]):
+                st.skipped["sensor pose outside the map's extent "
+                           f"(±{self._extent():g} m at resolution {cfg.map.resolution:g} m)"] += 1
+                continue
             try:
                 points, max_range = self._decode(msg)
-            except ValueError as e:
+            except (ValueError, AttributeError, TypeError, OverflowError) as e:
                 raise ValueError(f"cannot decode the message on '{m.topic}' stamped {stamp} ns: "
                                  f"{e}") from None
             if self.cfg.deskew and hasattr(msg, "ranges") and msg.time_increment > 0 and len(points):
                 points = self._deskew(msg, points, fixed, frame, stamp, pose)
+            points = self._keep_traceable(points, pose, max_range, st)
             if len(points) == 0:
                 st.skipped["no valid points"] += 1
                 continue
@@ -213,6 +244,41 @@ class ScanSource:
             st.seconds += time.perf_counter() - t0
             yield Scan(i, stamp, points, pose, max_range)
 
+    def _extent(self) -> float:
+        return EXTENT_VOXELS * self.cfg.map.resolution
+
+    def _in_extent(self, xyz: np.ndarray) -> bool:
+        return bool(np.all(np.isfinite(xyz)) and np.all(np.abs(xyz) < self._extent()))
+
+    def _keep_traceable(self, points: np.ndarray, pose: np.ndarray, max_range: float,
+                        st: AgentStats) -> np.ndarray:
+        """Drop (and count) points outside the map's extent or whose ray is too long to trace."""
+        if len(points) == 0:
+            return points
+        origin = pose[:3, 3]
+        with np.errstate(over="ignore", invalid="ignore"):
+            d = points @ pose[:3, :3].T
+            world = d + origin
+            inside = np.isfinite(world).all(axis=1) & (np.abs(world) < self._extent()).all(axis=1)
+            dist = np.linalg.norm(d, axis=1)
+            scale = np.ones_like(dist)
+            if max_range > 0:
+                scale = np.minimum(1.0, max_range / np.maximum(dist, 1e-300))
+            voxels = scale * np.abs(d).sum(axis=1) / self.cfg.map.resolution
+            short = voxels < MAX_RAY_VOXELS
+        keep = inside & short
+        if keep.all():
+            return points
+        n_out = int((~inside).sum())
+        n_long = int((inside & ~short).sum())
+        if n_out:
+            st.dropped["outside the map's extent "
+                       f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] += n_out
+        if n_long:
+            st.dropped[f"ray crosses more than {MAX_RAY_VOXELS:,} voxels "
+                       "(set max_range to shorten it)"] += n_long
+        return points[keep]
+
     def _deskew(self, msg, points, fixed, frame, stamp, pose) -> np.ndarray:
         """Move each beam's point by the sensor motion between the scan stamp and its beam time.
 
@@ -220,8 +286,11 @@ class ScanSource:
         t_i = stamp + i * time_increment (beam times clipped to the transforms' time range).
         """
         ang = np.arctan2(points[:, 1], points[:, 0])
-        idx = np.rint(np.mod(ang - msg.angle_min, 2 * np.pi) / msg.angle_increment)
-        t = stamp + idx * (float(msg.time_increment) * 1e9)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            idx = np.rint(np.mod(ang - msg.angle_min, 2 * np.pi) / msg.angle_increment)
+            t = stamp + idx * (float(msg.time_increment) * 1e9)
+        if not np.all(np.isfinite(t)):  # degenerate beam timing: no motion correction
+            return points
         rng = self._time_ranges.get(frame)
         if rng is None:
             rng = self.tf.time_range(fixed, frame) or (None, None)
@@ -248,6 +317,22 @@ class ScanSource:
             return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
         pts = pointcloud2_to_xyz(msg)
         return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)
+
+
+def _laserscan_problem(msg) -> str | None:
+    """Why a LaserScan's geometry cannot be mapped (a skip reason), or ``None``."""
+    try:
+        values = {k: float(getattr(msg, k)) for k in
+                  ("angle_min", "angle_increment", "range_min", "time_increment")}
+        rmax = float(msg.range_max)
+    except (AttributeError, TypeError, ValueError) as e:
+        return f"LaserScan fields unusable ({e})"
+    bad = [k for k, v in values.items() if not np.isfinite(v)]
+    if bad:
+        return f"LaserScan with non-finite {', '.join(bad)}"
+    if np.isnan(rmax) or rmax <= 0:
+        return "LaserScan with range_max not > 0"
+    return None
 
 
 def batched(source: Iterable[Scan], size: int) -> Iterator[list[Scan]]:

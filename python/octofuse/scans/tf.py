@@ -21,6 +21,7 @@ write ``/base_link``).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -57,6 +58,25 @@ _POSE_TYPES = (
     "geometry_msgs/msg/TransformStamped",
 )
 _TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+#: translations beyond this (metres) are refused: no map reaches that far and float64 poses
+#: lose sub-millimetre precision there
+MAX_TRANSLATION_M = 1e12
+
+
+def _sample_problem(t: Any, q: Any) -> str | None:
+    """Why a transform sample (translation, quaternion) cannot be used, or ``None``."""
+    t = np.asarray(t, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    if not np.all(np.isfinite(t)):
+        return "non-finite translation"
+    if not np.all(np.isfinite(q)):
+        return "non-finite rotation quaternion"
+    if np.linalg.norm(q) < 1e-12:
+        return "zero rotation quaternion"
+    if np.max(np.abs(t)) > MAX_TRANSLATION_M:
+        return f"translation beyond {MAX_TRANSLATION_M:g} m"
+    return None
 
 
 class TransformError(Exception):
@@ -251,6 +271,19 @@ class TransformBuffer:
         self._links: dict[str, _Link] = {}  # child -> link to its parent
         self._frames: set[str] = set()
         self._paths: dict[tuple[str, str], tuple[list[_Link], list[_Link]]] = {}
+        #: samples skipped while loading: (topic, parent, child, reason) -> (count, first stamp)
+        self.skipped: dict[tuple[str, str, str, str], tuple[int, int]] = {}
+
+    def _skip(self, topic: str, parent: str, child: str, stamp_ns: int, reason: str) -> None:
+        key = (topic, str(parent), str(child), reason)
+        n, first = self.skipped.get(key, (0, stamp_ns))
+        self.skipped[key] = (n + 1, min(first, stamp_ns))
+
+    def skipped_notes(self) -> list[str]:
+        """One line per topic, link and reason for the transform samples that were skipped."""
+        return [f"{topic}: skipped {n} transform sample(s) {parent!r} -> {child!r} "
+                f"(first stamped {_fmt_ns(first)}): {reason}"
+                for (topic, parent, child, reason), (n, first) in sorted(self.skipped.items())]
 
     # -- building ---------------------------------------------------------------------------
     def _link(self, parent: str, child: str, static: bool) -> _Link:
@@ -351,7 +384,7 @@ class TransformBuffer:
         if stamps.size:
             self._link(parent, child, static=False).add(stamps, trans, quats)
 
-    def add_tf_message(self, msg: Any, *, static: bool = False) -> None:
+    def add_tf_message(self, msg: Any, *, static: bool = False, topic: str | None = None) -> None:
         """Add every transform of a ``tf2_msgs/TFMessage``.
 
         Parameters
@@ -359,11 +392,23 @@ class TransformBuffer:
         msg : tf2_msgs/TFMessage
         static : bool
             ``True`` for messages of ``/tf_static``: their stamps are ignored.
+        topic : str, optional
+            With a topic, a sample that cannot be used (non-finite or huge translation,
+            non-finite or zero quaternion, empty frame name) is skipped and counted in
+            :attr:`skipped`; without one it raises ``ValueError``.
         """
         for ts in msg.transforms:
             tr, rot = ts.transform.translation, ts.transform.rotation
-            t = (tr.x, tr.y, tr.z)
-            q = (rot.x, rot.y, rot.z, rot.w)
+            t = (float(tr.x), float(tr.y), float(tr.z))
+            q = (float(rot.x), float(rot.y), float(rot.z), float(rot.w))
+            if topic is not None:
+                parent, child = str(ts.header.frame_id), str(ts.child_frame_id)
+                why = _sample_problem(t, q)
+                if why is None and not (parent.lstrip("/") and child.lstrip("/")):
+                    why = "empty frame name"
+                if why is not None:
+                    self._skip(topic, parent, child, stamp_to_ns(ts.header), why)
+                    continue
             if static:
                 self.add_static_transform(ts.header.frame_id, ts.child_frame_id, t, q)
             else:
@@ -378,6 +423,7 @@ class TransformBuffer:
         *,
         parent_frame: str | None = None,
         offset: Any = None,
+        topic: str | None = None,
     ) -> None:
         """Add a pose message as a sample of the dynamic link ``parent -> child``.
 
@@ -412,6 +458,10 @@ class TransformBuffer:
             raise ValueError("parent_frame is required: the message has an empty header.frame_id")
         t = np.array([tr.x, tr.y, tr.z], dtype=np.float64)
         q = np.array([rot.x, rot.y, rot.z, rot.w], dtype=np.float64)
+        why = _sample_problem(t, q) if topic is not None else None
+        if why is not None:  # skipped and counted (see add_tf_message)
+            self._skip(topic, parent, child, stamp_to_ns(msg.header), why)
+            return
         if offset is not None:
             m = transform_matrix(t, q) @ np.asarray(offset, dtype=np.float64).reshape(4, 4)
             t, q = m[:3, 3], matrix_to_quaternion(m)
@@ -652,10 +702,17 @@ def load_transforms(
     if not spec:
         return buf
     static_set = set(static_tf_topics)
-    for topic, _t, msg in bags.messages(spec):
-        if topic in poses:
-            p = poses[topic]
-            buf.add_pose_message(msg, p.child_frame, parent_frame=p.parent_frame, offset=p.offset)
-        else:
-            buf.add_tf_message(msg, static=topic in static_set)
+    for topic, log_ns, msg in bags.messages(spec):
+        try:
+            if topic in poses:
+                p = poses[topic]
+                buf.add_pose_message(msg, p.child_frame, parent_frame=p.parent_frame,
+                                     offset=p.offset, topic=topic)
+            else:
+                buf.add_tf_message(msg, static=topic in static_set, topic=topic)
+        except TransformError as err:
+            raise TransformError(f"{topic} (message logged at {log_ns} ns): {err}") from None
+        except (AttributeError, TypeError, ValueError, OverflowError) as err:
+            raise TransformError(f"{topic}: the message logged at {log_ns} ns is not a usable "
+                                 f"transform ({type(err).__name__}: {err})") from None
     return buf
