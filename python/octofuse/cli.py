@@ -129,6 +129,8 @@ def run_config(p: dict, *, bags=None) -> RunConfig:
     fuse = _given(rules=list(p.get("rule") or ()), topology=p.get("topology"),
                   schedule=p.get("schedule"), directions=p.get("directions"),
                   delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"))
+    if p.get("robust") is not None:
+        fuse["robust"] = {"enabled": p["robust"]}
     run = _given(out=str(p["out"]) if p.get("out") else None,
                  truth=str(p["truth"]) if p.get("truth") else None,
                  samples=p.get("samples"), export_agents=p.get("export_agents"))
@@ -282,6 +284,9 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
               show_default=str(_DEFAULT.samples))
 @click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
               "or names", show_default=_DEFAULT.export_agents)
+@click.option("--robust/--no-robust", default=None, show_default="off",
+              help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
+                   "its time and parameters: fuse.robust in --config)")
 @config_options
 @out_option
 def run(bags, **p):

@@ -115,6 +115,34 @@ class BuildConfig:
 
 
 @dataclass
+class RobustConfig:
+    """Robust fusion: the robots measure their maps' offsets to their neighbours' maps and
+    vote out a robot whose map is wrong (:mod:`octofuse.fusion.robust`)."""
+
+    enabled: bool = False
+    #: when the vote takes place, seconds after the start of the bags
+    time: float = 60.0
+    #: exchange no maps before the vote (nothing of a wrong map is fused before it is found)
+    hold: bool = True
+    #: expected fraction of correctly localised robots and wanted success probability (these
+    #: set the number of hypotheses), consensus iterations, confidence of the chi-square test
+    p_in: float = 0.8
+    success: float = 0.99
+    iterations: int = 100
+    confidence: float = 0.95
+
+    def validate(self, where: str) -> None:
+        if not (math.isfinite(self.time) and self.time >= 0):
+            raise ValueError(f"{where}.time = {self.time}: expected seconds >= 0")
+        for name in ("p_in", "success", "confidence"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ValueError(f"{where}.{name} = {getattr(self, name)}: expected a "
+                                 "probability strictly between 0 and 1")
+        if not 1 <= self.iterations <= 100_000:
+            raise ValueError(f"{where}.iterations = {self.iterations}: expected 1 to 100000")
+
+
+@dataclass
 class FuseConfig:
     """How maps are exchanged and fused (``octofuse fuse`` / ``run``)."""
 
@@ -131,6 +159,8 @@ class FuseConfig:
     #: voxels where an agent is more certain than the centralized map by more than this
     #: (in log-odds) count as over-confident
     overconfidence_tol: float = 0.1
+    #: robust fusion by dynamic voting (``run``)
+    robust: RobustConfig = field(default_factory=RobustConfig)
 
     def validate(self, where: str) -> None:
         from .rules import RULES, UNKNOWN_POLICIES
@@ -157,6 +187,7 @@ class FuseConfig:
         if not (math.isfinite(self.overconfidence_tol) and self.overconfidence_tol >= 0):
             raise ValueError(f"{where}.overconfidence_tol = {self.overconfidence_tol}: "
                              "expected a number >= 0")
+        self.robust.validate(f"{where}.robust")
 
 
 @dataclass
@@ -219,13 +250,13 @@ def _build(cls, data: Any, where: str):
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; "
                          f"valid keys are {', '.join(fields)}")
+    missing = [f.name for f in fields.values() if f.name not in data
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ValueError(f"{where}: missing key(s) {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
-    kwargs = {name: _convert(hints[name], value, f"{where}.{name}")
-              for name, value in data.items()}
-    try:
-        return cls(**kwargs)
-    except TypeError as e:  # a required key is missing
-        raise ValueError(f"{where}: {e}") from None
+    return cls(**{name: _convert(hints[name], value, f"{where}.{name}")
+                  for name, value in data.items()})
 
 
 def _convert(tp, value: Any, where: str):

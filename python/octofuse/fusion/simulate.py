@@ -69,8 +69,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
         timed += [(t, 1, None) for t in sample_times]
         vote: list = []  # robust fusion: the vote, once taken
-        if fuse_cfg.robust:  # before the exchanges of its instant
-            timed.append((min(fuse_cfg.robust_time, duration), -1, None))
+        if fuse_cfg.robust.enabled:  # before the exchanges of its instant
+            timed.append((min(fuse_cfg.robust.time, duration), -1, None))
         timed.sort(key=lambda x: (x[0], x[1]))
         next_i = 0
 
@@ -95,9 +95,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 if kind == -1:
                     vote.append(_vote(local, graph, fuse_cfg, t))
                 elif kind == 0:
-                    if fuse_cfg.robust:  # held before the vote, voted-out senders dropped after
+                    if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
                         out = set(vote[0].excluded) if vote else set()
-                        held = fuse_cfg.robust_hold and not vote
+                        held = fuse_cfg.robust.hold and not vote
                         group = [] if held else [e for e in group if agents[e.sender] not in out]
                     if group:
                         net.exchange(group)
@@ -138,6 +138,6 @@ def _vote(local, graph, fuse_cfg: FuseConfig, t: float):
     """Robust fusion's vote on the robots' own maps at time ``t`` (:mod:`.robust`)."""
     from .robust import vote_on_maps
 
-    return vote_on_maps(local, graph, p_in=fuse_cfg.robust_p_in, success=fuse_cfg.robust_success,
-                        iterations=fuse_cfg.robust_iterations,
-                        confidence=fuse_cfg.robust_confidence, seed=fuse_cfg.seed, time_s=t)
+    r = fuse_cfg.robust
+    return vote_on_maps(local, graph, p_in=r.p_in, success=r.success, iterations=r.iterations,
+                        confidence=r.confidence, seed=fuse_cfg.seed, time_s=t)
