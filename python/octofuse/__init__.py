@@ -36,6 +36,8 @@ _LAZY = {
     "dynamic_vote": "fusion.voting", "static_vote": "fusion.voting_baselines",
     "maximum_likelihood": "fusion.voting_baselines",
     "ExPoly2D": "beliefs.expoly", "Gaussian": "beliefs.gaussian",
+    "GaussianMixture": "beliefs.mixture", "fuse_mixtures": "beliefs.mixture_fusion",
+    "run_target_search": "targets.search", "run_tracking": "targets.tracking",
 }
 
 

@@ -1,0 +1,45 @@
+"""Range-only tracking over the four-node ring: a short run of every belief family."""
+
+import json
+
+import numpy as np
+import pytest
+
+from octofuse.targets.tracking import TrackingConfig, run_tracking, schedule
+
+
+def test_schedule_orders_measurements_before_messages():
+    events = schedule(TrackingConfig(duration=1.4))
+    at_14 = [(e.kind, e.node) for e in events if e.time == pytest.approx(1.4)]
+    assert at_14 == [("measure", 0), ("measure", 1), ("measure", 2), ("measure", 3), ("send", 0), ("send", 2)]
+    assert [e.time for e in events] == sorted(e.time for e in events)
+    sends = [e for e in events if e.kind == "send" and e.node == 1]
+    assert [e.time for e in sends] == pytest.approx([0.45, 0.9, 1.35])
+
+
+def test_short_run_writes_its_report(tmp_path):
+    out = tmp_path / "tracking"
+    result = run_tracking(out, duration=0.8, seed=3)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [".octofuse-output", "beliefs.png", "entropy.png", "error.png", "report.md",
+                     "summary.json"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["families"].keys() == result.summary["families"].keys()
+    assert {"expoly", "gaussian"} <= summary["families"].keys()
+    for name, fam in summary["families"].items():
+        assert fam["fusions"] == 6  # nodes 1, 3 send at 0.35 and 0.7 s; nodes 2, 4 at 0.45 s
+        assert fam["rms_error"] is None  # the run ends within the burn-in second
+        assert np.isfinite(fam["rms_error_before_burn_in"]) and fam["rms_error_before_burn_in"] < 5.0
+        assert all(np.isfinite(node["final_renyi2"]) for node in fam["per_node"].values())
+    assert summary["families"]["expoly"]["bytes_per_message"]["max"] == 112
+    assert summary["families"]["gaussian"]["bytes_per_message"]["max"] == 40
+    assert "| expoly |" in (out / "report.md").read_text()
+    # a second run replaces the directory as a whole
+    run_tracking(out, duration=0.4, seed=3, families=("gaussian",))
+    assert json.loads((out / "summary.json").read_text())["families"].keys() == {"gaussian"}
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_unknown_family_is_rejected(tmp_path):
+    with pytest.raises(ValueError, match="unknown belief family 'particles'"):
+        run_tracking(tmp_path / "x", duration=0.4, families=("particles",))
