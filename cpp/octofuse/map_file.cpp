@@ -299,11 +299,10 @@ bool ends_with(const std::string& s, const char* suffix) {
   return s.size() >= n && s.compare(s.size() - n, n, suffix) == 0;
 }
 
-}  // namespace
-
-std::unique_ptr<OccupancyMap> read_map_file(const std::string& path) {
-  bool binary = false;
-  const std::string buf = read_file(path, binary);
+// Builds the map from a whole file or stream `buf` (first line already checked); `path` names
+// it in messages.
+std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::string& buf,
+                                        bool binary) {
   Header h;
   const std::size_t eol = buf.find('\n');
   const std::size_t data = parse_header(path, buf, eol == std::string::npos ? buf.size() : eol + 1, h);
@@ -346,6 +345,60 @@ std::unique_ptr<OccupancyMap> read_map_file(const std::string& path) {
   }
   OcTreeAccess::mark_changed(tree);
   return map;
+}
+
+}  // namespace
+
+std::unique_ptr<OccupancyMap> read_map_file(const std::string& path) {
+  bool binary = false;
+  const std::string buf = read_file(path, binary);
+  return parse_map(path, buf, binary);
+}
+
+std::unique_ptr<OccupancyMap> read_map_stream(const std::string& bytes, const std::string& name) {
+  const std::size_t eol = bytes.find('\n');
+  const std::string first = bytes.substr(0, eol == std::string::npos ? bytes.size() : eol);
+  bool binary = false;
+  if (first.rfind(kBtHeader, 0) == 0) {
+    binary = true;
+  } else if (first.rfind(kOtHeader, 0) != 0) {
+    throw MapFileError("'" + name + "' is not an OctoMap stream: it starts with '" +
+                       printable(first, 40) + "', expected '" + kOtHeader + "' (.ot) or '" +
+                       kBtHeader + "' (.bt)");
+  }
+  if (bytes.size() > physical_memory() / 2) {
+    fail(name, "is " + std::to_string(bytes.size()) + " bytes, more than half of this machine's memory");
+  }
+  return parse_map(name, bytes, binary);
+}
+
+std::string write_map_stream(const OccupancyMap& map, bool binary) {
+  std::ostringstream f(std::ios::binary);
+  f << header_text(binary ? kBtHeader : kOtHeader, map.tree(), map.params());
+  if (binary) {
+    map.tree().writeBinaryData(f);
+  } else {
+    map.tree().writeData(f);
+  }
+  return f.str();
+}
+
+std::string write_tree_data(const OccupancyMap& map) {
+  std::ostringstream f(std::ios::binary);
+  if (map.tree().getRoot() != nullptr) map.tree().writeData(f);
+  return f.str();
+}
+
+std::unique_ptr<OccupancyMap> read_tree_data(const std::string& data, const MapParams& params,
+                                             const std::string& name) {
+  params.validate();
+  std::ostringstream s(std::ios::binary);
+  s << kOtHeader << "\n# octofuse prob_hit " << shortest(params.prob_hit) << " prob_miss "
+    << shortest(params.prob_miss) << " clamping_thres_min " << shortest(params.clamp_min)
+    << " clamping_thres_max " << shortest(params.clamp_max) << "\nid OcTree\n";
+  if (data.empty()) s << "size 0\n";
+  s << "res " << shortest(params.resolution) << "\ndata\n" << data;
+  return parse_map(name, s.str(), false);
 }
 
 void write_map_file(const OccupancyMap& map, const std::string& path) {

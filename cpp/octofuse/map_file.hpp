@@ -22,4 +22,21 @@ std::unique_ptr<OccupancyMap> read_map_file(const std::string& path);
 /// header comment. Written to a temporary file and renamed. Throws MapFileError.
 void write_map_file(const OccupancyMap& map, const std::string& path);
 
+/// Reads a whole ".ot" or ".bt" stream held in memory with the checks of read_map_file();
+/// messages name the stream `name`.
+std::unique_ptr<OccupancyMap> read_map_stream(const std::string& bytes, const std::string& name);
+
+/// The bytes write_map_file() writes (header and tree data), without a file.
+std::string write_map_stream(const OccupancyMap& map, bool binary = false);
+
+/// OctoMap's node data alone (octomap::OcTree::writeData: value and child mask per node, depth
+/// first), as octomap_msgs' fullMapToMsg puts it in an octomap_msgs/Octomap message; empty for
+/// an empty map.
+std::string write_tree_data(const OccupancyMap& map);
+
+/// A map from node data as write_tree_data() writes it, with the resolution, sensor model and
+/// clamping of `params`; checked like read_map_file() (MapFileError naming `name`).
+std::unique_ptr<OccupancyMap> read_tree_data(const std::string& data, const MapParams& params,
+                                             const std::string& name);
+
 }  // namespace octofuse

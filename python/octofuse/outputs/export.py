@@ -63,7 +63,9 @@ class ExportResult(NamedTuple):
 # -- writing -----------------------------------------------------------------------------
 def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="inferno",
                   vmin: float = 0.0, vmax: float | None = None, field: str = "info_loss",
-                  min_value: float | None = None) -> Path:
+                  min_value: float | None = None, map: OccupancyMap | None = None,
+                  voxels: str | None = None, crop=None, z_range=None,
+                  colorbar: str | os.PathLike | None = None) -> Path:
     """Write per-voxel information loss as a coloured point cloud and return its path.
 
     Parameters
@@ -75,9 +77,10 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     cmap : str or matplotlib Colormap
         Colour map over [vmin, vmax]; values outside are clipped to its ends.
     vmin, vmax : float
-        Colour range. ``vmax`` defaults to the 99th percentile of the values written, so
-        a few outliers don't squeeze every other voxel into the bottom colours; if that
-        percentile is not above ``vmin`` (more than 99 % of the voxels lose nothing, as
+        Colour range. Pass the same range for every rule of a run (:func:`shared_color_range`)
+        so that their heat maps compare. ``vmax`` defaults to the 99th percentile of the values
+        written, so a few outliers don't squeeze every other voxel into the bottom colours; if
+        that percentile is not above ``vmin`` (more than 99 % of the voxels lose nothing, as
         min-info-loss fusion often gives), the maximum is used instead.
     field : str
         Name of the per-point float32 field holding the values (``info_loss``). A
@@ -85,29 +88,166 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     min_value : float, optional
         Write only voxels whose value is >= ``min_value`` (e.g. ``1e-9`` to drop the
         voxels that lost nothing). The default colour range is taken over these.
+    map : OccupancyMap, optional
+        The fused map the loss belongs to. With it, the points are the map's leaves of the
+        class ``voxels`` asks for, each with the loss of the loss voxel at its centre (leaves
+        the loss map does not cover are left out), and ``log_odds`` and ``occupancy`` fields.
+    voxels : "occupied", "free" or "all"
+        Which leaves of ``map`` to write: occupied (log-odds > 0: the walls and objects) by
+        default when a map is given; without a map only ``"all"`` (every loss voxel) applies.
+    crop : ((xmin, ymin, zmin), (xmax, ymax, zmax)), optional
+        Keep only voxels whose centre lies in this box (metres).
+    z_range : (zmin, zmax), optional
+        A height slice: keep only voxels whose centre z lies in [zmin, zmax].
+    colorbar : path ending in ``.png``, optional
+        Also write a colour bar of the colour map over the range used, labelled with ``field``.
 
     Raises ``ValueError`` for another suffix, an unknown colour map, ``vmax < vmin``, a
-    reserved or malformed field name, or when no voxel is left to write.
+    reserved or malformed field name, a bad ``voxels``, crop box or slice, or when no voxel is
+    left to write (the message says which filter emptied it).
     """
     p = _cloud_path(path)
     _check_field(field)
     _colormap(cmap)
     lv = _as_leaves(loss)
-    values = np.asarray(lv.values, dtype=np.float32).reshape(-1)
-    keep = None if min_value is None else values >= np.float32(min_value)
-    if keep is not None:
-        values = values[keep]
-    if values.size == 0:
-        why = ("the information-loss map is empty" if min_value is None
-               else f"no voxel has {field} >= {min_value:g}")
+    kind = voxels if voxels is not None else ("occupied" if map is not None else "all")
+    if kind not in ("occupied", "free", "all"):
+        raise ValueError(f"voxels={kind!r}: expected 'occupied', 'free' or 'all'")
+    extra: dict[str, np.ndarray] = {}
+    if map is None:
+        if kind != "all":
+            raise ValueError(f"voxels={kind!r} needs the fused map (map=...) to tell occupied "
+                             "from free voxels")
+        values = np.asarray(lv.values, dtype=np.float32).reshape(-1)
+        centers = np.asarray(lv.centers, dtype=np.float64).reshape(-1, 3)
+        sizes = np.asarray(lv.sizes, dtype=np.float64).reshape(-1)
+    else:
+        ml = map.leaves()
+        logodds = np.asarray(ml.values, dtype=np.float32)
+        sel = (logodds > 0 if kind == "occupied" else logodds <= 0 if kind == "free"
+               else np.ones(len(logodds), bool))
+        centers, sizes, logodds = ml.centers[sel], ml.sizes[sel], logodds[sel]
+        values = _values_at(lv, map.resolution, centers)
+        known = np.isfinite(values)
+        centers, sizes, logodds, values = centers[known], sizes[known], logodds[known], values[known]
+        extra = {"log_odds": logodds,
+                 "occupancy": (1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))).astype(np.float32)}
+    keep = np.ones(len(values), bool)
+    why = "the information-loss map is empty" if len(values) == 0 else ""
+    if map is not None and len(values) == 0:
+        why = f"the map has no {kind} voxel the loss map covers" if kind != "all" else \
+            "the loss map covers no voxel of the map"
+    if crop is not None:
+        lo, hi = _crop_box(crop)
+        keep &= np.all((centers >= lo) & (centers <= hi), axis=1)
+        if len(values) and not keep.any():
+            why = f"the crop box {lo.tolist()}..{hi.tolist()} holds no voxel"
+    if z_range is not None:
+        z0, z1 = _z_range(z_range)
+        before = keep.any()
+        keep &= (centers[:, 2] >= z0) & (centers[:, 2] <= z1)
+        if before and not keep.any():
+            why = f"the height slice z in [{z0:g}, {z1:g}] holds no voxel"
+    if min_value is not None:
+        before = keep.any()
+        keep &= values >= np.float32(min_value)
+        if before and not keep.any():
+            why = f"no voxel has {field} >= {min_value:g}"
+    if not keep.any():
         raise ValueError(f"cannot write '{p}': no points to write ({why})")
-    centers = np.asarray(lv.centers, dtype=np.float64).reshape(-1, 3)
-    sizes = np.asarray(lv.sizes, dtype=np.float64).reshape(-1)
-    if keep is not None:
-        centers, sizes = centers[keep], sizes[keep]
+    values, centers, sizes = values[keep], centers[keep], sizes[keep]
+    extra = {k: v[keep] for k, v in extra.items()}
     lo, hi = _color_range(values, vmin, vmax)
     colors = colorize(values, cmap, lo, hi)
-    return _write_cloud(p, centers, colors, {field: values, "voxel_size": sizes})
+    if colorbar is not None:
+        write_colorbar(colorbar, cmap, lo, hi, label=f"{field} (nats)" if field == "info_loss"
+                       else field)
+    return _write_cloud(p, centers, colors, {field: values, **extra, "voxel_size": sizes})
+
+
+def shared_color_range(losses, vmin: float = 0.0, percentile: float = 99.0) -> tuple[float, float]:
+    """One colour range for the heat maps of several rules: ``vmin`` and the ``percentile`` of
+    all their loss values together (the maximum if that is not above ``vmin``)."""
+    vals = [np.asarray(_as_leaves(x).values, dtype=np.float64).reshape(-1) for x in losses]
+    v = np.concatenate(vals) if vals else np.empty(0)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float(vmin), float(vmin)
+    hi = float(np.percentile(v, percentile))
+    if not hi > vmin:
+        hi = float(v.max())
+    return float(vmin), max(hi, float(vmin))
+
+
+def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
+                   label: str = "info_loss") -> Path:
+    """A horizontal colour bar (PNG) of ``cmap`` over [vmin, vmax], labelled ``label``."""
+    p = Path(path)
+    if p.suffix.lower() != ".png":
+        raise ValueError(f"cannot write colour bar '{p}': expected a .png file name")
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import Normalize
+
+    fig, ax = plt.subplots(figsize=(5.0, 0.8), dpi=150)
+    fig.subplots_adjust(left=0.05, right=0.95, bottom=0.55, top=0.9)
+    norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
+    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=_colormap(cmap)), cax=ax,
+                 orientation="horizontal", label=label)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp.png")
+    try:
+        fig.savefig(tmp)
+        os.replace(tmp, p)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return p
+
+
+def _values_at(lv: Leaves, resolution: float, points: np.ndarray) -> np.ndarray:
+    """Value of the leaf of ``lv`` containing each point (NaN where no leaf does): leaves are
+    looked up depth by depth through their integer keys."""
+    out = np.full(len(points), np.nan, dtype=np.float32)
+    depths = np.asarray(lv.depths)
+    for d in np.unique(depths):
+        sel = depths == d
+        size = resolution * 2.0 ** (16 - int(d))
+        keys = _pack(np.floor(np.asarray(lv.centers)[sel] / size))
+        order = np.argsort(keys)
+        keys, vals = keys[order], np.asarray(lv.values)[sel][order]
+        q = _pack(np.floor(points / size))
+        i = np.clip(np.searchsorted(keys, q), 0, len(keys) - 1)
+        hit = keys[i] == q
+        out[hit] = vals[i[hit]]
+    return out
+
+
+def _pack(k: np.ndarray) -> np.ndarray:
+    k = k.astype(np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+def _crop_box(crop) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        lo, hi = (np.asarray(c, dtype=np.float64).reshape(3) for c in crop)
+    except (TypeError, ValueError):
+        raise ValueError(f"crop box {crop!r}: expected ((xmin, ymin, zmin), (xmax, ymax, zmax))") \
+            from None
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (lo > hi).any():
+        raise ValueError(f"crop box {lo.tolist()}..{hi.tolist()} is empty or not finite")
+    return lo, hi
+
+
+def _z_range(z_range) -> tuple[float, float]:
+    try:
+        z0, z1 = (float(z) for z in z_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"height slice {z_range!r}: expected (zmin, zmax)") from None
+    if not (np.isfinite(z0) and np.isfinite(z1)) or z0 > z1:
+        raise ValueError(f"height slice [{z0:g}, {z1:g}] is empty or not finite")
+    return z0, z1
 
 
 def write_map_cloud(m: OccupancyMap, path: str | os.PathLike, *, occupied_only: bool = True,

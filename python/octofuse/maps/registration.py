@@ -1,0 +1,276 @@
+"""Registration of two occupancy maps from their occupied voxels (open3d).
+
+:func:`register` estimates the rigid transform that takes a point of map B's frame into map A's
+frame, so that ``B.transformed(result.matrix)`` lies on ``A``:
+
+1. the centres of the occupied finest voxels of each map, thinned to one point per
+   ``voxel`` metres (default: two map voxels), with normals;
+2. FPFH features (open3d) on the same points thinned further to about
+   :data:`FEATURE_POINTS` points for large maps, and a RANSAC search over feature
+   correspondences for a coarse transform (fixed seed, so the result is reproducible);
+3. ICP refinement on the step-1 points: point-to-plane ICP (open3d) in the full mode; in the
+   planar mode (ground robots: ``roll = pitch = 0``) only ``x, y, z`` and ``yaw`` are
+   estimated: the coarse transform reduced to its yaw, and a yaw-only 2-point RANSAC over
+   mutual feature matches, each refined by point-to-point ICP solved in closed form for a
+   rotation about z; the one with the higher fitness is kept.
+
+``fitness`` is the fraction of B's points that have a point of A within ``max(voxel, 1.5 map
+resolutions)`` after alignment (open3d's fitness). The result is refused with
+``ValueError`` (one line saying why) when either map has too few occupied voxels, when too
+few correspondences support the transform, when the fitness is below ``min_fitness``, or
+when the matched surfaces all face about one way (one wall or a floor: the maps could slide
+along it): the overlap is then too small, or too ambiguous, to trust.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .frames import matrix_pose
+
+#: fewest occupied points (after thinning) either map must have
+MIN_POINTS = 60
+#: fewest correspondences within the ICP distance that must support the transform
+MIN_INLIERS = 40
+#: points (about) the feature search runs on; larger maps are thinned further for it
+FEATURE_POINTS = 15000
+#: smallest ratio of the least to the largest eigenvalue of the matched surfaces' normal matrix
+#: (sum n n^T): below it the overlap is one wall or floor, and slides along it
+MIN_SPREAD = 0.1
+
+
+@dataclass(frozen=True)
+class Registration:
+    """A transform taking points of map B's frame into map A's frame, and how well it fits."""
+
+    matrix: np.ndarray  #: 4x4 homogeneous transform (B's frame -> A's frame)
+    fitness: float  #: fraction of B's occupied points with a point of A nearby after alignment
+    rmse: float  #: RMS distance of those point pairs, metres
+    inliers: int  #: number of those point pairs
+    points_a: int  #: occupied points of A used (after thinning)
+    points_b: int  #: occupied points of B used
+    planar: bool  #: yaw-only mode (roll = pitch = 0)
+
+    @property
+    def pose(self) -> dict[str, float]:
+        """``x, y, z`` (metres) and ``roll, pitch, yaw`` (radians) of :attr:`matrix`."""
+        return matrix_pose(self.matrix)
+
+    def as_dict(self) -> dict:
+        """``x, y, z, roll, pitch, yaw, fitness`` (what ``octofuse align --json`` prints), with
+        ``rmse``, ``inliers`` and ``planar``."""
+        d = self.pose
+        d.update(fitness=self.fitness, rmse=self.rmse, inliers=self.inliers, planar=self.planar)
+        return d
+
+
+def occupied_centers(m, occupied: float = 0.0) -> np.ndarray:
+    """Centres (N, 3) of the occupied finest voxels (log-odds above ``occupied``) of a map; a
+    coarse occupied leaf gives every voxel below it."""
+    lv = m.leaves()
+    sel = lv.values > occupied
+    c, s = lv.centers[sel], lv.sizes[sel]
+    res = m.resolution
+    span = np.rint(s / res).astype(np.int64)
+    out = [c[span == 1]]
+    for n in np.unique(span[span > 1]):
+        g = (np.arange(n) + 0.5) * res
+        sub = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+        blk = c[span == n] - n * res / 2
+        out.append((blk[:, None, :] + sub[None]).reshape(-1, 3))
+    return np.concatenate(out) if out else np.empty((0, 3))
+
+
+def register(a, b, planar: bool = False, voxel: float | None = None,
+             min_fitness: float = 0.5, seed: int = 0) -> Registration:
+    """The transform that takes a point of ``b``'s frame into ``a``'s frame (see the module
+    documentation); ``ValueError`` if the maps overlap too little to trust it."""
+    import open3d as o3d
+
+    res = max(a.resolution, b.resolution)
+    v = 2.0 * res if voxel is None else float(voxel)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"voxel must be a positive number of metres, got {voxel!r}")
+    if not (0.0 <= min_fitness <= 1.0):
+        raise ValueError(f"min_fitness must lie in [0, 1], got {min_fitness!r}")
+    ca, cb = occupied_centers(a), occupied_centers(b)
+    pa, pb = _cloud(ca, v), _cloud(cb, v)
+    na, nb = len(pa.points), len(pb.points)
+    if min(na, nb) < MIN_POINTS:
+        which = "A" if na < nb else "B"
+        raise ValueError(f"cannot register: map {which} has {min(na, nb)} occupied points after "
+                         f"thinning to {v:g} m (at least {MIN_POINTS} needed); the maps overlap "
+                         "too little to trust a transform")
+    _normals(pa, v)
+    _normals(pb, v)
+    # features on clouds of at most about FEATURE_POINTS points (surfaces: count ~ 1 / voxel^2)
+    vc = v * max(1.0, math.sqrt(max(na, nb) / FEATURE_POINTS))
+    ga, gb = (pa, pb) if vc == v else (_cloud(ca, vc), _cloud(cb, vc))
+    fa, fb = _features(ga, vc), _features(gb, vc)
+    dist = max(2.0 * vc, 3.0 * res)
+    o3d.utility.random.seed(seed)
+    reg = o3d.pipelines.registration
+    r = reg.registration_ransac_based_on_feature_matching(
+        gb, ga, fb, fa, True, 1.5 * vc,
+        reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+         reg.CorrespondenceCheckerBasedOnDistance(1.5 * vc)],
+        reg.RANSACConvergenceCriteria(100000, 0.999))
+    coarse = np.asarray(r.transformation)
+    src, dst = np.asarray(pb.points), np.asarray(pa.points)
+    if planar:
+        # the 6-DoF estimate projected to a yaw, and a yaw-only search; the better one wins
+        R = coarse[:3, :3]
+        starts = [_yaw_matrix(math.atan2(R[1, 0], R[0, 0]), coarse[:3, 3])]
+        try:
+            starts.append(_planar_ransac(np.asarray(gb.points), np.asarray(ga.points), fb, fa,
+                                         dist, seed))
+        except ValueError:
+            pass
+        fit = max(v, 1.5 * res)
+        T = max((_planar_icp(src, dst, S, dist, res) for S in starts),
+                key=lambda X: reg.evaluate_registration(pb, pa, fit, X).fitness)
+    else:
+        T = coarse
+        for d in (dist, 0.5 * dist + 0.5 * res, res):  # coarse to fine
+            T = np.asarray(reg.registration_icp(
+                pb, pa, d, T, reg.TransformationEstimationPointToPlane(),
+                reg.ICPConvergenceCriteria(max_iteration=60)).transformation)
+    T = _orthonormal(T)
+    fit = max(v, 1.5 * res)  # aligned voxel centres of the same surface lie this close
+    ev = o3d.pipelines.registration.evaluate_registration(pb, pa, fit, T)
+    pairs = np.asarray(ev.correspondence_set)
+    inliers = len(pairs)
+    out = Registration(T, float(ev.fitness), float(ev.inlier_rmse), inliers, na, nb, planar)
+    if inliers < MIN_INLIERS or out.fitness < min_fitness:
+        raise ValueError(f"cannot register: the best transform matches {out.fitness:.0%} of B's "
+                         f"occupied points ({inliers} points within {fit:g} m; at least "
+                         f"{min_fitness:.0%} and {MIN_INLIERS} needed): the maps overlap too "
+                         "little to trust it")
+    # the matched surfaces must face enough directions to fix the translation
+    n = np.asarray(pa.normals)[pairs[:, 1]]
+    n = n[:, :2] if planar else n
+    ev_ = np.linalg.eigvalsh(n.T @ n / len(n))
+    if ev_[0] < MIN_SPREAD * ev_[-1]:
+        axis = "horizontal direction" if planar else "direction"
+        raise ValueError(f"cannot register: the overlapping surfaces leave a {axis} unconstrained "
+                         f"(normal spread {ev_[0] / ev_[-1]:.3f}, at least {MIN_SPREAD} needed; "
+                         "a single wall or floor?): the overlap is too small to trust a transform")
+    return out
+
+
+# -- internals ------------------------------------------------------------------------------------
+
+
+def _cloud(points: np.ndarray, voxel: float):
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
+    return pc.voxel_down_sample(voxel) if len(points) else pc
+
+
+def _normals(pc, voxel: float) -> None:
+    import open3d as o3d
+
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+
+
+def _features(pc, voxel: float):
+    import open3d as o3d
+
+    if not pc.has_normals():
+        _normals(pc, voxel)
+    return o3d.pipelines.registration.compute_fpfh_feature(
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100))
+
+
+def _orthonormal(T: np.ndarray) -> np.ndarray:
+    """T with its rotation part projected onto SO(3) (removes float drift)."""
+    T = np.array(T, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    T[:3, :3] = R
+    T[3] = (0, 0, 0, 1)
+    return T
+
+
+def _yaw_matrix(yaw: float, t) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = t
+    return T
+
+
+def _mutual_matches(fs, ft) -> np.ndarray:
+    """Pairs (i, j) of source and target points whose FPFH features are mutual nearest
+    neighbours."""
+    from scipy.spatial import cKDTree
+
+    xs, xt = np.asarray(fs.data).T, np.asarray(ft.data).T
+    _, st = cKDTree(xt).query(xs)
+    _, ts = cKDTree(xs).query(xt)
+    i = np.arange(len(xs))
+    keep = ts[st] == i
+    return np.stack([i[keep], st[keep]], axis=1)
+
+
+def _fit_planar(src: np.ndarray, dst: np.ndarray, w=None) -> np.ndarray:
+    """Least-squares yaw about z and translation (x, y, z) taking src onto dst."""
+    w = np.ones(len(src)) if w is None else w
+    cs, cd = np.average(src, axis=0, weights=w), np.average(dst, axis=0, weights=w)
+    s, d = src[:, :2] - cs[:2], dst[:, :2] - cd[:2]
+    yaw = math.atan2(np.sum(w * (s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0])),
+                     np.sum(w * (s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1])))
+    T = _yaw_matrix(yaw, (0, 0, 0))
+    T[:3, 3] = cd - T[:3, :3] @ cs
+    return T
+
+
+def _planar_ransac(src, dst, fs, ft, dist, seed) -> np.ndarray:
+    """Yaw + translation from feature correspondences: 2-point RANSAC in the plane."""
+    pairs = _mutual_matches(fs, ft)
+    if len(pairs) < 3:
+        raise ValueError("cannot register: the maps share no distinctive structure (fewer than "
+                         "3 feature matches); the maps overlap too little to trust a transform")
+    rng = np.random.default_rng(seed)
+    ps, pt = src[pairs[:, 0]], dst[pairs[:, 1]]
+    best, best_n = np.eye(4), -1
+    for _ in range(5000):
+        i, j = rng.choice(len(pairs), 2, replace=False)
+        ds, dt = ps[j, :2] - ps[i, :2], pt[j, :2] - pt[i, :2]
+        ls, lt = np.hypot(*ds), np.hypot(*dt)
+        if ls < 2 * dist or abs(ls - lt) > dist:
+            continue
+        T = _fit_planar(ps[[i, j]], pt[[i, j]])
+        err = np.linalg.norm(ps @ T[:3, :3].T + T[:3, 3] - pt, axis=1)
+        n = int(np.sum(err < dist))
+        if n > best_n:
+            best, best_n = T, n
+    inl = np.linalg.norm(ps @ best[:3, :3].T + best[:3, 3] - pt, axis=1) < dist
+    return _fit_planar(ps[inl], pt[inl]) if inl.sum() >= 3 else best
+
+
+def _planar_icp(src, dst, T, dist, res) -> np.ndarray:
+    """Point-to-point ICP restricted to yaw + translation, with a shrinking match distance."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(dst)
+    for d in (dist, 0.5 * dist + 0.5 * res, res):
+        for _ in range(40):
+            moved = src @ T[:3, :3].T + T[:3, 3]
+            e, j = tree.query(moved, distance_upper_bound=d)
+            ok = np.isfinite(e)
+            if ok.sum() < 3:
+                break
+            step = _fit_planar(moved[ok], dst[j[ok]])
+            T = step @ T
+            if np.abs(step[:3, 3]).max() < 1e-5 and abs(step[1, 0]) < 1e-6:
+                break
+    return T

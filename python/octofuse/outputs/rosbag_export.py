@@ -1,0 +1,225 @@
+"""Maps for RViz and Foxglove: ``octomap_msgs/msg/Octomap`` and ``sensor_msgs/msg/PointCloud2``
+messages in a ROS 2 MCAP file or bag folder, or a ROS 1 bag (written with rosbags).
+
+Every map becomes, on the topics of its name (``/NAME/octomap`` and ``/NAME/occupied_cells`` by
+default):
+
+- an ``octomap_msgs/msg/Octomap`` with ``binary = False``, ``id = "OcTree"``, the map's
+  resolution, the header's ``frame_id`` and ``data`` = OctoMap's full tree stream, the node data
+  of ``OcTree::writeData`` (log-odds and child mask of every node), exactly as octomap_msgs'
+  ``fullMapToMsg`` fills it: RViz's octomap plugin (octomap_rviz_plugins) and
+  ``octomap_msgs::msgToMap`` read it, log-odds included;
+- a ``sensor_msgs/msg/PointCloud2`` of the centres of its occupied finest voxels with the fields
+  ``x, y, z, log_odds, occupancy`` (float32): Foxglove shows no octomaps, but colours a cloud by
+  any field.
+
+The message definition of ``octomap_msgs/msg/Octomap`` is registered here (no ROS install is
+needed). One call writes any number of messages: one per agent for a fused result, or one per
+agent per fusion event (:class:`MapEvent`) so that a run can be replayed in time.
+
+The output is written to a temporary name next to it and renamed when complete: an existing
+file is never overwritten (``FileExistsError``) and a failed export leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+OCTOMAP = "octomap_msgs/msg/Octomap"
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+
+#: the message definition of octomap_msgs/msg/Octomap (octomap_msgs, ROS 1 and ROS 2)
+OCTOMAP_MSG = """\
+# A 3D map in binary format, as Octree
+std_msgs/Header header
+
+# Flag to denote a binary (only free/occupied) or full occupancy octree (.bt/.ot file)
+bool binary
+
+# Class id of the contained octree
+string id
+
+# Resolution (in m) of the smallest octree nodes
+float64 resolution
+
+# binary serialization of octree, use conversions.h to read and write octrees
+int8[] data
+"""
+
+#: ``kind`` values of :func:`write_map_bag`
+KINDS = ("mcap", "mcap-folder", "ros1")
+
+
+@dataclass(frozen=True)
+class MapEvent:
+    """One map to publish: agent ``name``'s map at time ``stamp_ns`` (ns since the epoch)."""
+
+    name: str
+    stamp_ns: int
+    map: object  #: an :class:`~octofuse.maps.occupancy.OccupancyMap`
+
+
+def bag_kind(path: str | os.PathLike) -> str:
+    """The kind a path asks for: ``.bag`` a ROS 1 bag, ``.mcap`` a bare ROS 2 MCAP file (what
+    Foxglove opens), anything else a ROS 2 bag folder with MCAP storage (``ros2 bag play``)."""
+    suffix = Path(path).suffix
+    return "ros1" if suffix == ".bag" else "mcap" if suffix == ".mcap" else "mcap-folder"
+
+
+def typestore(ros1: bool):
+    """A rosbags type store with ``octomap_msgs/msg/Octomap`` registered."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+    if OCTOMAP not in ts.types:
+        ts.register(get_types_from_msg(OCTOMAP_MSG, OCTOMAP))
+    return ts
+
+
+def write_map_bag(path: str | os.PathLike, maps: Mapping[str, object] | Iterable[MapEvent], *,
+                  kind: str | None = None, frame_id: str = "map", stamp_ns: int = 0,
+                  topic: str = "/{name}/octomap", cloud_topic: str | None = "/{name}/occupied_cells",
+                  occupied: float = 0.0) -> Path:
+    """Write maps as ``octomap_msgs/msg/Octomap`` (and occupied voxels as PointCloud2) messages.
+
+    ``maps`` is ``{name: map}`` (all stamped ``stamp_ns``) or :class:`MapEvent` items in any
+    order (written in time order). ``kind`` defaults to :func:`bag_kind` of ``path``;
+    ``topic``/``cloud_topic`` are formatted with ``name`` (``cloud_topic=None``: no clouds);
+    voxels with log-odds above ``occupied`` go into the cloud. Returns the path written.
+    """
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
+
+    out = Path(path)
+    kind = bag_kind(out) if kind is None else kind
+    if kind not in KINDS:
+        raise ValueError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
+    if kind == "ros1" and out.suffix != ".bag":
+        raise ValueError(f"'{out}': a ROS 1 bag needs a .bag file name")
+    if out.exists():
+        raise FileExistsError(f"'{out}' exists; not overwriting it")
+    if not frame_id:
+        raise ValueError("frame_id must not be empty")
+    if isinstance(maps, Mapping):
+        events = [MapEvent(str(k), int(stamp_ns), m) for k, m in maps.items()]
+    else:
+        events = list(maps)
+    if not events:
+        raise ValueError("no maps to write")
+    for e in events:
+        if not isinstance(e, MapEvent):
+            raise TypeError(f"expected MapEvent items or a {{name: map}} mapping, got {type(e).__name__}")
+        if int(e.stamp_ns) < 0:
+            raise ValueError(f"map '{e.name}': negative time stamp {e.stamp_ns}")
+    events.sort(key=lambda e: e.stamp_ns)
+
+    ros1 = kind == "ros1"
+    ts = typestore(ros1)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        if ros1:
+            staged = tmp / out.name
+            writer = Writer1(staged)
+        else:
+            staged = tmp / "bag"
+            writer = Writer2(staged, version=9, storage_plugin=StoragePlugin.MCAP)
+        conns: dict[tuple[str, str], object] = {}
+
+        def conn(name: str, msgtype: str):
+            key = (name, msgtype)
+            if key not in conns:
+                conns[key] = writer.add_connection(name, msgtype, typestore=ts)
+            return conns[key]
+
+        def put(t: str, msgtype: str, msg, log_ns: int) -> None:
+            raw = ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype)
+            writer.write(conn(t, msgtype), log_ns, raw)
+
+        with writer:
+            for e in events:
+                hdr = _header(ts, e.stamp_ns, frame_id)
+                put(topic.format(name=e.name), OCTOMAP, octomap_message(ts, e.map, hdr), e.stamp_ns)
+                if cloud_topic is not None:
+                    put(cloud_topic.format(name=e.name), POINTCLOUD2,
+                        occupied_cloud(ts, e.map, hdr, occupied), e.stamp_ns)
+        if kind == "mcap":
+            staged = next(p for p in staged.iterdir() if p.suffix == ".mcap")
+        os.rename(staged, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+def octomap_message(ts, m, header):
+    """An ``octomap_msgs/msg/Octomap`` of map ``m`` (full tree, log-odds kept)."""
+    data = np.frombuffer(m.tree_data(), dtype=np.int8)
+    return ts.types[OCTOMAP](header=header, binary=False, id="OcTree",
+                             resolution=float(m.resolution), data=data)
+
+
+def occupied_cloud(ts, m, header, occupied: float = 0.0):
+    """A ``sensor_msgs/msg/PointCloud2`` of the centres of the occupied finest voxels of ``m``
+    (fields x, y, z, log_odds, occupancy; float32, little-endian)."""
+    from ..maps.registration import occupied_centers
+
+    lv = m.leaves()
+    sel = lv.values > occupied
+    # log-odds per finest voxel: expand like occupied_centers (a coarse leaf gives its voxels)
+    span = np.rint(lv.sizes[sel] / m.resolution).astype(np.int64)
+    vals = [lv.values[sel][span == 1]] + [np.repeat(lv.values[sel][span == n], n ** 3)
+                                          for n in np.unique(span[span > 1])]
+    xyz = occupied_centers(m, occupied)
+    lo = np.concatenate(vals).astype(np.float32) if vals else np.empty(0, np.float32)
+    rec = np.zeros(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                    ("log_odds", "<f4"), ("occupancy", "<f4")])
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    rec["log_odds"] = lo
+    rec["occupancy"] = 1.0 / (1.0 + np.exp(-lo.astype(np.float64)))
+    pf = ts.types["sensor_msgs/msg/PointField"]
+    fields = [pf(name=n, offset=4 * i, datatype=7, count=1)  # 7 = FLOAT32
+              for i, n in enumerate(rec.dtype.names)]
+    step = rec.dtype.itemsize
+    return ts.types[POINTCLOUD2](
+        header=header, height=1, width=len(rec), fields=fields, is_bigendian=False,
+        point_step=step, row_step=step * len(rec),
+        data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=True)
+
+
+def read_map_bag(path: str | os.PathLike) -> list[tuple[str, int, object]]:
+    """The ``octomap_msgs/msg/Octomap`` messages of a bag (any kind :class:`~octofuse.scans.bags.
+    BagSet` opens) as ``(topic, stamp_ns, map)``, in log-time order, each decoded with the map
+    core's OctoMap reader (full ``OcTree`` maps only; ``ValueError`` for others)."""
+    from ..maps.occupancy import OccupancyMap
+    from ..scans.bags import BagSet
+
+    p = Path(path)
+    out = []
+    with BagSet([p]) as bags:
+        topics = [t for t, info in bags.topics().items() if info.msgtype == OCTOMAP]
+        if not topics:
+            return out
+        for topic, _log, msg in bags.messages(topics):
+            if msg.binary or msg.id != "OcTree":
+                raise ValueError(f"'{p}': {topic} holds a {'binary ' if msg.binary else ''}"
+                                 f"'{msg.id}' octomap; only full OcTree maps are read")
+            m = OccupancyMap.from_tree_data(np.asarray(msg.data).tobytes(), msg.resolution)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            out.append((topic, int(stamp), m))
+    return out
+
+
+def _header(ts, stamp_ns: int, frame: str):
+    stamp = ts.types["builtin_interfaces/msg/Time"](sec=int(stamp_ns) // 1_000_000_000,
+                                                    nanosec=int(stamp_ns) % 1_000_000_000)
+    if "seq" in [f[0] for f in ts.fielddefs["std_msgs/msg/Header"][1]]:
+        return ts.types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
+    return ts.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
