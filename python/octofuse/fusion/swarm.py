@@ -1,0 +1,428 @@
+"""The network in time with every agent in a Ray actor (``simulate_swarm``).
+
+The in-process simulation (:func:`octofuse.fusion.simulate.simulate`) holds every map in one
+process; a swarm of a few hundred agents does not fit one machine. Here the agents live in
+Ray actors (workers), each holding its agents' maps (one per rule, the local-only map and the
+accumulated information loss), and a message is what a robot would send: the sender's map as
+an OctoMap ``.ot`` stream (:meth:`OccupancyMap.to_bytes`), carried by Ray's object store
+straight from the sender's worker to the receiver's, wherever they run. The centralized map
+lives in a worker of its own. The driver only reads the bags, hands each scan to its agent's
+worker and tells senders and receivers when to act.
+
+The schedule, the delivery rules and therefore the results are those of the in-process
+simulation: events that share a time form a group; every message of a group carries its
+sender's map as it was when the group started (the senders serialise before any receiver
+fuses: Ray runs the calls of one submitter on one actor in submission order); a receiver fuses
+its messages first in, first out; a scan stamped exactly at an exchange time is inserted
+before it. With ``collect_maps`` the final maps come back as streams, equal byte for byte to
+those of :func:`~octofuse.fusion.simulate.simulate`.
+
+Not supported here: robust fusion (the vote needs every robot's map in one place) and the KL
+timeline (``samples``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from itertools import groupby
+from typing import Callable, Optional
+
+from ..config import BuildConfig, FuseConfig, MapConfig
+from .executors import ray_session
+from .network import LOCAL, Traffic, message_bytes
+
+
+def _rss_bytes() -> tuple[int, int, int]:
+    """(private, total, peak total) resident memory of this process, bytes (Linux /proc; 0
+    elsewhere). Private memory leaves out shared memory (Ray's object store is mapped into
+    every worker that reads an object from it, and counts in the total)."""
+    vals: dict[str, int] = {}
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                key, _, rest = line.partition(":")
+                if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile"):
+                    vals[key] = int(rest.split()[0]) * 1024
+    except OSError:
+        pass
+    return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)
+
+
+def _trim() -> None:
+    """Give freed heap memory back to the system (glibc), so that resident memory measures the
+    maps held and not what the allocator keeps after a message was fused."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            import ctypes
+
+            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim = None
+
+
+class SwarmWorker:
+    """Agents' maps in one process (a Ray actor; also usable directly, in process).
+
+    ``memory_cap`` (bytes, optional): after every call the worker checks its private resident
+    memory (not counting the shared object store) and raises ``MemoryError`` naming itself
+    once it is over the cap."""
+
+    def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
+                 unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
+                 central: bool = False):
+        from ..maps.occupancy import OccupancyMap
+
+        self.index, self.names, self.rules = index, list(names), list(rules)
+        self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
+        mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
+        self.resolution = map_cfg.resolution
+        self.central = mk() if central else None
+        self.fused = {a: {r: mk() for r in rules} for a in self.names}
+        self.local = {a: mk() for a in self.names}
+        self.loss: dict[str, dict] = {a: {} for a in self.names}  # agent -> rule -> InfoLossMap
+        self.snapshots: dict[tuple, object] = {}  # (rule, sender, receiver) -> last map sent
+        self.sent = {r: defaultdict(int) for r in rules}
+        self.sent_32b = {r: defaultdict(int) for r in rules}
+        self.received = {r: defaultdict(int) for r in rules}
+        self.messages = {r: 0 for r in rules}
+        self.stream_bytes_sent = 0
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.peak_private = 0
+
+    # -- the calls the driver makes ----------------------------------------------------------
+    def insert(self, scans: list) -> int:
+        """Insert scans (``(agent_name, Scan)``; the central worker takes every scan) in order."""
+        from ..maps.build import insert_scans
+
+        t0 = time.perf_counter()
+        if self.central is not None:
+            insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads)
+        else:
+            targets = [[self.fused[a][r] for r in self.rules] + [self.local[a]] for a, _ in scans]
+            insert_scans([s for _, s in scans], targets, self.threads)
+        self.seconds["insertion"] += time.perf_counter() - t0
+        self._check_memory()
+        return len(scans)
+
+    def send(self, sender: str, receivers: list[str]):
+        """The messages of ``sender`` at the start of a group: per rule, its map as an ``.ot``
+        stream (a delta since the last message on the link with ``delta``). Without deltas one
+        message (a list of streams, one per rule) serves every receiver; with deltas there is
+        one per receiver (a tuple, one return value each)."""
+        t0 = time.perf_counter()
+        maps = self.fused[sender]
+        if not self.delta:
+            msg = [maps[r].to_bytes() for r in self.rules]
+            for r in self.rules:
+                for _ in receivers:
+                    self._count(r, sender, maps[r])
+            self.stream_bytes_sent += sum(map(len, msg)) * len(receivers)
+            out = msg
+        else:
+            per = []
+            for d in receivers:
+                msg = []
+                for r in self.rules:
+                    snapshot = maps[r].copy()
+                    prev = self.snapshots.get((r, sender, d))
+                    m = snapshot.changed_since(prev) if prev is not None else snapshot
+                    self.snapshots[(r, sender, d)] = snapshot
+                    self._count(r, sender, m)
+                    msg.append(m.to_bytes())
+                self.stream_bytes_sent += sum(map(len, msg))
+                per.append(msg)
+            out = per[0] if len(per) == 1 else tuple(per)
+        self.seconds["serialise"] += time.perf_counter() - t0
+        self._check_memory()
+        return out
+
+    def receive(self, receiver: str, senders: list[str], *messages) -> int:
+        """Fuse the messages (one list of per-rule streams per sender, in event order)."""
+        from ..maps.infoloss import InfoLossMap
+        from ..maps.occupancy import OccupancyMap, fuse_into
+
+        t0 = time.perf_counter()
+        for msg in messages:
+            for r, data in zip(self.rules, msg):
+                m = OccupancyMap.from_bytes(data)
+                self.received[r][receiver] += message_bytes(m)
+                loss = self.loss[receiver].get(r)
+                if loss is None:
+                    loss = self.loss[receiver][r] = InfoLossMap(m.resolution)
+                fuse_into(self.fused[receiver][r], m, rule=r, unknown=self.unknown, loss=loss)
+        self.seconds["fusion"] += time.perf_counter() - t0
+        self._check_memory()
+        return len(messages)
+
+    def central_bytes(self) -> bytes:
+        return self.central.to_bytes()
+
+    def score(self, central: bytes, tol: float, truth=None) -> dict:
+        """Scores of this worker's agents against the centralized map (as in
+        :func:`octofuse.fusion.network.score_result`), with their traffic."""
+        from ..maps.compare import score
+        from ..maps.infoloss import InfoLossMap
+        from ..maps.occupancy import OccupancyMap
+
+        c = OccupancyMap.from_bytes(central)
+        out: dict = {LOCAL: {}}
+        for a in self.names:
+            out[LOCAL][a] = score(self.local[a], c, tol=tol, truth=truth)
+        for r in self.rules:
+            out[r] = {}
+            for a in self.names:
+                loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
+                out[r][a] = score(self.fused[a][r], c, tol=tol, loss=loss, truth=truth,
+                                  bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
+                                  bytes_sent_32b=self.sent_32b[r][a])
+        self._check_memory()
+        return out
+
+    def traffic(self) -> dict:
+        return {r: {"sent": dict(self.sent[r]), "received": dict(self.received[r]),
+                    "sent_32b": dict(self.sent_32b[r]), "messages": self.messages[r]}
+                for r in self.rules}
+
+    def maps(self) -> dict:
+        """Every map of this worker as ``.ot`` streams: agent -> rule|local-only -> bytes."""
+        return {a: {**{r: self.fused[a][r].to_bytes() for r in self.rules},
+                    LOCAL: self.local[a].to_bytes()} for a in self.names}
+
+    def stats(self) -> dict:
+        private, cur, peak = _rss_bytes()
+        self.peak_private = max(self.peak_private, private)
+        maps_bytes = sum(m.memory_bytes for a in self.names for m in [*self.fused[a].values(), self.local[a]])
+        if self.central is not None:
+            maps_bytes += self.central.memory_bytes
+        return {"worker": self.index, "agents": len(self.names), "pid": os.getpid(), "rss": cur,
+                "peak_rss": peak, "private": private, "peak_private": self.peak_private,
+                "memory_cap": self.cap, "maps_bytes": maps_bytes, "stream_bytes_sent": self.stream_bytes_sent,
+                "seconds": dict(self.seconds)}
+
+    # -- internals ------------------------------------------------------------------------------
+    def _count(self, r: str, sender: str, m) -> None:
+        nbytes = message_bytes(m)
+        self.sent[r][sender] += nbytes
+        self.sent_32b[r][sender] += 32 * m.num_leaves
+        self.messages[r] += 1
+
+    def _check_memory(self) -> None:
+        _trim()
+        cur = _rss_bytes()[0]
+        self.peak_private = max(self.peak_private, cur)
+        if self.cap:
+            if cur > self.cap:
+                raise MemoryError(f"swarm worker {self.index} ({len(self.names)} agent(s)) uses "
+                                  f"{cur / 2**20:.0f} MiB, over its cap of {self.cap / 2**20:.0f} MiB")
+
+
+@dataclass
+class SwarmResult:
+    """What a swarm run produced (maps stay in the workers unless ``collect_maps``)."""
+
+    agents: list[str]
+    rules: list[str]
+    graph: object
+    events: list
+    scores: dict  #: rule|local-only -> agent -> Score
+    traffic: dict[str, Traffic]
+    workers: list[dict]  #: per worker: agents, pid, rss, peak_rss, maps_bytes, seconds
+    timings: dict[str, float] = field(default_factory=dict)
+    messages: int = 0  #: messages delivered (one per event; each carries every rule's map)
+    stream_bytes: int = 0  #: bytes of the .ot streams sent
+    maps: Optional[dict] = None  #: agent -> rule|local-only -> .ot bytes (collect_maps)
+    central: Optional[bytes] = None
+
+    @property
+    def messages_per_second(self) -> float:
+        """Messages delivered per second of the run (scans, exchanges and fusion overlap)."""
+        t = self.timings.get("run (wall)", 0.0)
+        return self.messages / t if t > 0 else float("nan")
+
+
+def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
+                   agents_per_worker: int = 1, memory_per_worker: Optional[int] = None,
+                   cpus_per_worker: float = 0.0, address: Optional[str] = None,
+                   num_cpus: Optional[int] = None, collect_maps: bool = False,
+                   max_in_flight: Optional[int] = None, score: bool = True,
+                   log: Optional[Callable[[str], None]] = None) -> SwarmResult:
+    """Run the network in time with the agents in Ray actors (see the module's docstring).
+
+    ``agents_per_worker`` agents share one actor process (1: an actor per agent);
+    ``memory_per_worker`` (bytes) is both reserved from Ray's memory resource for each worker
+    (so a node holds no more workers than fit) and enforced by the worker on its resident
+    memory; ``cpus_per_worker`` CPUs are reserved per worker (0: workers mostly wait, so many
+    share a core). A local Ray (``num_cpus`` CPUs) is started unless one is running or
+    ``address`` names a cluster. ``max_in_flight`` bounds the calls submitted and not yet
+    finished (default: 4 per worker). ``score=False`` skips the scores (each agent's map is
+    compared with the whole centralized map: on a large floor that dominates the time).
+    """
+    from ..scans.source import ScanSource, prefetch
+    from .graph import make_graph
+    from .schedule import parse_schedule
+
+    fuse_cfg.validate("fuse")
+    if fuse_cfg.robust.enabled:
+        raise ValueError("robust fusion is not available in a swarm (the vote needs every "
+                         "robot's map in one place); use simulate")
+    spec = parse_schedule(fuse_cfg.schedule)
+    if spec.kind == "rounds":
+        raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
+    if agents_per_worker < 1:
+        raise ValueError(f"agents_per_worker must be >= 1, got {agents_per_worker}")
+    say = log or (lambda _m: None)
+    rules = list(fuse_cfg.rules)
+    t_all = time.perf_counter()
+    timings: dict[str, float] = defaultdict(float)
+    with ray_session(address, num_cpus) as ray, ScanSource(build_cfg) as src:
+        agents = [a.name for a in src.agents]
+        graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
+        start, end = src.bags.start_ns, src.bags.end_ns
+        duration = max((end - start) / 1e9, 1e-3) if start is not None else 1e-3
+        events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed, directions=fuse_cfg.directions)
+
+        opts: dict = {"num_cpus": cpus_per_worker, "max_restarts": 0}
+        if memory_per_worker:
+            opts["memory"] = int(memory_per_worker)
+        Worker = ray.remote(SwarmWorker).options(**opts)
+        threads = max(1, int(cpus_per_worker)) if cpus_per_worker >= 1 else 1
+        n_workers = math.ceil(len(agents) / agents_per_worker)
+        have = ray.cluster_resources().get("memory", 0)
+        if memory_per_worker and not address and memory_per_worker * (n_workers + 1) > have:
+            raise ValueError(
+                f"{n_workers + 1} workers of {memory_per_worker / 2**20:.0f} MiB need "
+                f"{memory_per_worker * (n_workers + 1) / 2**30:.1f} GiB; this Ray has "
+                f"{have / 2**30:.1f} GiB of memory resource: put more agents in a worker, lower "
+                "the cap or join a cluster")
+        groups = [agents[w * agents_per_worker:(w + 1) * agents_per_worker] for w in range(n_workers)]
+        t0 = time.perf_counter()
+        workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
+                                 threads, memory_per_worker) for w, names in enumerate(groups)]
+        central = ray.remote(SwarmWorker).options(**opts).remote(
+            n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True)
+        ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
+        timings["start workers"] = time.perf_counter() - t0
+        say(f"swarm: {len(agents)} agents in {n_workers} worker(s) + 1 for the centralized map")
+        home = {a: workers[i // agents_per_worker] for i, a in enumerate(agents)}
+
+        buffers: dict[int, list] = defaultdict(list)
+        all_scans: list = []
+        in_flight: list = []
+
+        window = max_in_flight or 4 * (n_workers + 1)
+
+        def bound() -> None:
+            """Wait for the oldest calls while too many are in flight (bounds the object
+            store's use; a worker's error surfaces here)."""
+            while len(in_flight) > window:
+                done, _ = ray.wait(in_flight[: len(in_flight) - window], num_returns=1)
+                for ref in done:
+                    ray.get(ref)
+                    in_flight.remove(ref)
+
+        def flush() -> None:
+            for w, scans in buffers.items():
+                if scans:
+                    in_flight.append(workers[w].insert.remote(scans))
+            if all_scans:
+                in_flight.append(central.insert.remote(list(all_scans)))
+            buffers.clear()
+            all_scans.clear()
+            bound()
+
+        delivered = [0]
+
+        def exchange(group) -> None:
+            # no waiting: the calls of one submitter on one actor run in submission order,
+            # so every send, receive and insertion happens in the schedule's order, and
+            # groups on different workers overlap
+            flush()
+            t1 = time.perf_counter()
+            receivers_of: dict[str, list[str]] = {}
+            for e in group:
+                receivers_of.setdefault(agents[e.sender], []).append(agents[e.receiver])
+            refs: dict[tuple[str, str], object] = {}
+            for s, recv in receivers_of.items():  # every sender before any receiver
+                if fuse_cfg.delta and len(recv) > 1:
+                    out = home[s].send.options(num_returns=len(recv)).remote(s, recv)
+                else:
+                    out = [home[s].send.remote(s, recv)] * len(recv)
+                for d, ref in zip(recv, out):
+                    refs[(s, d)] = ref
+            inbox: dict[str, list] = {}
+            for e in group:
+                s, d = agents[e.sender], agents[e.receiver]
+                inbox.setdefault(d, []).append(s)
+            in_flight.extend(home[d].receive.remote(d, senders, *[refs[(s, d)] for s in senders])
+                             for d, senders in inbox.items())
+            delivered[0] += len(group)
+            timings["exchange calls (driver)"] += time.perf_counter() - t1
+            bound()
+
+        timed = [(g[0].time_s, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+        next_i = 0
+        pending = 0
+        t_loop = time.perf_counter()
+        for scan in prefetch(src.scans()):
+            t = (scan.stamp_ns - start) / 1e9
+            while next_i < len(timed) and timed[next_i][0] < t:
+                exchange(timed[next_i][1])
+                next_i += 1
+                pending = 0
+            name = agents[scan.agent]
+            buffers[scan.agent // agents_per_worker].append((name, scan))
+            all_scans.append((name, scan))
+            pending += 1
+            if pending >= build_cfg.batch_size * max(1, n_workers):
+                flush()
+                pending = 0
+        while next_i < len(timed):
+            exchange(timed[next_i][1])
+            next_i += 1
+        flush()
+        ray.get(in_flight)
+        in_flight.clear()
+        src.check_placed()
+        timings["run (wall)"] = time.perf_counter() - t_loop
+
+        t0 = time.perf_counter()
+        cbytes = ray.get(central.central_bytes.remote()) if score or collect_maps else None
+        scores: dict = {}
+        if score:
+            cref, truth_ref = ray.put(cbytes), ray.put(truth)
+            parts = ray.get([w.score.remote(cref, fuse_cfg.overconfidence_tol, truth_ref) for w in workers])
+            for p in parts:
+                for r, per in p.items():
+                    scores.setdefault(r, {}).update(per)
+            scores = {r: {a: scores[r][a] for a in agents} for r in [LOCAL, *rules]}
+        timings["scoring"] = time.perf_counter() - t0
+        traffic = {r: Traffic() for r in rules}
+        for p in ray.get([w.traffic.remote() for w in workers]):
+            for r, t in p.items():
+                tr = traffic[r]
+                for k in ("sent", "received", "sent_32b"):
+                    for a, v in t[k].items():
+                        getattr(tr, k)[a] += v
+                tr.messages += t["messages"]
+        stats = ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
+        maps = None
+        if collect_maps:
+            maps = {}
+            for p in ray.get([w.maps.remote() for w in workers]):
+                maps.update(p)
+        for w in [*workers, central]:
+            ray.kill(w)
+    timings["total"] = time.perf_counter() - t_all
+    return SwarmResult(agents, rules, graph, events, scores, traffic, stats, dict(timings),
+                       messages=delivered[0], stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
+                       maps=maps, central=cbytes if collect_maps else None)

@@ -1,0 +1,109 @@
+"""Studies and swarms on Ray: one local Ray runtime with 2 CPUs shared by the whole module.
+
+A study's cells run as Ray tasks give the numbers of the serial run; a swarm (agents in Ray
+actors exchanging .ot streams) gives the maps, scores and traffic of the in-process simulation.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+ray = pytest.importorskip("ray")
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bagfactory as bf  # noqa: E402
+
+from octofuse.config import FuseConfig, RunConfig  # noqa: E402
+from octofuse.fusion.executors import RayExecutor, make_executor  # noqa: E402
+from octofuse.fusion.network import LOCAL  # noqa: E402
+from octofuse.fusion.simulate import simulate  # noqa: E402
+from octofuse.fusion.swarm import simulate_swarm  # noqa: E402
+from octofuse.maps.build import make_build_config  # noqa: E402
+from octofuse.outputs.study import load_cells, run_study  # noqa: E402
+
+RULES = ["naive-bayes", "chernoff"]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def ray_runtime():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    robots = bf.team(4)
+    rec = bf.robot_recording(robots, bf.team_times(robots, 4))
+    return rec.write(tmp_path_factory.mktemp("team") / "team", "mcap")
+
+
+def config(bag, threads=1) -> RunConfig:
+    return RunConfig(build=make_build_config(bag, resolution=0.2, threads=threads),
+                     fuse=FuseConfig(rules=list(RULES), topology="ring", schedule="aperiodic:1"))
+
+
+def test_cells_on_ray_equal_the_serial_cells(bag, tmp_path):
+    grid = dict(topologies=["ring"], seeds=[0, 5])
+    run_study(config(bag, threads=2), out=tmp_path / "serial", executor="serial", **grid)
+    lines: list[str] = []
+    run_study(config(bag), out=tmp_path / "ray", executor="ray", log=lines.append, **grid)
+    serial, on_ray = load_cells([tmp_path / "serial"]), load_cells([tmp_path / "ray"])
+    assert len(serial) == 2 and serial.keys() == on_ray.keys()
+    for k in serial:
+        assert serial[k]["rows"] == on_ray[k]["rows"], k
+    assert (tmp_path / "serial" / "bench.csv").read_text() == (tmp_path / "ray" / "bench.csv").read_text()
+    assert sum("done in" in x for x in lines) == 2
+    assert ray.is_initialized()  # a running Ray is used, not shut down
+
+
+def test_a_failing_task_is_reported_and_the_others_go_on(bag, tmp_path):
+    bad = tmp_path / "broken.bag"
+    bad.write_bytes(b"not a bag at all")
+    lines: list[str] = []
+    run_study(config(bag), ["ring"], tmp_path / "out", bag_sets=[[str(bad)], [str(bag)]],
+              executor=RayExecutor(), log=lines.append)
+    failed = [x for x in lines if "FAILED" in x]
+    assert len(failed) == 1 and "broken.bag" in failed[0]
+    assert "## Failed cells" in (tmp_path / "out" / "bench.md").read_text()
+
+
+def test_the_executor_reports_a_crashed_worker():
+    def crash_on_zero(x):  # defined here: shipped to the workers by value
+        import os
+
+        if x == 0:
+            os._exit(1)  # the worker process dies, as when the kernel kills it for memory
+        return 10 // x
+
+    got = []
+    make_executor("ray").run(crash_on_zero, [1, 0, 5], got.append)
+    by = {o.index: o for o in got}
+    assert [by[0].value, by[2].value] == [10, 2] and by[0].ok and by[2].ok
+    assert not by[1].ok and "Worker" in by[1].error
+
+
+@pytest.mark.parametrize("delta, per_worker", [(False, 2), (True, 4)])
+def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker):
+    cfg = config(bag)
+    fuse = FuseConfig(rules=list(RULES), topology="ring", schedule="periodic:0.33", delta=delta)
+    ref = simulate(cfg.build, fuse, samples=0)
+    sw = simulate_swarm(cfg.build, fuse, collect_maps=True, agents_per_worker=per_worker)
+    assert sw.agents == ref.agents and sw.events == ref.events and sw.messages == len(ref.events)
+    assert len(sw.workers) == -(-len(ref.agents) // per_worker) + 1
+    assert sw.central == ref.central.to_bytes()
+    for a in ref.agents:
+        assert sw.maps[a][LOCAL] == ref.local[a].to_bytes(), a
+        for r in RULES:
+            assert sw.maps[a][r] == ref.fused[r][a].to_bytes(), (r, a)
+    for r in [LOCAL, *RULES]:
+        assert sw.scores[r] == ref.scores[r], r
+    for r in RULES:
+        assert sw.traffic[r].messages == ref.traffic[r].messages
+        assert dict(sw.traffic[r].sent) == dict(ref.traffic[r].sent)
+        assert dict(sw.traffic[r].received) == dict(ref.traffic[r].received)
+        assert dict(sw.traffic[r].sent_32b) == dict(ref.traffic[r].sent_32b)
+    assert sw.stream_bytes > 0 and all(w["peak_rss"] > 0 for w in sw.workers)
