@@ -30,7 +30,7 @@ venv: deps $(PY)
 
 install: venv ## build the C++ core (Release) and install octofuse with its test tools
 	$(PY) -m pip install "scikit-build-core>=0.10" "pybind11>=2.12"
-	$(PY) -m pip install --no-build-isolation ".[test]"
+	$(PY) -m pip install --no-build-isolation ".[test,ray]"
 
 test-cpp: deps ## C++ unit tests (GoogleTest via ctest)
 	cmake -S . -B build/cpp-tests -DOCTOFUSE_BUILD_TESTS=ON -DCMAKE_BUILD_TYPE=Release

@@ -20,6 +20,7 @@ Only numpy and rosbags are needed::
 
     python data/generate_lab.py                      # data/lab8.bag + data/lab8_scene.json
     python data/generate_lab.py --robots 32 --out /tmp/lab32.bag
+    python data/generate_lab.py --tiles 4 2 --duration 30 --out /tmp/lab64.bag   # 8 rooms, 64 robots
     python data/generate_lab.py --duration 600 --rate 10 --out /tmp/lab8_long.bag
     python data/generate_lab.py --bias-robot 3 --bias-offset 0.4 -0.2 --bias-yaw 3 --out /tmp/lab8_bias.bag
 """
@@ -139,6 +140,66 @@ def build_scene() -> list[dict[str, Any]]:
     boxes.append(obstacle("mid_north", 7.8, 5.7, 0.30, 0.40, 0.16))
     boxes.append(obstacle("mid_centre", 7.6, 4.0, 0.40, 0.40, 0.20))
     return boxes
+
+
+#: distance between the origins of neighbouring rooms of a tiled floor (their walls touch)
+TILE_X = ROOM_X + 2 * WALL_THICKNESS
+TILE_Y = ROOM_Y + 2 * WALL_THICKNESS
+
+
+def tile_origins(tiles: tuple[int, int]) -> list[tuple[float, float]]:
+    """Origins of the rooms of a floor of ``tiles = (nx, ny)`` copies of the lab, row by row."""
+    nx, ny = tiles
+    return [(ix * TILE_X, iy * TILE_Y) for iy in range(ny) for ix in range(nx)]
+
+
+def tiled_scene(tiles: tuple[int, int]) -> list[dict[str, Any]]:
+    """The boxes of a floor of ``nx x ny`` labs side by side; one room: the lab itself."""
+    one = build_scene()
+    if tuple(tiles) == (1, 1):
+        return one
+    out = []
+    for t, (ox, oy) in enumerate(tile_origins(tiles)):
+        for b in one:
+            out.append({"name": f"room{t + 1}_{b['name']}", "kind": b["kind"],
+                        "min": [b["min"][0] + ox, b["min"][1] + oy, b["min"][2]],
+                        "max": [b["max"][0] + ox, b["max"][1] + oy, b["max"][2]]})
+    return out
+
+
+def shifted(spec: "PathSpec", ox: float, oy: float, room: int) -> "PathSpec":
+    """``spec`` driven in the room whose origin is ``(ox, oy)``."""
+    if (ox, oy) == (0.0, 0.0) and room == 0:
+        return spec
+    params = dict(spec.params)
+    if "cx" in params:
+        params["cx"] += ox
+        params["cy"] += oy
+    return PathSpec(f"room{room + 1}_{spec.name}", f"{spec.description} (room {room + 1})", spec.kind,
+                    spec.speed, spec.closed, [(round(x + ox, 6), round(y + oy, 6)) for x, y in spec.waypoints],
+                    spec.fillet, params, spec.reverse, spec.generated)
+
+
+def robot_specs(robots: int, seed: int, tiles: tuple[int, int]) -> tuple[list["PathSpec"], list[int]]:
+    """Paths of the robots and the room each one drives in. On one room: the hand-designed
+    paths, then generated loops. On a tiled floor: the eight hand-designed paths in every
+    room in turn (robot k in room k // 8), then generated loops spread over the rooms."""
+    boxes = build_scene()
+    if tuple(tiles) == (1, 1):
+        specs = hand_paths()[:robots]
+        specs += [generated_path(k, seed, boxes) for k in range(len(specs) + 1, robots + 1)]
+        return specs, [0] * robots
+    origins = tile_origins(tiles)
+    hand = hand_paths()
+    specs, rooms = [], []
+    for k in range(robots):
+        if k < len(hand) * len(origins):
+            room, base = k // len(hand), hand[k % len(hand)]
+        else:
+            room, base = k % len(origins), generated_path(k + 1, seed, boxes)
+        specs.append(shifted(base, *origins[room], room))
+        rooms.append(room)
+    return specs, rooms
 
 
 # --------------------------------------------------------------------------- paths
@@ -458,8 +519,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=8, help="seed of the noise / dropout / extra-path generator")
     ap.add_argument("--rate", type=float, default=5.0, help="scan rate per robot, Hz (the real URG-04LX runs at 10)")
     ap.add_argument("--duration", type=float, default=120.0, help="length of the run, s")
-    ap.add_argument("--robots", type=int, default=8,
-                    help="number of robots; 1-8 use the hand-designed paths, more add generated loops")
+    ap.add_argument("--robots", type=int, default=None,
+                    help="number of robots (default: 8 per room); on one room 1-8 use the hand-designed "
+                         "paths, more add generated loops")
+    ap.add_argument("--tiles", type=int, nargs=2, default=(1, 1), metavar=("NX", "NY"),
+                    help="a larger floor: NX x NY copies of the lab side by side (walls touching), "
+                         "the eight hand-designed paths driven in every room, the same sensors")
     ap.add_argument("--noise-scale", type=float, default=1.0, help="multiplies the range noise sigma (0: exact)")
     ap.add_argument("--no-dropout", action="store_true",
                     help="every surface within range_max returns (no reflectivity / incidence model)")
@@ -477,8 +542,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     bias.add_argument("--bias-yaw-drift", type=float, default=0.0, metavar="DEG_PER_S",
                       help="rotation growing with time, degrees/s")
     args = ap.parse_args(argv)
-    if not 1 <= args.robots <= 256:
-        ap.error("--robots must be in 1..256")
+    if not all(1 <= v <= 64 for v in args.tiles):
+        ap.error("--tiles NX NY must be in 1..64")
+    rooms = args.tiles[0] * args.tiles[1]
+    if args.robots is None:
+        args.robots = 8 * rooms
+    if not 1 <= args.robots <= 256 * rooms:
+        ap.error(f"--robots must be in 1..{256 * rooms}")
     biased = (tuple(args.bias_offset) != (0.0, 0.0) or args.bias_yaw != 0.0
               or tuple(args.bias_drift) != (0.0, 0.0) or args.bias_yaw_drift != 0.0)
     if args.bias_robot is None and biased:
@@ -504,14 +574,25 @@ def r6(v: float) -> float:
 
 def generate(args: argparse.Namespace) -> dict[str, Any]:
     t_wall = time.perf_counter()
-    boxes = build_scene()
+    tiles = tuple(args.tiles)
+    boxes = tiled_scene(tiles)
     lo = np.array([b["min"] for b in boxes])
     hi = np.array([b["max"] for b in boxes])
     kinds = [b["kind"] for b in boxes]
     rho = np.array([REFLECTIVITY[k] for k in kinds])
 
-    specs = hand_paths()[: args.robots]
-    specs += [generated_path(k, args.seed, boxes) for k in range(len(specs) + 1, args.robots + 1)]
+    specs, rooms = robot_specs(args.robots, args.seed, tiles)
+    room_origins = tile_origins(tiles)
+    room_boxes = build_scene()
+    # boxes a robot's rays can reach within range_max (all of them on one room): exact, as
+    # a return from farther away is dropped anyway
+    near = []
+    for ox, oy in room_origins:
+        m = RANGE_MAX + 1.0
+        sel = ((lo[:, 0] <= ox + TILE_X + m) & (hi[:, 0] >= ox - m)
+               & (lo[:, 1] <= oy + TILE_Y + m) & (hi[:, 1] >= oy - m))
+        ids = np.flatnonzero(sel)
+        near.append((ids, lo[ids], hi[ids]) if len(ids) < len(boxes) else (None, lo, hi))
 
     duration_ns = int(round(args.duration * 1e9))
     period_ns = int(round(1e9 / args.rate))
@@ -537,8 +618,9 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
 
     horizon = args.duration + 2.0
     trajs = [Trajectory(s, horizon) for s in specs]
-    for s, tr in zip(specs, trajs):
-        c = path_clearance(np.column_stack([tr.x, tr.y]), boxes)
+    for s, tr, room in zip(specs, trajs, rooms):
+        ox, oy = room_origins[room]
+        c = path_clearance(np.column_stack([tr.x - ox, tr.y - oy]), room_boxes)
         if c < CLEARANCE - 1e-6:
             raise RuntimeError(f"path {s.name} passes {c:.2f} m from a box or wall")
 
@@ -577,7 +659,10 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
                                        np.full(N_BEAMS, MOUNT_Z)])
             dirs = np.column_stack([cy * dir_b[:, 0] - sy * dir_b[:, 1], sy * dir_b[:, 0] + cy * dir_b[:, 1],
                                     dir_b[:, 2]])
-            t, idx, axis = raycast(origins, dirs, lo, hi)
+            ids, lo_r, hi_r = near[rooms[r]]
+            t, idx, axis = raycast(origins, dirs, lo_r, hi_r)
+            if ids is not None:
+                idx = np.where(idx >= 0, ids[np.maximum(idx, 0)], -1)
             noise = rng.standard_normal(N_BEAMS)
             u = rng.random(N_BEAMS)
             hit = idx >= 0
@@ -675,6 +760,16 @@ def generate(args: argparse.Namespace) -> dict[str, Any]:
         "bag_bytes": out.stat().st_size,
     }
     scene = scene_json(args, boxes, specs, trajs, f32, stats)
+    if tiles != (1, 1):
+        scene["name"] = f"lab{n}"
+        scene["description"] = (f"Simulated floor of {tiles[0]} x {tiles[1]} copies of the 15 m x 8 m laboratory "
+                                f"(walls touching) with {n} robots carrying 45-degree pitched URG-04LX-like "
+                                "2D lidars; robot K drives in room room_of_robot[K-1].")
+        scene["room"]["tiles"] = list(tiles)
+        scene["room"]["tile_pitch"] = [r6(TILE_X), r6(TILE_Y)]
+        scene["room"]["room_origins"] = [[r6(x), r6(y)] for x, y in room_origins]
+        scene["room_of_robot"] = [room + 1 for room in rooms]
+        scene["generator"]["tiles"] = list(tiles)
     if bias is not None:
         scene["generator"]["pose_bias"] = bias.to_json()
         scene["bag"]["topics"]["/tf"] += f"; robot{bias.robot}'s poses are biased (generator.pose_bias)"

@@ -8,6 +8,7 @@ commands, so ``octofuse --help`` is quick.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 from typing import Optional
@@ -87,6 +88,11 @@ exchange_options = _options(
                  show_default=str(_DEFAULT.fuse.seed)),
     click.option("--truth", type=click.Path(dir_okay=False, path_type=Path),
                  help="scene ground truth JSON", show_default="NAME_scene.json beside the bag"),
+    click.option("--spanning-tree", help="the tree the channel-filter rule runs on: bfs, given "
+                 "(the topology is a tree) or a graph file", show_default=_DEFAULT.fuse.spanning_tree),
+    click.option("--loss", type=click.FloatRange(0.0, 1.0, max_open=True),
+                 help="probability that a message is lost (seeded, the same messages for every rule)",
+                 show_default=str(_DEFAULT.fuse.loss)),
 )
 topology_option = click.option("--topology", help="ring, line, star, complete, grid, random:P, "
                                 "max-robust:K or a graph file", show_default=_DEFAULT.fuse.topology)
@@ -128,7 +134,8 @@ def run_config(p: dict, *, bags=None) -> RunConfig:
                            for kv in _pairs(p["agent"], "NAME=TOPIC").items()]
     fuse = _given(rules=list(p.get("rule") or ()), topology=p.get("topology"),
                   schedule=p.get("schedule"), directions=p.get("directions"),
-                  delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"))
+                  delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"),
+                  spanning_tree=p.get("spanning_tree"), loss=p.get("loss"))
     if p.get("robust") is not None:
         fuse["robust"] = {"enabled": p["robust"]}
     run = _given(out=str(p["out"]) if p.get("out") else None,
@@ -313,13 +320,14 @@ def bundled_dataset() -> Path:
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("octofuse-demo"),
               help="output folder")
 @click.option("--rule", "--rules", "rule", multiple=True, help="rules, comma separated",
-              show_default="all")
+              show_default="all,channel-filter")
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 def demo(**p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
-    p = {**p, "rule": p["rule"] or ("all",), "topology": "max-robust:3", "schedule": "aperiodic:20",
+    p = {**p, "rule": p["rule"] or ("all", "channel-filter"), "topology": "max-robust:3",
+         "schedule": "aperiodic:20",
          "samples": 8, "export_agents": "first"}
     cfg = run_config(p, bags=[bag])
     say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
@@ -379,11 +387,19 @@ def fuse_cmd(maps_dir, rounds, **p):
 @bag_arguments
 @rule_option
 @click.option("--topologies", default="ring,max-robust:3", help="comma separated topologies")
+@click.option("--schedules", help="comma separated schedules, a study axis", show_default="--schedule")
+@click.option("--seeds", help="comma separated seeds, a study axis (mean and spread in the tables)",
+              show_default="--seed")
+@click.option("--executor", type=click.Choice(["auto", "serial", "ray"]), default="auto",
+              help="where the cells run (auto: a local Ray when Ray is installed)")
+@click.option("--ray-address", help="join this Ray cluster instead of starting a local Ray")
+@click.option("--resume", is_flag=True, help="reuse the finished cells of --out and of an "
+              "interrupted run")
 @exchange_options
 @build_options
 @config_options
 @out_option
-def bench(bags, topologies, **p):
+def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p):
     """Compare rules x topologies against the centralized map: CSV, markdown and plots."""
     from .maps.truth import Scene
     from .outputs.staging import check_replaceable, staged_folder
@@ -398,9 +414,21 @@ def bench(bags, topologies, **p):
     topo = [t.strip() for t in topologies.split(",") if t.strip()]
     if not topo:
         raise click.BadParameter("give at least one topology", param_hint="--topologies")
+    try:
+        seed_list = [int(x) for x in seeds.split(",") if x.strip()] if seeds else None
+    except ValueError:
+        raise click.BadParameter(f"{seeds!r}: expected whole numbers", param_hint="--seeds") from None
+    # cells finished so far, kept beside --out so that an interrupted study can be resumed
+    journal = out.parent / f".{out.name}.cells"
+    if not resume:
+        shutil.rmtree(journal, ignore_errors=True)
     with staged_folder(out, "bench") as stage:
         run_study(cfg, topo, stage, truth=Scene.find(cfg.truth, cfg.build.bags),
-                  progress=Progress, log=say)
+                  progress=Progress, log=say, seeds=seed_list,
+                  schedules=[x.strip() for x in schedules.split(",") if x.strip()] if schedules else None,
+                  executor=executor, ray_address=ray_address,
+                  resume_from=[out, journal] if resume else [], journal=journal)
+    shutil.rmtree(journal, ignore_errors=True)
     say(f"wrote {out / 'bench.csv'}, {out / 'bench.md'} and plots")
 
 
@@ -426,28 +454,99 @@ def info(maps):
     _console().print(map_info_table(maps))
 
 
-@cli.command("fuse-pair")
-@click.argument("a", type=click.Path(path_type=Path))
-@click.argument("b", type=click.Path(path_type=Path))
+@cli.command("fuse-maps")
+@click.argument("maps", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--rule", default="min-info-loss", help="fusion rule")
 @click.option("--unknown", type=click.Choice(["copy", "prior"]), default="copy",
               help="voxels known to one map only")
+@click.option("--frame", multiple=True, help="NAME=x,y,z,roll,pitch,yaw: the rigid transform from "
+              "map NAME's frame (its file name without suffix) into the common frame; metres, radians")
+@click.option("--resolution", type=float, help="voxel size of the fused map",
+              show_default="the coarsest input's")
+@click.option("--strict", is_flag=True, help="refuse maps of different resolutions instead of resampling")
+@click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
+              help="also write the fused map as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or "
+                   "a ROS 2 bag folder) for RViz and Foxglove")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="fused map to write (.ot or .bt)")
-def fuse_pair(a, b, rule, unknown, out):
-    """Fuse two map files into one (A.ot B.ot -> OUT.ot)."""
-    from .maps.compare import loss_stats
-    from .maps.occupancy import OccupancyMap, fuse_maps
+def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, out):
+    """Fuse map files (A.ot B.ot ... -> OUT.ot), each in its own frame and resolution."""
+    from .maps.frames import fuse_map_files, parse_frame
     from .rules import parse_rule
 
     parse_rule(rule)
     if out.suffix not in (".ot", ".bt"):
         raise click.BadParameter(f"'{out}': expected a .ot or .bt file name", param_hint="--out")
-    fused, loss = fuse_maps(OccupancyMap.load(a), OccupancyMap.load(b), rule=rule, unknown=unknown)
+    if len(maps) < 2:
+        raise click.UsageError("give at least two map files")
+    frames = dict(parse_frame(f) for f in frame)
+    fused, _, stats = fuse_map_files(list(maps), rule=rule, unknown=unknown, frames=frames or None,
+                                     resolution=resolution, strict=strict)
     fused.save(out)
-    mean, p95 = loss_stats(loss)
-    say(f"wrote {out}: {fused.num_leaves} leaves; information loss mean {mean:.4f}, p95 {p95:.4f} "
-        f"nats ({loss.voxels_fused} voxels fused, {loss.voxels_copied} copied from one map)")
+    if export_bag is not None:
+        from .outputs.rosbag_export import write_map_bag
+
+        write_map_bag(export_bag, {out.stem: fused})
+    d = stats.as_dict()
+    say(f"wrote {out}: {fused.num_leaves} leaves at {fused.resolution:g} m; " +
+        ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items()))
+
+
+@cli.command()
+@click.argument("a", type=click.Path(path_type=Path))
+@click.argument("b", type=click.Path(path_type=Path))
+@click.option("--planar", is_flag=True, help="ground robots: estimate x, y, z and yaw only")
+@click.option("--min-fitness", type=click.FloatRange(0.0, 1.0), default=0.5,
+              help="refuse an alignment with fewer matching voxels than this fraction")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def align(a, b, planar, min_fitness, as_json):
+    """Estimate the rigid transform that takes map B's frame into map A's (occupied voxels)."""
+    import json
+
+    from .maps.occupancy import OccupancyMap
+    from .maps.registration import register
+
+    r = register(OccupancyMap.load(a), OccupancyMap.load(b), planar=planar, min_fitness=min_fitness)
+    d = r.as_dict()
+    if as_json:
+        click.echo(json.dumps(d))
+    else:
+        say(f"B -> A: x {d['x']:.4f} m, y {d['y']:.4f} m, z {d['z']:.4f} m, roll {d['roll']:.5f}, "
+            f"pitch {d['pitch']:.5f}, yaw {d['yaw']:.5f} rad; fitness {d['fitness']:.3f}")
+
+
+@cli.command()
+@click.option("--setting", type=click.Choice(["3-robots", "8-robots"]), default="3-robots",
+              help="the paper's cyclic 3-robot pattern, or 8 robots on max-robust:3")
+@click.option("--rule", "--rules", "rule", multiple=True, help="mixture fusion rules, comma separated",
+              show_default="naive-bayes,bhattacharyya,chernoff,kld-weighted-chernoff,min-info-loss")
+@click.option("--seed", type=int, default=0, help="seed of the target, the detections and the sampling")
+@click.option("--duration", type=click.IntRange(1, 3600), default=65, help="seconds of search")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="output folder")
+def search(setting, rule, seed, duration, out):
+    """Multi-robot target search with Gaussian-mixture beliefs (paper 000): report and figures."""
+    from .targets.search import DEFAULT_RULES, run_target_search
+
+    rules = [r.strip() for x in rule for r in x.split(",") if r.strip()] or list(DEFAULT_RULES)
+    run_target_search(out, setting=setting, rules=rules, seed=seed, duration=duration, progress=say)
+    say(f"report: {out / 'report.md'}")
+
+
+@cli.command()
+@click.option("--duration", type=click.FloatRange(0.2, 600), default=10.0, help="seconds tracked")
+@click.option("--seed", type=int, default=0, help="seed of the range noise")
+@click.option("--families", default="expoly,gaussian,mixture",
+              help="belief types, comma separated: expoly, gaussian, mixture")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="output folder")
+def track(duration, seed, families, out):
+    """Range-only tracking over a directed ring of four nodes (paper 004): report and figures."""
+    from .targets.tracking import run_tracking
+
+    names = tuple(f.strip() for f in families.split(",") if f.strip())
+    run_tracking(out, duration=duration, seed=seed, families=names)
+    say(f"report: {out / 'report.md'}")
 
 
 # ------------------------------------------------------------------------------ entry point

@@ -21,6 +21,13 @@ import yaml
 #: the most threads a config may ask for (the machine's cores are the useful number)
 MAX_THREADS = 256
 
+#: exact fusion by channel filters on a tree of the graph (:mod:`octofuse.fusion.channel_filter`):
+#: a fusion mode accepted in ``FuseConfig.rules`` beside the per-voxel rules (not part of "all")
+CHANNEL_FILTER = "channel-filter"
+#: how the channel filter's tree is chosen on a graph with loops: a breadth-first tree from a
+#: centre of the graph, or the topology itself (which must then be a tree); or a graph file
+SPANNING_TREES = ("bfs", "given")
+
 
 @dataclass
 class AgentSpec:
@@ -161,6 +168,12 @@ class FuseConfig:
     overconfidence_tol: float = 0.1
     #: robust fusion by dynamic voting (``run``)
     robust: RobustConfig = field(default_factory=RobustConfig)
+    #: the tree the channel filter runs on: "bfs", "given" (the topology is a tree) or a file
+    #: with the tree's links (a subgraph of the topology); the other rules use every link
+    spanning_tree: str = "bfs"
+    #: probability that a message is lost (drawn once per message from ``seed``, the same
+    #: messages for every rule)
+    loss: float = 0.0
 
     def validate(self, where: str) -> None:
         from .rules import RULES, UNKNOWN_POLICIES
@@ -172,10 +185,10 @@ class FuseConfig:
             for x in str(r).split(","):
                 x = x.strip()
                 names.extend(RULES if x == "all" else [x] if x else [])
-        bad = [r for r in names if r not in RULES]
+        bad = [r for r in names if r not in RULES and r != CHANNEL_FILTER]
         if bad:
             raise ValueError(f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
-                             f"{', '.join(RULES)} (or all)")
+                             f"{', '.join(RULES)} (or all), and {CHANNEL_FILTER}")
         if not names:
             raise ValueError(f"{where}.rules: give at least one fusion rule")
         self.rules = list(dict.fromkeys(names))
@@ -188,6 +201,14 @@ class FuseConfig:
             raise ValueError(f"{where}.overconfidence_tol = {self.overconfidence_tol}: "
                              "expected a number >= 0")
         self.robust.validate(f"{where}.robust")
+        if not (math.isfinite(self.loss) and 0.0 <= self.loss < 1.0):
+            raise ValueError(f"{where}.loss = {self.loss}: expected a probability from 0 to "
+                             "below 1")
+        tree = str(self.spanning_tree).strip()
+        if not tree or (tree not in SPANNING_TREES and not Path(tree).suffix):
+            raise ValueError(f"{where}.spanning_tree = {self.spanning_tree!r}: expected "
+                             f"{' or '.join(SPANNING_TREES)}, or a graph file with the tree's links")
+        self.spanning_tree = tree
 
 
 @dataclass

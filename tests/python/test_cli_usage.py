@@ -82,9 +82,12 @@ HELP_DEFAULTS = {
     "run": ["min-info-loss", "max-robust:3", "aperiodic:10", "both", "copy", "12"],
     "bench": ["ring,max-robust:3", "aperiodic:10", "0.05"],
     "fuse": ["3", "both", "copy", "max-robust:3"],
-    "demo": ["octofuse-demo", "all"],
+    "demo": ["octofuse-demo", "all,channel-filter"],
+    "search": ["3-robots", "0", "65"],
+    "track": ["10.0", "0", "expoly,gaussian,mixture"],
     "export": ["viridis for maps, inferno for heat maps"],
-    "fuse-pair": ["min-info-loss", "copy"],
+    "fuse-maps": ["min-info-loss", "copy", "the coarsest input's"],
+    "align": ["0.5"],
     "info": [],
 }
 
@@ -167,7 +170,8 @@ def test_a_folder_octofuse_did_not_write_is_refused(bag, tmp_path, capsys, comma
         assert build(capsys, bag, tmp_path / "maps")[0] == 0
     args = {"build": [bag, "--resolution", RES],
             "run": [bag, "--resolution", RES, "--topology", "line", "--schedule", "periodic:1"],
-            "bench": [bag, "--resolution", RES, "--topologies", "line", "--schedule", "periodic:1"],
+            "bench": [bag, "--resolution", RES, "--topologies", "line", "--schedule", "periodic:1",
+                      "--executor", "serial"],
             "fuse": [tmp_path / "maps", "--topology", "line"]}[command]
     code, text, err = run_cli(capsys, command, *args, "--out", out)
     assert code == 1, err
@@ -256,7 +260,7 @@ def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
     # a run's folder may be replaced by another command's outputs: octofuse wrote it
     code, _, err = run_cli(capsys, "bench", bag, "--rules", "chernoff", "--topologies", "line",
                            "--schedule", "periodic:1", "--resolution", RES, "--every", "2",
-                           "--out", previous["run"])
+                           "--executor", "serial", "--out", previous["run"])
     assert code == 0, err
     assert (previous["run"] / MARKER).read_text() == "written by octofuse bench\n"
     assert not (previous["run"] / "report.md").exists()

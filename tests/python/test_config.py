@@ -58,7 +58,8 @@ def command_args(command: str, bag: Path, maps_dir: Path, out: Path) -> list:
         "build": ["build", bag, *build, "--no-return", "free", "--out", out],
         "run": ["run", bag, *build, *exchange, "--rules", "chernoff,naive-bayes", "--topology",
                 "line", "--samples", "3", "--export-agents", "first", "--out", out],
-        "bench": ["bench", bag, *build, *exchange, "--rules", "chernoff", "--out", out],
+        "bench": ["bench", bag, *build, *exchange, "--rules", "chernoff", "--executor", "serial",
+                  "--out", out],
         "fuse": ["fuse", maps_dir, "--rules", "chernoff", "--topology", "complete", "--rounds", "2",
                  "--directions", "one", "--threads", "1", "--out", out],
     }[command]

@@ -261,11 +261,11 @@ def test_bench_rules_by_topologies(bag, run_out, tmp_path, capsys):
     out = tmp_path / "bench"
     code, text, err = run_cli(capsys, "bench", bag, "--rules", "naive-bayes,chernoff",
                               "--topologies", f"ring,complete,{graph}", "--schedule", "periodic:1",
-                              "--resolution", RES, "--out", out)
+                              "--resolution", RES, "--executor", "serial", "--out", out)
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == [
         ".octofuse-output", "bench.csv", "bench.md", "bench_kl_mean.png", "bench_loss_mean.png",
-        "bench_overconfidence.png"]
+        "bench_overconfidence.png", "cells"]
     assert all(is_png(p) for p in out.glob("*.png"))
     with (out / "bench.csv").open() as f:
         rows = list(csv.DictReader(f))

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
-from ..config import FuseConfig
+from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.compare import Score, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
@@ -29,6 +29,7 @@ class Traffic:
     received: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     sent_32b: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     messages: int = 0
+    lost: int = 0  #: messages sent that never arrived (counted in ``sent``, not ``received``)
 
 
 @dataclass
@@ -53,13 +54,22 @@ class SimResult:
     #: (:class:`octofuse.fusion.robust.RobustOutcome`, None without robust fusion)
     excluded: list[str] = field(default_factory=list)
     robust: Optional[object] = None
+    #: rule -> agent -> {"map": bytes of the agent's map, "links": bytes of its per-link state
+    #: (channel-filter: the neighbours' contributions; deltas: the maps they are taken against)}
+    memory: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    #: the channel filter's links (agent index pairs) and its unclamped agent maps (``fused``
+    #: holds them clamped, as scored and written)
+    tree: Optional[tuple] = None
+    unclamped: dict[str, OccupancyMap] = field(default_factory=dict)
+    #: the centralized map without clamping (runs with the channel filter): the exact target
+    central_unclamped: Optional[OccupancyMap] = None
 
 
 class Network:
     """Per-rule agent maps, message exchange and fusion."""
 
     def __init__(self, agents, rules, fcfg: FuseConfig, make_map: Callable[[], OccupancyMap],
-                 threads: int):
+                 threads: int, tree: Optional[Sequence[tuple[int, int]]] = None):
         self.agents, self.rules, self.cfg = agents, rules, fcfg
         self.fused = {r: {a: make_map() for a in agents} for r in rules}
         self.loss: dict[str, dict[str, InfoLossMap]] = {r: {} for r in rules}
@@ -67,6 +77,58 @@ class Network:
         self.sent_snapshot: dict[tuple, OccupancyMap] = {}  # (rule, sender, receiver) -> map
         self.timings: dict[str, float] = defaultdict(float)
         self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
+        #: lossy links, deltas: (rule, sender, receiver) -> last seq sent / applied, and the
+        #: snapshots sent but not yet acknowledged (a delta goes against the last acknowledged)
+        self._seq: dict[tuple, int] = defaultdict(int)
+        self._applied: dict[tuple, int] = defaultdict(int)
+        self._pending: dict[tuple, dict[int, OccupancyMap]] = defaultdict(dict)
+        self.tree = tuple(tree) if tree is not None else None
+        self.cf = None
+        if CHANNEL_FILTER in rules:
+            from .channel_filter import ChannelFilter
+
+            if tree is None:
+                raise ValueError("the channel filter needs the links of a tree")
+            self.cf = ChannelFilter(agents, self.fused[CHANNEL_FILTER], tree, delta=fcfg.delta,
+                                    reliable=fcfg.loss == 0)
+
+    def start_from(self, maps: dict[str, OccupancyMap]) -> None:
+        """Every rule's agents start from copies of ``maps`` (finished maps)."""
+        for r in self.rules:
+            self.fused[r] = {a: m.copy() for a, m in maps.items()}  # fused in place
+        if self.cf is not None:
+            from .channel_filter import open_map
+
+            self.cf.maps = self.fused[CHANNEL_FILTER]
+            for m in self.cf.maps.values():
+                open_map(m)
+
+    def result_maps(self) -> tuple[dict[str, dict[str, OccupancyMap]], dict[str, OccupancyMap]]:
+        """The agents' maps per rule as scored and written (the channel filter's clamped), and
+        the channel filter's unclamped maps."""
+        if self.cf is None:
+            return self.fused, {}
+        from .channel_filter import clamped
+
+        exact = self.fused[CHANNEL_FILTER]
+        return ({**self.fused, CHANNEL_FILTER: {a: clamped(m) for a, m in exact.items()}},
+                dict(exact))
+
+    def memory(self) -> dict[str, dict[str, dict[str, int]]]:
+        """Per rule and agent: bytes of the map and of the per-link state."""
+        out: dict[str, dict[str, dict[str, int]]] = {}
+        for r in self.rules:
+            out[r] = {}
+            for a in self.agents:
+                if r == CHANNEL_FILTER:
+                    links = self.cf.link_memory(a)
+                else:
+                    links = sum(m.memory_bytes for (rr, s, _), m in self.sent_snapshot.items()
+                                if rr == r and s == a)
+                    links += sum(m.memory_bytes for (rr, s, _), pend in self._pending.items()
+                                 if rr == r and s == a for m in pend.values())
+                out[r][a] = {"map": self.fused[r][a].memory_bytes, "links": links}
+        return out
 
     def exchange(self, group: Sequence[Exchange]) -> None:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
@@ -89,20 +151,43 @@ class Network:
             loss = self.loss[r][agent] = InfoLossMap(resolution)
         return loss
 
-    def _count(self, r: str, s: str, d: str, m: OccupancyMap) -> None:
+    def _count(self, r: str, s: str, d: str, m: OccupancyMap, lost: bool = False) -> None:
         tr = self.traffic[r]
         nbytes = message_bytes(m)
         tr.sent[s] += nbytes
-        tr.received[d] += nbytes
+        if lost:
+            tr.lost += 1
+        else:
+            tr.received[d] += nbytes
         tr.sent_32b[s] += 32 * m.num_leaves
         tr.messages += 1
+
+    def _exchange_cf(self, group: Sequence[Exchange]) -> None:
+        """The channel filter's messages of a group, on its tree's links only: every message
+        is composed from its sender's state at the start of the group, then delivered in
+        order (lost ones are counted as sent and dropped)."""
+        cf, r = self.cf, CHANNEL_FILTER
+        t0 = time.perf_counter()
+        msgs = [(e, cf.compose(self.agents[e.sender], self.agents[e.receiver]))
+                for e in group if cf.uses(e.sender, e.receiver)]
+        t1 = time.perf_counter()
+        self.timings["exchange"] += t1 - t0
+        for e, msg in msgs:
+            self._count(r, msg.sender, msg.receiver, msg.payload, lost=e.lost)
+            if not e.lost:
+                cf.deliver(msg)
+        self.timings["fusion"] += time.perf_counter() - t1
 
     def _exchange_rule(self, r: str, group: Sequence[Exchange]) -> None:
         """One rule's maps. A message carries its sender's map as it was when the group
         started: fusion is in place, so an agent that still has to send after it received is
         copied first. A two-way exchange of agents not yet touched in the group is one walk
         (:func:`octofuse.maps.exchange_maps`), without copies."""
+        if r == CHANNEL_FILTER:
+            self._exchange_cf(group)
+            return
         maps, cfg = self.fused[r], self.cfg
+        reliable = cfg.loss == 0
         ev_names = [(self.agents[e.sender], self.agents[e.receiver]) for e in group]
         sends_left: dict[str, int] = defaultdict(int)
         for s, _ in ev_names:
@@ -118,7 +203,8 @@ class Network:
         while k < len(ev_names):
             s, d = ev_names[k]
             two_way = (not cfg.delta and k + 1 < len(ev_names) and ev_names[k + 1] == (d, s)
-                       and s not in modified and d not in modified)
+                       and s not in modified and d not in modified
+                       and not group[k].lost and not group[k + 1].lost)
             if two_way:
                 sends_left[s] -= 1
                 sends_left[d] -= 1
@@ -137,6 +223,7 @@ class Network:
             t0 = time.perf_counter()
             state = start.get(s, maps[s]) if s in modified else maps[s]
             m = state
+            seq = ack = 0
             if cfg.delta:
                 prev = self.sent_snapshot.get((r, s, d))
                 snapshot = state.copy()
@@ -144,8 +231,25 @@ class Network:
                     m = snapshot.changed_since(prev)
                 else:
                     m = snapshot
-                self.sent_snapshot[(r, s, d)] = snapshot
+                if reliable:
+                    self.sent_snapshot[(r, s, d)] = snapshot
+                else:  # against the last acknowledged snapshot until this one is
+                    seq = self._seq[(r, s, d)] = self._seq[(r, s, d)] + 1
+                    self._pending[(r, s, d)][seq] = snapshot
+                    ack = self._applied[(r, d, s)]
             sends_left[s] -= 1
+            if group[k].lost:
+                self._count(r, s, d, m, lost=True)
+                self.timings["exchange"] += time.perf_counter() - t0
+                k += 1
+                continue
+            if seq:
+                self._applied[(r, s, d)] = seq
+                pend = self._pending.get((r, d, s))
+                if pend and ack in pend:
+                    self.sent_snapshot[(r, d, s)] = pend[ack]
+                    for q in [q for q in pend if q <= ack]:
+                        del pend[q]
             before_modifying(d)
             self._count(r, s, d, m)
             t1 = time.perf_counter()
@@ -169,7 +273,8 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1) -> di
         if r == LOCAL:
             return score(res.local[a], res.central, tol=tol, truth=truth)
         tr = res.traffic[r]
-        return score(res.fused[r][a], res.central, tol=tol, loss=res.loss[r][a], truth=truth,
+        loss = None if r == CHANNEL_FILTER else res.loss[r][a]  # exact: no WEP loss
+        return score(res.fused[r][a], res.central, tol=tol, loss=loss, truth=truth,
                      bytes_sent=tr.sent[a], bytes_received=tr.received[a],
                      bytes_sent_32b=tr.sent_32b[a])
 

@@ -6,18 +6,20 @@ import os
 import time
 from typing import Optional
 
-from ..config import FuseConfig
+from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
 from .graph import make_graph
 from .network import SimResult, Network, score_result
-from .schedule import parse_schedule, rounds as make_rounds
+from .schedule import drop_messages, parse_schedule, rounds as make_rounds
 
 
 def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
                   fuse_cfg: FuseConfig, *, truth=None, threads: int = 0) -> SimResult:
     """Fuse finished maps over the graph for the rounds of ``fuse_cfg.schedule``
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
-    start of the round. ``threads``: 0 for one per core."""
+    start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
+    (the same for every rule); the ``channel-filter`` runs on the links of
+    ``fuse_cfg.spanning_tree`` and treats each finished map as its agent's own information."""
     fuse_cfg.validate("fuse")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
@@ -30,18 +32,31 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
         raise ValueError(f"fusion needs at least 2 agent maps, got {len(agents)}")
     graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
     rounds = make_rounds(graph, int(spec.value), directions=fuse_cfg.directions)
+    if fuse_cfg.loss > 0:
+        flat = drop_messages([e for rnd in rounds for e in rnd], fuse_cfg.loss, fuse_cfg.seed)
+        sizes, rounds = [len(rnd) for rnd in rounds], []
+        for n in sizes:
+            rounds.append(flat[:n])
+            flat = flat[n:]
+    tree = None
+    if CHANNEL_FILTER in rules:
+        from .channel_filter import spanning_tree
+
+        tree = spanning_tree(graph, fuse_cfg.spanning_tree)
     first = next(iter(maps.values()))
-    net = Network(agents, rules, fuse_cfg, lambda: OccupancyMap(first.resolution), threads)
-    for r in rules:
-        net.fused[r] = {a: m.copy() for a, m in maps.items()}  # fused in place
+    net = Network(agents, rules, fuse_cfg, lambda: OccupancyMap(first.resolution), threads,
+                  tree=tree)
+    net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
     for rnd in rounds:
         net.exchange(rnd)  # double-buffered: contents taken before fusing
     net.close()
+    fused, unclamped = net.result_maps()
     res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
-                    central, dict(maps), net.fused,
+                    central, dict(maps), fused,
                     {r: {a: net.loss_map(r, a, first.resolution) for a in agents} for r in rules},
-                    net.traffic, [], net.timings)
+                    net.traffic, [], net.timings, memory=net.memory(), tree=tree,
+                    unclamped=unclamped)
     if central is not None:
         t0 = time.perf_counter()
         res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, threads)

@@ -40,11 +40,31 @@ def _check_count(what: str, count: float) -> None:
 
 @dataclass(frozen=True, slots=True)
 class Exchange:
-    """At ``time_s``, agent ``sender`` sends its map to agent ``receiver``."""
+    """At ``time_s``, agent ``sender`` sends its map to agent ``receiver``; a ``lost`` message
+    is sent (and counted as sent) but never arrives (:func:`drop_messages`)."""
 
     time_s: float
     sender: int
     receiver: int
+    lost: bool = False
+
+
+def drop_messages(events, loss: float, seed: int) -> list[Exchange]:
+    """``events`` with each message lost with probability ``loss``, independently.
+
+    The draws come from ``numpy.random.default_rng([seed, 1055])``, one per event in list
+    order, so a schedule and a seed give the same lost messages for every fusion rule. With
+    ``loss == 0`` the events are returned unchanged.
+    """
+    loss = float(loss)
+    if not (math.isfinite(loss) and 0.0 <= loss < 1.0):
+        raise ValueError(f"loss must be a probability from 0 to below 1, got {loss}")
+    events = list(events)
+    if loss == 0.0 or not events:
+        return events
+    draws = np.random.default_rng([int(seed), 1055]).random(len(events))
+    return [Exchange(e.time_s, e.sender, e.receiver, True) if u < loss else e
+            for e, u in zip(events, draws.tolist())]
 
 
 def periodic(

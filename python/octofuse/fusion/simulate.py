@@ -7,19 +7,20 @@ import time
 from itertools import groupby
 from typing import Callable, Optional
 
-from ..config import BuildConfig, FuseConfig
+from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from ..maps.build import insert_scans
 from ..maps.compare import compare
 from ..maps.occupancy import OccupancyMap
 from ..scans.source import ScanSource, prefetch
 from .graph import make_graph
 from .network import LOCAL, SimResult, Network, score_result
-from .schedule import parse_schedule
+from .schedule import drop_messages, parse_schedule
 
 
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
              progress: Optional[Callable[[int, int], None]] = None,
-             source: Optional[ScanSource] = None) -> SimResult:
+             source: Optional[ScanSource] = None,
+             observer: Optional[Callable[[float, list, Network, dict], None]] = None) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -28,6 +29,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     ``fuse_cfg.schedule`` is ``aperiodic:MEAN_S`` or ``periodic:PERIOD_S`` over the bags'
     duration. The result holds the final maps, accumulated losses, traffic, a timeline of
     KL to the centralized map (``samples`` points in time) and the scores.
+
+    ``fuse_cfg.loss`` drops messages (the same ones for every rule); the ``channel-filter``
+    runs on the links of ``fuse_cfg.spanning_tree`` only. ``observer(t, group, network,
+    scans)``, if given, is called after every group of exchanges with the number of scans
+    inserted so far per agent.
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
@@ -46,10 +52,18 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         duration = max((end - start) / 1e9, 1e-3) if start is not None else 1e-3
         events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed,
                             directions=fuse_cfg.directions)
+        events = drop_messages(events, fuse_cfg.loss, fuse_cfg.seed)
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
-        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers)
+        tree = exact = None
+        if CHANNEL_FILTER in rules:
+            from .channel_filter import open_map, spanning_tree
+
+            tree = spanning_tree(graph, fuse_cfg.spanning_tree)
+            exact = open_map(mk())  # the centralized map without clamping
+        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree)
         local = {a: mk() for a in agents}
         central = mk()
+        inserted: dict[str, int] = {a: 0 for a in agents}
         sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
         timeline: list[dict] = []
         timings = net.timings
@@ -60,7 +74,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     for a in agents]
             run = net.pool.map if net.pool else map
             tol = fuse_cfg.overconfidence_tol
-            for (r, a, _), s in zip(jobs, run(lambda j: compare(central, j[2], tol), jobs)):
+
+            def one(j):
+                m = j[2]
+                if j[0] == CHANNEL_FILTER:
+                    from .channel_filter import clamped
+
+                    m = clamped(m)
+                return compare(central, m, tol)
+
+            for (r, a, _), s in zip(jobs, run(one, jobs)):
                 timeline.append({"t": t, "rule": r, "agent": a, "kl": s.kl_mean,
                                  "overconfidence": s.overconfidence, "coverage": s.coverage})
             timings["scoring"] += time.perf_counter() - t0
@@ -78,9 +101,14 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             if not batch:
                 return
             t0 = time.perf_counter()
-            targets = [[net.fused[r][agents[s.agent]] for r in rules]
+            targets = [[net.fused[r][agents[s.agent]] for r in rules if r != CHANNEL_FILTER]
                        + [local[agents[s.agent]], central] for s in batch]
             insert_scans(batch, targets, build_cfg.workers)
+            if exact is not None:  # maps with open clamping: one call of their own
+                insert_scans(batch, [[net.fused[CHANNEL_FILTER][agents[s.agent]], exact]
+                                     for s in batch], build_cfg.workers)
+            for s in batch:
+                inserted[agents[s.agent]] += 1
             timings["insertion"] += time.perf_counter() - t0
             done[0] += len(batch)
             if progress:
@@ -101,6 +129,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                         group = [] if held else [e for e in group if agents[e.sender] not in out]
                     if group:
                         net.exchange(group)
+                        if observer is not None:
+                            observer(t, group, net, dict(inserted))
                 else:
                     sample(t)
                 next_i += 1
@@ -121,10 +151,12 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         net.close()
         src.check_placed()
         stats, notes = src.stats, src.notes()
-    res = SimResult(agents, rules, graph, events, central, local, net.fused,
+    fused, unclamped = net.result_maps()
+    res = SimResult(agents, rules, graph, events, central, local, fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
-                    build_notes=notes)
+                    build_notes=notes, memory=net.memory(), tree=tree, unclamped=unclamped,
+                    central_unclamped=exact)
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     t0 = time.perf_counter()

@@ -61,7 +61,8 @@ class OccupancyMap:
 
     # -- insertion ---------------------------------------------------------------------
     def insert_scan(self, points, origin, max_range: float = -1.0) -> None:
-        """Insert one scan with OctoMap's ray casting update.
+        """Insert one scan with OctoMap's ray casting update (the map is the one
+        ``insertPointCloud`` gives, computed by octofuse's depth-first batch update).
 
         ``points`` is an (N, 3) float32 or float64 array in the map frame (passed to C++
         without a copy when C-contiguous), ``origin`` the sensor position. Rays longer than
@@ -70,7 +71,49 @@ class OccupancyMap:
         """
         pts = _points(points)
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
-        self._m.insert_scan(pts, o, float(max_range), False)
+        fast = getattr(_core, "_insert_scan_batched", None)
+        if fast is None:  # a core built before the batch path took single scans
+            self._m.insert_scan(pts, o, float(max_range), False)
+        else:
+            fast(self._m, pts, o, float(max_range))
+
+    def insert_scans(self, scans, max_range: float = -1.0, threads: int | None = None) -> None:
+        """Insert several scans in order, as :meth:`insert_scan` (or
+        :meth:`insert_scan_from_sensor`) one after the other would.
+
+        ``scans`` is a sequence of ``(points, origin_or_pose)``: with a 3-vector origin the
+        points are in the map frame, with a 4x4 sensor-to-map pose in the sensor frame. The
+        scans' ray keys are computed on ``threads`` threads (default: one per core), then
+        applied to the map in order; the GIL is released. Every scan is checked before the map
+        changes (``ValueError`` naming the scan and point row).
+        """
+        pts_list, poses, map_frame = [], [], []
+        for k, item in enumerate(scans):
+            try:
+                points, where = item
+            except (TypeError, ValueError):
+                raise ValueError(f"scan {k}: expected a (points, origin_or_pose) pair") from None
+            pts_list.append(_points(points))
+            w = np.asarray(where, dtype=np.float64)
+            if w.shape == (4, 4):
+                poses.append(w)
+                map_frame.append(False)
+            elif w.size == 3:
+                T = np.eye(4)
+                T[:3, 3] = w.reshape(-1)
+                poses.append(T)
+                map_frame.append(True)
+            else:
+                raise ValueError(f"scan {k}: expected an origin (3 values) or a 4x4 pose, "
+                                 f"got shape {w.shape}")
+            if not np.all(np.isfinite(poses[-1])):
+                raise ValueError(f"scan {k}: {'origin' if map_frame[-1] else 'pose'} is not finite")
+        if not pts_list:
+            return
+        n = len(pts_list)
+        kw = {} if threads is None else {"threads": int(threads)}
+        _core._insert_batch([[self._m]] * n, pts_list, np.ascontiguousarray(np.stack(poses)),
+                            np.full(n, float(max_range)), map_frame=map_frame, **kw)
 
     def insert_scan_from_sensor(self, points, pose, max_range: float = -1.0) -> None:
         """Insert a scan given in the sensor frame; ``pose`` is the 4x4 sensor-to-map transform."""
@@ -112,6 +155,9 @@ class OccupancyMap:
         robot sends; :meth:`from_bytes` reads it back."""
         if fmt not in ("ot", "bt"):
             raise ValueError(f"fmt must be 'ot' or 'bt', got {fmt!r}")
+        to_stream = getattr(_core, "_map_to_stream", None)
+        if to_stream is not None:  # the core writes streams in memory
+            return to_stream(self._m, fmt == "bt")
         with _ram_file(fmt) as p:
             self._m.save(p)
             with open(p, "rb") as f:
@@ -122,6 +168,9 @@ class OccupancyMap:
         """A map from an OctoMap ``.ot`` or ``.bt`` stream (validated like :meth:`load`:
         :class:`MapFileError` for a truncated, corrupt or foreign stream)."""
         buf = bytes(data)
+        from_stream = getattr(_core, "_map_from_stream", None)
+        if from_stream is not None:
+            return cls._wrap(from_stream(buf, "stream"))
         fmt = "bt" if buf.startswith(b"# Octomap OcTree binary file") else "ot"
         with _ram_file(fmt) as p:
             with open(p, "wb") as f:
@@ -130,6 +179,65 @@ class OccupancyMap:
                 return cls._wrap(_core._OccupancyMap.load(p))
             except MapFileError as e:
                 raise MapFileError(str(e).replace(f"'{p}'", "stream")) from None
+
+    def to_stream(self, fmt: str = "ot") -> bytes:
+        """The OctoMap stream of :meth:`to_bytes`, built in memory by the C++ core (no file)."""
+        if fmt not in ("ot", "bt"):
+            raise ValueError(f"fmt must be 'ot' or 'bt', got {fmt!r}")
+        return _core._map_to_stream(self._m, fmt == "bt")
+
+    @classmethod
+    def from_stream(cls, data: bytes | bytearray | memoryview, name: str = "stream") -> "OccupancyMap":
+        """A map from an OctoMap ``.ot`` or ``.bt`` stream held in memory, checked like
+        :meth:`load` (:class:`MapFileError` naming ``name`` for a truncated or corrupt one)."""
+        return cls._wrap(_core._map_from_stream(bytes(data), str(name)))
+
+    def tree_data(self) -> bytes:
+        """OctoMap's node data alone (``OcTree::writeData``: log-odds and child mask of every
+        node, depth first): the ``data`` of an ``octomap_msgs/Octomap`` message with
+        ``binary=False`` and ``id="OcTree"``, as octomap_msgs' ``fullMapToMsg`` fills it."""
+        return _core._tree_data(self._m)
+
+    @classmethod
+    def from_tree_data(cls, data: bytes | bytearray | memoryview, resolution: float,
+                       prob_hit: float = 0.7, prob_miss: float = 0.4,
+                       clamping: tuple[float, float] = (0.1192, 0.971)) -> "OccupancyMap":
+        """A map from the node data of :meth:`tree_data` (an ``octomap_msgs/Octomap``
+        message's ``data``) and its resolution; checked like :meth:`load`."""
+        cmin, cmax = clamping
+        return cls._wrap(_core._map_from_tree_data(bytes(data), float(resolution), float(prob_hit),
+                                                   float(prob_miss), float(cmin), float(cmax)))
+
+    # -- frames --------------------------------------------------------------------------
+    def transformed(self, T, resolution: float | None = None) -> "OccupancyMap":
+        """A new map: this map moved by the rigid transform ``T`` and resampled onto a grid of
+        voxel size ``resolution`` (default: this map's), with this map's sensor model and
+        clamping. ``T`` is a 4x4 homogeneous matrix taking a point of this map's frame into the
+        new frame (rotation with det +1, last row 0 0 0 1).
+
+        Rule ("occupied wins, then mean", forward splatting): every leaf is cut into cubic cells
+        of edge ``min(own resolution, resolution) / 2`` (one cell per voxel where ``T`` maps the
+        grid onto itself); the centre of each cell is moved by ``T`` and votes with the leaf's
+        log-odds in the target voxel it lands in. A target voxel with votes gets the largest
+        vote if any vote is occupied (log-odds > 0), else the mean of its votes (cells have
+        equal volume: the volume-weighted mean of the free space it overlaps). Unknown space
+        casts no votes, so no voxel appears away from known space, and a target voxel that lies
+        inside the moved known space always gets votes (cells of at most half a target voxel).
+        The identity, translations by whole voxels and rotations by multiples of 90 degrees
+        about the axes are exact; a target voxel that touches an occupied voxel is occupied.
+        Resampling to a coarser grid gives each coarse voxel the maximum of its occupied parts
+        (OctoMap's own rule for inner nodes) or the mean of its free parts.
+
+        Raises ``ValueError`` naming the value for a ``T`` that is not a finite rigid 4x4
+        matrix, a bad resolution, or a result outside the octree's key range. The GIL is
+        released while the C++ core works.
+        """
+        from .frames import check_rigid
+
+        T = check_rigid(T)
+        res = self.resolution if resolution is None else _resolution(resolution)
+        raw, _stats = _core._transform_map(self._m, T, res)
+        return OccupancyMap._wrap(raw)
 
     # -- contents ----------------------------------------------------------------------
     def leaves(self) -> Leaves:
@@ -268,6 +376,16 @@ def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np
                         np.ascontiguousarray(max_ranges, dtype=np.float64), int(threads))
 
 
+def _resolution(resolution) -> float:
+    try:
+        r = float(resolution)
+    except (TypeError, ValueError):
+        raise ValueError(f"resolution must be a number of metres, got {resolution!r}") from None
+    if not np.isfinite(r) or r <= 0:
+        raise ValueError(f"resolution must be a positive number of metres, got {resolution!r}")
+    return r
+
+
 def _points(points) -> np.ndarray:
     pts = np.asarray(points)
     if pts.dtype not in (np.float32, np.float64):
@@ -282,7 +400,7 @@ _RAM_DIR = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.
 
 class _ram_file:
     """A fresh temporary file name in a RAM directory (``/dev/shm`` where there is one), removed
-    on exit: the map core reads and writes OctoMap streams through files."""
+    on exit: streams go through files with a map core that reads and writes only files."""
 
     def __init__(self, suffix: str):
         self.suffix = suffix

@@ -10,7 +10,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..config import RunConfig, to_dict
+from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.network import LOCAL, SimResult
 
 #: columns of the results tables: (key, header, format)
@@ -56,10 +56,12 @@ def markdown_table(rows: dict[str, dict], first: str = "rule") -> str:
     return "\n".join(lines)
 
 
-def findings(means: dict[str, dict]) -> list[str]:
-    """What the numbers say about the paper's three claims (computed, not assumed)."""
+def findings(means: dict[str, dict], exact: Optional[dict] = None) -> list[str]:
+    """What the numbers say about the paper's three claims (computed, not assumed), and how
+    close each WEP rule comes to the exact channel filter when it ran (``exact``: its links
+    and the floor it can reach, from :func:`exact_summary`)."""
     out = []
-    wep = [r for r in means if r not in (LOCAL, "naive-bayes")]
+    wep = [r for r in means if r not in (LOCAL, "naive-bayes", CHANNEL_FILTER)]
     nb = means.get("naive-bayes")
     if nb and wep:
         worst_oc = max(means[r]["overconfidence"] for r in wep)
@@ -89,7 +91,68 @@ def findings(means: dict[str, dict]) -> list[str]:
             f"(min-info-loss keeps more of each map and becomes more certain, so later fusions of "
             f"agreeing certain voxels each lose a little), so the ranking of accumulated loss is an "
             f"empirical result.")
+    cf = means.get(CHANNEL_FILTER)
+    if cf and cf.get("kl_mean") is not None:
+        ex = exact or {}
+        links = (f" on a spanning tree ({ex['tree_links']} of {ex['graph_links']} links)"
+                 if ex.get("tree_links") is not None and ex["tree_links"] < ex["graph_links"]
+                 else "")
+        floor = ex.get("floor_kl")
+        text = (f"Exact fusion (channel filter{links}): KL {cf['kl_mean']:.4f}, over-confident "
+                f"on {cf['overconfidence']:.1%}, class agreement {cf['agreement']:.1%}"
+                + (f" (a map of all scans, clamped once, has KL {floor:.4f}: clamping the sum "
+                   "is not OctoMap's step-by-step clamping)" if floor is not None else "") + ".")
+        if wep:
+            parts = []
+            for r in sorted(wep, key=lambda r: means[r]["kl_mean"]):
+                kl, agr = means[r]["kl_mean"], means[r]["agreement"]
+                parts.append(f"`{r}` KL {kl:.4f} ({kl / cf['kl_mean']:.2f}x), agreement "
+                             f"{agr - cf['agreement']:+.1%}")
+            best = min(wep, key=lambda r: means[r]["kl_mean"])
+            where = "on every link" if links else "on the same links"
+            text += (f" WEP rules {where} against it: " + "; ".join(parts) + f". Closest: `{best}`"
+                     + (" (better than the exact filter on the tree alone: the loop links carry "
+                        "information the tree does not)" if means[best]["kl_mean"] < cf["kl_mean"]
+                        else "") + ".")
+        out.append(text)
     return out
+
+
+def exact_summary(res: SimResult, tol: float) -> Optional[dict]:
+    """The channel filter's links and the floor it can reach (the centralized map without
+    clamping, clamped once, against the centralized map); None without the filter."""
+    if CHANNEL_FILTER not in res.rules:
+        return None
+    out: dict = {"tree_links": len(res.tree) if res.tree is not None else None,
+                 "graph_links": len(res.graph.edges),
+                 "tree": [list(e) for e in res.tree] if res.tree is not None else None,
+                 "floor_kl": None, "floor_agreement": None}
+    if res.central_unclamped is not None and res.central is not None:
+        from ..fusion.channel_filter import clamped
+        from ..maps.compare import compare
+
+        s = compare(res.central, clamped(res.central_unclamped), tol)
+        out["floor_kl"], out["floor_agreement"] = s.kl_mean, s.agreement
+    return out
+
+
+def memory_table(res: SimResult) -> list[str]:
+    """Markdown rows: per rule, mean over agents of the map's and the per-link state's
+    memory, and of the bytes sent; messages and lost messages."""
+    if not res.memory:
+        return []
+    lines = ["| rule | map MB | per-link state MB | MB sent | messages | lost |",
+             "|---|---|---|---|---|---|"]
+    for r in res.rules:
+        per = res.memory.get(r, {})
+        if not per:
+            continue
+        tr = res.traffic[r]
+        mb = lambda xs: float(np.mean(xs)) / 1e6  # noqa: E731
+        lines.append(f"| `{r}` | {mb([v['map'] for v in per.values()]):.2f} | "
+                     f"{mb([v['links'] for v in per.values()]):.2f} | "
+                     f"{mb([tr.sent[a] for a in res.agents]):.2f} | {tr.messages} | {tr.lost} |")
+    return lines
 
 
 def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
@@ -133,7 +196,7 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rules = [r for r in res.rules if r != "naive-bayes"]
+    rules = [r for r in res.rules if r not in ("naive-bayes", CHANNEL_FILTER)]
     if not rules:
         return None
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -195,6 +258,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
     paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
              "loss_hist": plot_loss_histograms(res, out / "info_loss_histogram.png")}
     means = mean_scores(res.scores) if res.scores else {}
+    exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {
         "config": to_dict(cfg),
         "agents": res.agents,
@@ -206,10 +270,15 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "scores": {r: {a: s.to_dict() for a, s in per.items()} for r, per in res.scores.items()},
         "timeline": res.timeline,
         "timings_s": dict(res.timings),
-        "findings": findings(means) if means else [],
+        "findings": findings(means, exact) if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
     }
+    if exact is not None:
+        summary["exact"] = exact
+    if res.memory:
+        summary["memory_bytes"] = res.memory
+        summary["lost_messages"] = {r: res.traffic[r].lost for r in res.rules}
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1, default=float))
     os.replace(tmp, out / "summary.json")
@@ -229,6 +298,13 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
              "KL(p_NB ‖ p_fused) accumulated over all of an agent's fusions, per fused voxel; "
              "MB sent: OctoMap's stream (5 bytes per node) beside the 32 bytes per voxel of "
              "sending centre + log-odds in doubles.", ""]
+    if res.memory and (exact is not None or cfg.fuse.loss > 0):
+        lines += ["## Memory and traffic", "", *memory_table(res), "",
+                  "Mean over agents. Per-link state: the channel filter's copies of its "
+                  "neighbours' contributions (one map per link end) and, with delta messages, "
+                  "the maps deltas are taken against; the WEP rules keep per-link state only for "
+                  "deltas. The channel filter's maps are unclamped (less pruning than clamped "
+                  f"maps); message loss {cfg.fuse.loss:g}.", ""]
     if res.robust is not None:
         from ..fusion.robust import markdown_section
 
