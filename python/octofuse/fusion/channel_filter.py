@@ -35,7 +35,7 @@ applied from the receiver, and a sender computes deltas against the last acknowl
 
 OctoMap clamps stored log-odds (default [-2, 3.5]), which breaks the additivity the exact rule
 needs: the agents' maps, the messages and the per-link maps are kept with the clamping opened
-to +-inf (``_core._open_clamping``; subtraction is naive-Bayes fusion of a negated copy), and
+to +-inf (:meth:`OccupancyMap.open_clamping`; subtraction is naive-Bayes fusion of a negated copy), and
 the maps are clamped to the configured thresholds only for scoring and writing
 (:func:`clamped`). Clamping ``sum of scans`` once is not OctoMap's clamped step-by-step
 insertion, so a fully informed agent differs from the (clamped) centralized map by that much.
@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from .. import _core
 from ..config import CHANNEL_FILTER
 from ..maps.occupancy import OccupancyMap, fuse_into
 from .graph import Graph, make_graph
@@ -66,8 +65,7 @@ __all__ = ["CHANNEL_FILTER", "ChannelFilter", "Message", "add_into", "clamped", 
 
 def open_map(m: OccupancyMap) -> OccupancyMap:
     """Open ``m``'s clamping (thresholds -inf/+inf log-odds) in place; returns ``m``."""
-    _core._open_clamping(m._m)
-    return m
+    return m.open_clamping()
 
 
 def unclamped_copy(m: OccupancyMap) -> OccupancyMap:
@@ -77,16 +75,12 @@ def unclamped_copy(m: OccupancyMap) -> OccupancyMap:
 
 def clamped(m: OccupancyMap) -> OccupancyMap:
     """A copy of ``m`` clamped to its configured thresholds: what scoring and files see."""
-    c = m.copy()
-    _core._clamp_values(c._m)
-    return c
+    return m.copy().clamp_values()
 
 
 def negated(m: OccupancyMap) -> OccupancyMap:
     """An unclamped copy of ``m`` with every log-odds negated."""
-    c = unclamped_copy(m)
-    _core._negate_values(c._m)
-    return c
+    return unclamped_copy(m).negate_values()
 
 
 def add_into(dst: OccupancyMap, src: OccupancyMap) -> None:
@@ -256,11 +250,11 @@ class ChannelFilter:
             if old is None:
                 old = self.channel[link] = open_map(OccupancyMap(
                     dst.resolution, dst.prob_hit, dst.prob_miss, dst.clamping))
-            _core._assign_values(dst._m, old._m, payload._m)
+            dst.assign_delta(old, payload)
             return
         add_into(dst, payload)
         if old is not None:
-            _core._negate_values(old._m)  # replaced below: negate in place
+            old.negate_values()  # replaced below: negate in place
             add_into(dst, old)
         self.channel[link] = unclamped_copy(payload)
 

@@ -248,6 +248,27 @@ class OccupancyMap:
         """A deep copy of the map."""
         return OccupancyMap._wrap(self._m.copy())
 
+    # -- log-odds arithmetic (exact fusion by channel filters) ---------------------------
+    def open_clamping(self) -> "OccupancyMap":
+        """Open the clamping (thresholds -inf/+inf log-odds) in place, so sums stay exact."""
+        _core._open_clamping(self._m)
+        return self
+
+    def clamp_values(self) -> "OccupancyMap":
+        """Clamp every stored value to the configured thresholds, in place."""
+        _core._clamp_values(self._m)
+        return self
+
+    def negate_values(self) -> "OccupancyMap":
+        """Negate every stored log-odds, in place."""
+        _core._negate_values(self._m)
+        return self
+
+    def assign_delta(self, channel: "OccupancyMap", delta: "OccupancyMap") -> int:
+        """Exact fusion of a delta, on its voxels: ``l += m - c`` then ``c = m``, with ``c`` this
+        map's copy of the sender's contribution (``channel``, updated in place)."""
+        return _core._assign_values(self._m, channel._m, delta._m)
+
     def changed_since(self, previous: "OccupancyMap") -> "OccupancyMap":
         """The voxels whose value differs from ``previous`` (a delta message)."""
         return OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m))
