@@ -37,7 +37,7 @@ _LAZY = {
     "maximum_likelihood": "fusion.voting_baselines",
     "ExPoly2D": "beliefs.expoly", "Gaussian": "beliefs.gaussian",
     "GaussianMixture": "beliefs.mixture", "fuse_mixtures": "beliefs.mixture_fusion",
-    "run_target_search": "targets.search", "run_tracking": "targets.tracking",
+    "run_target_search": "targets.search_report", "run_tracking": "targets.tracking_report",
 }
 
 

@@ -526,7 +526,8 @@ def align(a, b, planar, min_fitness, as_json):
               help="output folder")
 def search(setting, rule, seed, duration, out):
     """Multi-robot target search with Gaussian-mixture beliefs (paper 000): report and figures."""
-    from .targets.search import DEFAULT_RULES, run_target_search
+    from .targets.search import DEFAULT_RULES
+    from .targets.search_report import run_target_search
 
     rules = [r.strip() for x in rule for r in x.split(",") if r.strip()] or list(DEFAULT_RULES)
     run_target_search(out, setting=setting, rules=rules, seed=seed, duration=duration, progress=say)
@@ -542,7 +543,7 @@ def search(setting, rule, seed, duration, out):
               help="output folder")
 def track(duration, seed, families, out):
     """Range-only tracking over a directed ring of four nodes (paper 004): report and figures."""
-    from .targets.tracking import run_tracking
+    from .targets.tracking_report import run_tracking
 
     names = tuple(f.strip() for f in families.split(",") if f.strip())
     run_tracking(out, duration=duration, seed=seed, families=names)

@@ -9,7 +9,8 @@ import pytest
 from octofuse.beliefs.mixture import GaussianMixture
 from octofuse.targets.detector import CameraDetector
 from octofuse.targets.particle_filter import gaussian_sum_update
-from octofuse.targets.search import exchanges, robot_paths, run_target_search, simulate
+from octofuse.targets.search import exchanges, robot_paths, simulate
+from octofuse.targets.search_report import run_target_search
 
 POSE = (0.0, 0.0, 0.0)  # at the origin, facing +x
 

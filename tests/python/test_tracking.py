@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from octofuse.targets.tracking import TrackingConfig, run_tracking, schedule
+from octofuse.targets.tracking import TrackingConfig, schedule
+from octofuse.targets.tracking_report import run_tracking
 
 
 def test_schedule_orders_measurements_before_messages():

@@ -3,7 +3,7 @@ the preparation of maps from different frames and voxel sizes for fusion.
 
 - :func:`pose_matrix` / :func:`matrix_pose`: a 4x4 rigid transform from / to ``x, y, z`` (metres)
   and ``roll, pitch, yaw`` (radians; R = Rz(yaw) Ry(pitch) Rx(roll), as ROS and tf use them).
-- :func:`check_rigid`: the checks every transform passes (``ValueError`` naming the value).
+- :func:`~octofuse.scans.se3.check_rigid` (from ``scans.se3``): the checks every transform passes.
 - :func:`parse_frame`: ``"NAME=x,y,z,roll,pitch,yaw"`` (metres, radians).
 - :func:`common_resolution`: the voxel size maps of different resolutions are fused at.
 - :func:`prepare_maps`: maps moved into the common frame and resampled to one resolution.
@@ -27,8 +27,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-#: largest deviation of R^T R from the identity (and of det R from 1) a rigid transform may have
-RIGID_TOL = 1e-6
+from ..scans.se3 import check_rigid
 
 
 def pose_matrix(x: float = 0.0, y: float = 0.0, z: float = 0.0, roll: float = 0.0,
@@ -64,35 +63,6 @@ def matrix_pose(T) -> dict[str, float]:
     return {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3]),
             "roll": roll, "pitch": pitch, "yaw": yaw}
 
-
-def check_rigid(T, what: str = "T") -> np.ndarray:
-    """``T`` as a (4, 4) float64 C-contiguous array, or ``ValueError`` naming what is wrong:
-    the shape, a NaN or infinite entry (with its index), a last row other than 0 0 0 1, a
-    rotation part that is not orthonormal or is a reflection (det -1)."""
-    try:
-        A = np.array(T, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a 4x4 matrix of numbers, got {T!r}") from None
-    if A.shape != (4, 4):
-        raise ValueError(f"{what} must be a 4x4 homogeneous matrix, got shape {A.shape}")
-    bad = np.argwhere(~np.isfinite(A))
-    if len(bad):
-        i, j = bad[0]
-        raise ValueError(f"{what}[{i}, {j}] is {A[i, j]}: a transform must be finite")
-    if not np.allclose(A[3], (0.0, 0.0, 0.0, 1.0), atol=1e-12, rtol=0.0):
-        raise ValueError(f"{what} is not a rigid transform: its last row is "
-                         f"{np.array2string(A[3], precision=6)}, expected [0 0 0 1]")
-    R = A[:3, :3]
-    dev = float(np.abs(R.T @ R - np.eye(3)).max())
-    if dev > RIGID_TOL:
-        raise ValueError(f"{what} is not a rigid transform: its rotation part is not orthonormal "
-                         f"(R^T R differs from the identity by {dev:.3g}; scale or shear?): "
-                         f"{np.array2string(R, precision=6)}")
-    det = float(np.linalg.det(R))
-    if det < 0:
-        raise ValueError(f"{what} is not a rigid transform: its rotation part is a reflection "
-                         f"(det = {det:.6g})")
-    return np.ascontiguousarray(A)
 
 
 def invert(T) -> np.ndarray:

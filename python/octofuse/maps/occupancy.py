@@ -232,7 +232,7 @@ class OccupancyMap:
         matrix, a bad resolution, or a result outside the octree's key range. The GIL is
         released while the C++ core works.
         """
-        from .frames import check_rigid
+        from ..scans.se3 import check_rigid
 
         T = check_rigid(T)
         res = self.resolution if resolution is None else _resolution(resolution)

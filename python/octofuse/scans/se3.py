@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["invert_transform", "matrix_to_quaternion", "quaternion_to_matrix", "slerp",
+__all__ = ["check_rigid", "invert_transform", "matrix_to_quaternion", "quaternion_to_matrix", "slerp",
            "transform_matrix"]
 
 
@@ -129,3 +129,37 @@ def slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
     w1 = np.where(small, a, np.sin(a * theta) / safe)
     q = w0[:, None] * q0 + w1[:, None] * q1
     return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+#: largest deviation of R^T R from the identity (and of det R from 1) a rigid transform may have
+RIGID_TOL = 1e-6
+
+
+def check_rigid(T, what: str = "T") -> np.ndarray:
+    """``T`` as a (4, 4) float64 C-contiguous array, or ``ValueError`` naming what is wrong:
+    the shape, a NaN or infinite entry (with its index), a last row other than 0 0 0 1, a
+    rotation part that is not orthonormal or is a reflection (det -1)."""
+    try:
+        A = np.array(T, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a 4x4 matrix of numbers, got {T!r}") from None
+    if A.shape != (4, 4):
+        raise ValueError(f"{what} must be a 4x4 homogeneous matrix, got shape {A.shape}")
+    bad = np.argwhere(~np.isfinite(A))
+    if len(bad):
+        i, j = bad[0]
+        raise ValueError(f"{what}[{i}, {j}] is {A[i, j]}: a transform must be finite")
+    if not np.allclose(A[3], (0.0, 0.0, 0.0, 1.0), atol=1e-12, rtol=0.0):
+        raise ValueError(f"{what} is not a rigid transform: its last row is "
+                         f"{np.array2string(A[3], precision=6)}, expected [0 0 0 1]")
+    R = A[:3, :3]
+    dev = float(np.abs(R.T @ R - np.eye(3)).max())
+    if dev > RIGID_TOL:
+        raise ValueError(f"{what} is not a rigid transform: its rotation part is not orthonormal "
+                         f"(R^T R differs from the identity by {dev:.3g}; scale or shear?): "
+                         f"{np.array2string(R, precision=6)}")
+    det = float(np.linalg.det(R))
+    if det < 0:
+        raise ValueError(f"{what} is not a rigid transform: its rotation part is a reflection "
+                         f"(det = {det:.6g})")
+    return np.ascontiguousarray(A)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .search import BASELINES, TargetSearchResult
+from .search import BASELINES, DEFAULT_RULES, TargetSearchResult, simulate
 
 EXTREME = 0.1  # omega within this of 0 or 1 counts as a 'winner takes all' choice
 EARLY_STEP = 30  # the paper's 'initial stages' end near k = 30
@@ -246,3 +246,22 @@ def write_report(res: TargetSearchResult, out: Path, figures: bool = True) -> Pa
         (stage / "summary.json").write_text(json.dumps(_clean(_summary(res, found)), indent=1, allow_nan=False))
         (stage / "report.md").write_text(_report_md(res, found, names))
     return Path(out)
+
+
+def run_target_search(out_dir, setting: str = "3-robots", rules=DEFAULT_RULES, seed: int = 0, *,
+                      duration: int = 65, comm_period: int = 13, n_samples: int = 1000, particles: int = 1000,
+                      max_components: int = 15, method: str = "moment-match", pair_samples: int = 1000,
+                      grid_step: float = 0.1, figures: bool = True, progress=None) -> TargetSearchResult:
+    """Simulate the search and write ``report.md``, ``summary.json`` and figures into ``out_dir``.
+
+    ``n_samples`` is N_s of the omega search, ``pair_samples`` the importance samples per component
+    pair when ``method`` is ``moment-match``, ``particles`` the particles per mixand of the filter.
+    The outputs are written into a temporary directory beside ``out_dir`` and renamed into place
+    (an existing ``out_dir`` written by octofuse is replaced; any other folder is refused).
+    ``progress`` is an optional callable taking one line.
+    """
+    res = simulate(setting, rules, seed, duration=duration, comm_period=comm_period, n_samples=n_samples,
+                   particles=particles, max_components=max_components, method=method,
+                   pair_samples=pair_samples, grid_step=grid_step, progress=progress)
+    res.out_dir = write_report(res, Path(out_dir), figures=figures)
+    return res

@@ -188,14 +188,3 @@ def _run_central(cfg, result, events, measured, time_index, range_std):
                 central.update(SENSORS[e.node], measured[(t, e.node)], range_std**2)
         err = float(np.linalg.norm(central.mean() - result.truth[time_index[t]]))
         result.central.append(dict(time=float(t), error=err, renyi2=central.renyi2()))
-
-
-def run_tracking(out_dir, duration: float = 10.0, seed: int = 0, **options) -> TrackingResult:
-    """Simulate (``options`` are further :class:`TrackingConfig` fields) and write report.md,
-    summary.json and plots to ``out_dir`` (replaced as a whole). Returns the result; its
-    ``summary`` attribute holds what summary.json holds."""
-    from .tracking_report import write_report
-
-    result = simulate_tracking(TrackingConfig(duration=duration, seed=seed, **options))
-    result.summary = write_report(result, out_dir)
-    return result

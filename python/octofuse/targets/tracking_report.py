@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .tracking import SENSORS, TrackingResult
+from .tracking import SENSORS, TrackingConfig, TrackingResult, simulate_tracking
 
 BURN_IN_S = 1.0  #: errors are summarised after this time (the prior dominates before)
 
@@ -162,3 +162,12 @@ def write_report(result: TrackingResult, out_dir) -> dict:
         (stage / "report.md").write_text(_markdown(summary))
         _plots(result, stage)
     return summary
+
+
+def run_tracking(out_dir, duration: float = 10.0, seed: int = 0, **options) -> TrackingResult:
+    """Simulate (``options`` are further :class:`TrackingConfig` fields) and write report.md,
+    summary.json and plots to ``out_dir`` (replaced as a whole). Returns the result; its
+    ``summary`` attribute holds what summary.json holds."""
+    result = simulate_tracking(TrackingConfig(duration=duration, seed=seed, **options))
+    result.summary = write_report(result, out_dir)
+    return result
