@@ -4,6 +4,12 @@
 //
 //   octofuse_bench_fuse_trees [--repeats N] [--scale S] [--layout file|scattered]
 //                             [--values sensor|continuous] [--json FILE]
+//                             [--map-a FILE --map-b FILE] [--threads N]
+//
+// With --map-a/--map-b the two maps are read from .ot/.bt files (maps built from bags) instead
+// of being generated. Besides the rows below, the program times fuse_into (naive-bayes and
+// min-info-loss, on 1 thread and on --threads) against the in-place merge, and every rule's
+// fuse_maps together with the freeing of its result (timed separately) against the merge.
 //
 // Both maps are built deterministically (fixed seeds) by setting node values over two
 // overlapping boxes of finest-level voxels: most voxels get a log-odds value that OctoMap's
@@ -30,6 +36,8 @@
 // This count depends on the inputs only and is the same for every method.
 #include "octofuse/fuse.hpp"
 #include "octofuse/fuse_into.hpp"
+#include "octofuse/map_file.hpp"
+#include "octofuse/walk.hpp"
 
 #include <octomap/OcTree.h>
 
@@ -148,7 +156,7 @@ std::unique_ptr<OccupancyMap> make_map(const Box& box, bool continuous) {
 
 using Voxels = std::vector<std::pair<std::uint64_t, float>>;
 
-Voxels expand(const octomap::OcTree& t) {
+[[maybe_unused]] Voxels expand(const octomap::OcTree& t) {
   Voxels out;
   for (auto it = t.begin_leafs(), end = t.end_leafs(); it != end; ++it) {
     const unsigned span = 1u << (16 - it.getDepth());
@@ -164,8 +172,32 @@ Voxels expand(const octomap::OcTree& t) {
   return out;
 }
 
+/// Walks two trees together (a leaf stands for the voxels below it): counts the leaf pairs
+/// (`pairs`) and those whose values differ or that only one tree knows (returned).
+std::size_t walk_differences(const detail::WalkNode<octomap::OcTree>& x,
+                             const detail::WalkNode<octomap::OcTree>& y, std::size_t& pairs) {
+  if (!x.present() && !y.present()) return 0;
+  if ((x.leaf || !x.present()) && (y.leaf || !y.present())) {
+    ++pairs;
+    return !x.present() || !y.present() || x.node->getLogOdds() != y.node->getLogOdds();
+  }
+  std::size_t d = 0;
+  for (unsigned i = 0; i < 8; ++i) d += walk_differences(x.child(i), y.child(i), pairs);
+  return d;
+}
+
+/// Leaf pairs of two trees that differ (every voxel compared, without expanding the trees).
+std::size_t tree_differences(const octomap::OcTree& x, const octomap::OcTree& y,
+                             std::size_t* pairs = nullptr) {
+  std::size_t n = 0;
+  const std::size_t d = walk_differences(detail::WalkNode<octomap::OcTree>::root(x),
+                                         detail::WalkNode<octomap::OcTree>::root(y), n);
+  if (pairs) *pairs = n;
+  return d;
+}
+
 /// Number of voxels whose values differ (or that only one side has); 0 = same map.
-std::size_t count_differences(const Voxels& x, const Voxels& y) {
+[[maybe_unused]] std::size_t count_differences(const Voxels& x, const Voxels& y) {
   std::size_t i = 0, j = 0, diff = 0;
   while (i < x.size() && j < y.size()) {
     if (x[i].first == y[j].first) {
@@ -273,7 +305,8 @@ int main(int argc, char** argv) {
   int repeats = 5;
   double scale = 1.0;
   bool file_layout = true, continuous = false;
-  std::string json_path;
+  unsigned threads = 2;
+  std::string json_path, map_a_path, map_b_path;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--repeats" && i + 1 < argc) {
@@ -288,10 +321,18 @@ int main(int argc, char** argv) {
       continuous = std::strcmp(argv[++i], "continuous") == 0;
     } else if (arg == "--json" && i + 1 < argc) {
       json_path = argv[++i];
+    } else if (arg == "--map-a" && i + 1 < argc) {
+      map_a_path = argv[++i];
+    } else if (arg == "--map-b" && i + 1 < argc) {
+      map_b_path = argv[++i];
+    } else if (arg == "--threads" && i + 1 < argc) {
+      threads = static_cast<unsigned>(std::max(1, std::atoi(argv[++i])));
     } else {
       std::fprintf(stderr,
                    "usage: %s [--repeats N] [--scale S] [--layout file|scattered] [--values sensor|continuous]\n"
-                   "          [--json FILE]\n"
+                   "          [--json FILE] [--map-a FILE --map-b FILE] [--threads N]\n"
+                   "  --map-a, --map-b  fuse these .ot/.bt maps instead of the generated ones\n"
+                   "  --threads N  threads of the parallel in-place rows (default 2)\n"
                    "  --scale S  multiplies the x extent of both maps (1 = ~1.2 million leaves each)\n",
                    argv[0]);
       return 2;
@@ -311,15 +352,26 @@ int main(int argc, char** argv) {
   std::printf("building the two maps (deterministic)...\n");
   std::fflush(stdout);
   auto t0 = Clock::now();
-  std::unique_ptr<OccupancyMap> a = make_map(box_a, continuous), b = make_map(box_b, continuous);
-  if (file_layout) {  // depth-first node layout, as read from a map file
+  const bool from_files = !map_a_path.empty() && !map_b_path.empty();
+  std::unique_ptr<OccupancyMap> a, b;
+  if (from_files) {
+    a = read_map_file(map_a_path);
+    b = read_map_file(map_b_path);
+  } else {
+    a = make_map(box_a, continuous);
+    b = make_map(box_b, continuous);
+  }
+  if (file_layout && !from_files) {  // depth-first node layout, as read from a map file
     a = std::make_unique<OccupancyMap>(*a);
     b = std::make_unique<OccupancyMap>(*b);
   }
-  std::printf("  built in %.1f s; node layout: %s; values: %s\n", seconds_since(t0),
-              file_layout ? "depth-first, as read from a map file" : "scattered, as built by insertion",
-              continuous ? "continuous (uniform over the clamping range)"
-                         : "sensor model (sums of hit/miss log-odds, clamped)");
+  if (from_files)
+    std::printf("  read %s and %s in %.1f s\n", map_a_path.c_str(), map_b_path.c_str(), seconds_since(t0));
+  else
+    std::printf("  built in %.1f s; node layout: %s; values: %s\n", seconds_since(t0),
+                file_layout ? "depth-first, as read from a map file" : "scattered, as built by insertion",
+                continuous ? "continuous (uniform over the clamping range)"
+                           : "sensor model (sums of hit/miss log-odds, clamped)");
 
   const std::size_t leaves_a = a->num_leaves(), leaves_b = b->num_leaves();
   const std::size_t fine_a = finest_leaves(a->tree()), fine_b = finest_leaves(b->tree());
@@ -333,9 +385,20 @@ int main(int argc, char** argv) {
   // --- timing: rounds over all methods (every method once per round, so that a change in
   // the machine's other load during the run affects all methods alike); round -1 is a
   // warm-up and is not timed.
-  std::vector<std::vector<double>> rule_times(kNumRules);
+  std::vector<std::vector<double>> rule_times(kNumRules), free_times(kNumRules);
+  // in place: naive-bayes and min-info-loss, on 1 thread and on `threads`
+  struct IntoRun {
+    Rule rule;
+    unsigned threads;
+    std::vector<double> times;
+  };
+  std::vector<IntoRun> into_runs;
+  for (Rule r : {Rule::NaiveBayes, Rule::MinInfoLoss})
+    for (unsigned t : {1u, threads}) {
+      if (t == 1 || t != 1) into_runs.push_back({r, t, {}});
+      if (threads == 1) break;
+    }
   std::vector<MergeTimes> eager_runs, lazy_runs;
-  std::vector<double> into_times;
   std::size_t pairs = 0, pairs_both = 0;
   for (int k = -1; k < repeats; ++k) {
     for (int r = 0; r < kNumRules; ++r) {
@@ -343,16 +406,23 @@ int main(int argc, char** argv) {
       t0 = Clock::now();
       FusionResult res = fuse_maps(*a, *b, static_cast<Rule>(r), UnknownPolicy::Copy);
       const double dt = seconds_since(t0);
-      if (k >= 0) rule_times[r].push_back(dt);
       pairs = res.voxels_fused + res.voxels_copied;
       if (r == static_cast<int>(Rule::NaiveBayes)) pairs_both = res.voxels_fused;
+      t0 = Clock::now();
+      res.map.reset();  // freeing the result: part of the cost of every fuse_maps call
+      res.info_loss.reset();
+      const double df = seconds_since(t0);
+      if (k >= 0) {
+        rule_times[r].push_back(dt);
+        free_times[r].push_back(df);
+      }
     }
-    {  // in place, as an agent fuses a received map into its own (no copy of a timed)
-      OccupancyMap dst(*a);
+    for (IntoRun& run : into_runs) {  // in place, as an agent fuses a received map into its own
+      OccupancyMap dst(*a);  // (the copy of a is not timed)
       settle_heap();
       t0 = Clock::now();
-      fuse_into(dst, *b, Rule::NaiveBayes, UnknownPolicy::Copy, nullptr);
-      if (k >= 0) into_times.push_back(seconds_since(t0));
+      fuse_into(dst, *b, run.rule, UnknownPolicy::Copy, nullptr, run.threads);
+      if (k >= 0) run.times.push_back(seconds_since(t0));
     }
     const MergeTimes eager = updatenode_merge(a->tree(), b->tree(), false, nullptr);
     const MergeTimes lazy = updatenode_merge(a->tree(), b->tree(), true, nullptr);
@@ -386,10 +456,20 @@ int main(int argc, char** argv) {
   std::unique_ptr<octomap::OcTree> merged_eager, merged_lazy;
   updatenode_merge(a->tree(), b->tree(), false, &merged_eager);
   updatenode_merge(a->tree(), b->tree(), true, &merged_lazy);
-  const Voxels vnb = expand(nb_res.map->tree());
-  OccupancyMap into_res(*a);
-  fuse_into(into_res, *b, Rule::NaiveBayes, UnknownPolicy::Copy, nullptr);
-  const std::size_t diff_into = count_differences(vnb, expand(into_res.tree()));
+  std::size_t result_pairs = 0;
+  tree_differences(nb_res.map->tree(), nb_res.map->tree(), &result_pairs);
+  // in place on every thread count = the new tree of the same rule, node for node in count
+  std::size_t diff_into = 0;
+  for (const IntoRun& run : into_runs) {
+    OccupancyMap into_res(*a);
+    fuse_into(into_res, *b, run.rule, UnknownPolicy::Copy, nullptr, run.threads);
+    const FusionResult ref = fuse_maps(*a, *b, run.rule, UnknownPolicy::Copy);
+    const std::size_t d = tree_differences(ref.map->tree(), into_res.tree());
+    const bool same_size = into_res.num_nodes() == into_res.tree().calcNumNodes();
+    std::printf("check: %s in place on %u thread(s) vs fuse_maps: %zu leaf pairs differ; node count %s\n",
+                kRuleNames[static_cast<int>(run.rule)], run.threads, d, same_size ? "right" : "WRONG");
+    diff_into += d + (same_size ? 0 : 1);
+  }
   // The floor of any method that builds a new OctoMap tree of the result's size: OctoMap's own
   // deep copy of the result (one heap allocation per node, as every OcTree has).
   std::vector<double> copy_times;
@@ -401,15 +481,15 @@ int main(int argc, char** argv) {
     if (k >= 0) copy_times.push_back(dt);
   }
   const double copy_result_s = median(copy_times);
-  const std::size_t diff_eager = count_differences(vnb, expand(*merged_eager));
-  const std::size_t diff_lazy = count_differences(vnb, expand(*merged_lazy));
+  const std::size_t diff_eager = tree_differences(nb_res.map->tree(), *merged_eager);
+  const std::size_t diff_lazy = tree_differences(nb_res.map->tree(), *merged_lazy);
 
   // --- report --------------------------------------------------------------------------
   const double nb = rule_median[static_cast<int>(Rule::NaiveBayes)];
   const double eager_inplace = eager_parts.expand_b + eager_parts.update;
   std::vector<Row> rows;
   rows.push_back({"OctoMap updateNode merge (lazy_eval=false)", eager_s, pairs / eager_s, eager_s / nb});
-  const double into_s = median(into_times);
+  const double into_s = median(into_runs.front().times);
   rows.push_back({"octofuse naive-bayes in place (fuse_into)", into_s, pairs / into_s, into_s / nb});
   rows.push_back({"  same, in place (no copy of a)", eager_inplace, pairs / eager_inplace,
                   eager_inplace / nb});
@@ -419,10 +499,10 @@ int main(int argc, char** argv) {
                     pairs / rule_median[r], rule_median[r] / nb});
 
   std::printf("\nvoxels = leaf pairs walked = %s (%s known to both maps, %s to one); "
-              "naive-bayes result: %s leaves, %s finest-level voxels\n",
+              "naive-bayes result: %s leaves, %s leaf pairs against itself\n",
               with_commas(pairs).c_str(), with_commas(pairs_both).c_str(),
               with_commas(pairs - pairs_both).c_str(), with_commas(result_leaves_nb).c_str(),
-              with_commas(vnb.size()).c_str());
+              with_commas(result_pairs).c_str());
   std::printf("median of %d runs each\n\n", repeats);
   std::printf("%-46s %10s %14s %16s\n", "method", "median s", "voxels/s", "time / octofuse NB");
   for (const Row& r : rows)
@@ -443,9 +523,9 @@ int main(int argc, char** argv) {
               "%.3f s = %.2f x octofuse naive-bayes; the updateNode merge takes %.1f x that copy\n",
               with_commas(nb_res.map->num_nodes()).c_str(), copy_result_s, copy_result_s / nb,
               eager_s / copy_result_s);
-  std::printf("same map as octofuse naive-bayes (finest-level voxels compared: %s): "
+  std::printf("same map as octofuse naive-bayes (every voxel compared, %s leaf pairs): "
               "updateNode merge %s, lazy merge %s\n",
-              with_commas(vnb.size()).c_str(),
+              with_commas(result_pairs).c_str(),
               diff_eager == 0 ? "yes" : ("NO, " + std::to_string(diff_eager) + " differ").c_str(),
               diff_lazy == 0 ? "yes" : ("NO, " + std::to_string(diff_lazy) + " differ").c_str());
 
@@ -457,13 +537,22 @@ int main(int argc, char** argv) {
       << ",\n  \"leaves_a\": " << leaves_a << ",\n  \"leaves_b\": " << leaves_b
       << ",\n  \"finest_leaves_a\": " << fine_a << ",\n  \"finest_leaves_b\": " << fine_b
       << ",\n  \"voxels\": " << pairs << ",\n  \"voxels_both\": " << pairs_both
-      << ",\n  \"result_voxels_finest\": " << vnb.size()
+      << ",\n  \"result_leaf_pairs\": " << result_pairs
       << ",\n  \"same_result_eager\": " << (diff_eager == 0 ? "true" : "false")
       << ",\n  \"same_result_lazy\": " << (diff_lazy == 0 ? "true" : "false")
       << ",\n  \"copy_result_s\": " << copy_result_s << ",\n  \"result_nodes\": " << nb_res.map->num_nodes()
       << ",\n  \"merge_steps_eager\": {\"copy_a\": " << eager_parts.copy_a
       << ", \"expand_b\": " << eager_parts.expand_b << ", \"update\": " << eager_parts.update
-      << "},\n  \"rows\": [\n";
+      << "},\n  \"merge_in_place_s\": " << eager_inplace << ",\n  \"in_place\": [";
+    for (std::size_t i = 0; i < into_runs.size(); ++i)
+      j << (i ? ", " : "") << "{\"rule\": \"" << kRuleNames[static_cast<int>(into_runs[i].rule)]
+        << "\", \"threads\": " << into_runs[i].threads << ", \"median_s\": " << median(into_runs[i].times)
+        << "}";
+    j << "],\n  \"whole_cost\": [";
+    for (int r = 0; r < kNumRules; ++r)
+      j << (r ? ", " : "") << "{\"rule\": \"" << kRuleNames[r] << "\", \"fuse_s\": " << rule_median[r]
+        << ", \"free_s\": " << median(free_times[r]) << "}";
+    j << "],\n  \"rows\": [\n";
     for (std::size_t i = 0; i < rows.size(); ++i)
       j << "    {\"name\": \"" << rows[i].name << "\", \"median_s\": " << rows[i].median_s
         << ", \"voxels_per_s\": " << rows[i].voxels_per_s
@@ -474,5 +563,20 @@ int main(int argc, char** argv) {
   std::printf("octofuse naive-bayes in place (fuse_into) vs updateNode merge in place: %.1fx the "
               "throughput; same result: %s\n", eager_inplace / into_s,
               diff_into == 0 ? "yes" : ("NO, " + std::to_string(diff_into) + " differ").c_str());
+  std::printf("\nin place against the in-place updateNode merge (expand b + updateNode: %.3f s)\n",
+              eager_inplace);
+  for (const IntoRun& run : into_runs) {
+    const double t = median(run.times);
+    std::printf("  octofuse %-22s fuse_into, %u thread(s): %.3f s  %5.1fx\n",
+                kRuleNames[static_cast<int>(run.rule)], run.threads, t, eager_inplace / t);
+  }
+  std::printf("\nnew tree with its whole cost (fuse_maps, then freeing the result) against the "
+              "updateNode merge (copy a + expand b + updateNode: %.3f s)\n", eager_s);
+  for (int r = 0; r < kNumRules; ++r) {
+    const double f = median(free_times[r]);
+    std::printf("  octofuse %-28s fuse %.3f s + free %.3f s = %.3f s  %5.1fx\n", kRuleNames[r],
+                rule_median[r], f, rule_median[r] + f, eager_s / (rule_median[r] + f));
+  }
+
   return diff_eager == 0 && diff_lazy == 0 && diff_into == 0 ? 0 : 1;
 }

@@ -82,6 +82,45 @@ def batched_insert(scans: Sequence[Scan], cfg, n_agents: int, central: bool, thr
     return time.perf_counter() - t0, maps, cmap
 
 
+def to_map_frame(scans: Sequence[Scan]) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Each scan's points in the map frame with its sensor origin (for the one-map public API)."""
+    return [(np.ascontiguousarray(s.points @ s.pose[:3, :3].T + s.pose[:3, 3]), s.pose[:3, 3].copy(),
+             s.max_range) for s in scans]
+
+
+def public_plain(scans: Sequence[Scan], world, cfg, n_agents: int):
+    """OctoMap's insertPointCloud on map-frame points (the core's plain path), scan by scan."""
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    t0 = time.perf_counter()
+    for s, (pts, o, r) in zip(scans, world):
+        maps[s.agent]._m.insert_scan(pts, o, float(r), False)
+    return time.perf_counter() - t0, maps, None
+
+
+def public_insert_scan(scans: Sequence[Scan], world, cfg, n_agents: int):
+    """OccupancyMap.insert_scan (the public one-map API), scan by scan."""
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    t0 = time.perf_counter()
+    for s, (pts, o, r) in zip(scans, world):
+        maps[s.agent].insert_scan(pts, o, r)
+    return time.perf_counter() - t0, maps, None
+
+
+def public_insert_scans(scans: Sequence[Scan], world, cfg, n_agents: int, threads: int):
+    """OccupancyMap.insert_scans: each agent's scans in lists of cfg.batch_size (same max_range)."""
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    per_agent: dict[int, list] = {}
+    for s, w in zip(scans, world):
+        per_agent.setdefault(s.agent, []).append(w)
+    t0 = time.perf_counter()
+    for a, items in per_agent.items():
+        for i in range(0, len(items), cfg.batch_size):
+            chunk = items[i:i + cfg.batch_size]
+            for r in sorted({w[2] for w in chunk}):
+                maps[a].insert_scans([(p, o) for p, o, rr in chunk if rr == r], max_range=r, threads=threads)
+    return time.perf_counter() - t0, maps, None
+
+
 def sorted_leaves(m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     lv = m.leaves()
     order = np.lexsort((lv.centers[:, 2], lv.centers[:, 1], lv.centers[:, 0], lv.sizes))
@@ -147,7 +186,7 @@ def time_build(cfg, out_dir: Path):
     return t_build, t_write, res, size
 
 
-def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1) -> dict:
+def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, insertion_only: bool = False) -> dict:
     cfg = make_build_config(str(bag), scan_stride=every)
     with ScanSource(cfg) as src:
         agents = [a.name for a in src.agents]
@@ -161,7 +200,12 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1) -> dict
                  "batch_size": cfg.batch_size, "resolution": cfg.map.resolution}
 
     # 1. insertion, scans in memory
+    world = to_map_frame(scans)
     methods: dict[str, Callable] = {
+        "public-octomap": lambda: public_plain(scans, world, cfg, n_agents),
+        "public-insert_scan": lambda: public_insert_scan(scans, world, cfg, n_agents),
+        "public-insert_scans-t1": lambda: public_insert_scans(scans, world, cfg, n_agents, 1),
+        "public-insert_scans-t2": lambda: public_insert_scans(scans, world, cfg, n_agents, 2),
         "octomap-2": lambda: baseline(scans, cfg, n_agents, True),
         "octofuse-2-t2": lambda: batched_insert(scans, cfg, n_agents, True, 2),
         "octofuse-2-t1": lambda: batched_insert(scans, cfg, n_agents, True, 1),
@@ -184,6 +228,8 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1) -> dict
     same = {
         "two_maps": all(same_maps(last["octomap-2"], last[k], True) for k in ("octofuse-2-t2", "octofuse-2-t1")),
         "one_map": all(same_maps(last["octomap-1"], last[k], False) for k in ("octofuse-1-t2", "octofuse-1-t1")),
+        "public_api": all(same_maps(last["public-octomap"], last[k], False)
+                          for k in ("public-insert_scan", "public-insert_scans-t1", "public-insert_scans-t2")),
     }
     central_leaves = last["octomap-2"][2].num_leaves
     central_ref = last["octomap-2"][2]
@@ -192,6 +238,9 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1) -> dict
                         for k, v in times.items()}
     res["same_maps"] = same
     res["central_leaves"] = central_leaves
+    if insertion_only:
+        res["process_peak_rss_mib"] = peak_rss_mib()
+        return res
 
     # 2. the whole build and its stages
     out_dir = OUT / "ingest-maps"
@@ -261,6 +310,15 @@ def print_tables(res: dict, out=sys.stdout) -> None:
       f"agent + centralized maps {'yes' if res['same_maps']['two_maps'] else 'NO'}, "
       f"agent maps only {'yes' if res['same_maps']['one_map'] else 'NO'}")
     p()
+    p(f"   one map, public API (map-frame points, each scan into its agent's map); same maps: "
+      f"{'yes' if res['same_maps'].get('public_api') else 'NO'}")
+    for name, label in (("public-octomap", "OctoMap insertPointCloud, scan by scan (baseline)"),
+                        ("public-insert_scan", "OccupancyMap.insert_scan, scan by scan"),
+                        ("public-insert_scans-t1", "OccupancyMap.insert_scans, lists of 32, 1 thread"),
+                        ("public-insert_scans-t2", "OccupancyMap.insert_scans, lists of 32, 2 threads")):
+        r = ins[name]
+        p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
+          f"{ins['public-octomap']['median_s'] / r['median_s']:8.2f}x")
     rows = [("agent + centralized map (2 insertions per scan)", "octomap-2", "octofuse-2-t2", "octofuse-2-t1"),
             ("agent map only (1 insertion per scan)", "octomap-1", "octofuse-1-t2", "octofuse-1-t1")]
     p(f"   {'method':60s} {'s':>7s} {'points/s':>10s} {'speed-up':>9s}")
@@ -273,6 +331,8 @@ def print_tables(res: dict, out=sys.stdout) -> None:
             p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
               f"{ins[b]['median_s'] / r['median_s']:8.2f}x")
     p()
+    if "build" not in res:
+        return
     b = res["build"]
     total = sum(b["stages_s"].values())
     p(f"Whole build (octofuse.maps.build.build + write_maps) of {res['bag']}: {b['end_to_end_s']:.2f} s end to end "
@@ -296,15 +356,16 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=1, help="use every N-th scan of each agent (1: all)")
     ap.add_argument("--quick", action="store_true", help="every 20th scan, 1 run (checks that it runs)")
     ap.add_argument("--json", help="also write the figures to this JSON file")
+    ap.add_argument("--insertion-only", action="store_true", help="skip the build and its stages")
     args = ap.parse_args(argv)
     if args.quick:
         args.every, args.repeats = 20, 1
-    res = run(args.bag, args.repeats, args.every)
+    res = run(args.bag, args.repeats, args.every, args.insertion_only)
     print_tables(res)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(res, indent=2))
-    return 0 if res["same_maps"]["two_maps"] and res["same_maps"]["one_map"] else 1
+    return 0 if all(res["same_maps"].values()) else 1
 
 
 if __name__ == "__main__":

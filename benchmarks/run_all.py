@@ -5,13 +5,16 @@
    values (as after earlier fusions, no repeated pairs of values).
 3. Runs benchmarks/rules_throughput.py (the per-voxel rules on numpy arrays).
 4. Prints the figures with the targets.
+4b. Runs the C++ benchmark on maps built from bags ("maps"): robot2 + robot3 of a generated
+   3D-lidar warehouse (data/generate_warehouse.py, generated and built once into
+   build/bench-data) and robot1 + robot2 of lab8, side by side with the updateNode merge.
 5. Runs benchmarks/ingest.py (scan insertion against OctoMap's insertPointCloud, and where the
    time of `octofuse build` goes) and benchmarks/network.py (a fusion run's time split in the
    demo's setting, and its growth with 4 to 32 agents on generated bags in build/bench-data).
 6. Writes every figure to build/bench/results.json.
 
     .venv/bin/python benchmarks/run_all.py [--repeats N] [--pairs N] [--quick]
-        [--parts fusion,ingest,network] [--ingest-repeats N] [--network-repeats N]
+        [--parts fusion,maps,ingest,network] [--ingest-repeats N] [--network-repeats N]
 """
 
 from __future__ import annotations
@@ -34,7 +37,10 @@ import ingest  # noqa: E402
 import network  # noqa: E402
 import rules_throughput  # noqa: E402
 
-PARTS = ("fusion", "ingest", "network")
+PARTS = ("fusion", "maps", "ingest", "network")
+DATA = ROOT / "build" / "bench-data"
+#: (name, bag or generator, maps fused: a, b) for the benchmark on maps built from bags
+MAP_SETS = (("warehouse", "warehouse4", "robot2", "robot3"), ("lab8", "lab8", "robot1", "robot2"))
 
 CLOSED_FORM = ("bhattacharyya", "min-entropy", "chernoff", "min-info-loss")
 WEIGHTED = ("entropy-weighted-chernoff", "kld-weighted-chernoff")
@@ -68,6 +74,81 @@ def run_trees(values: str, repeats: int, scale: float) -> dict:
     res = json.loads(out.read_text())
     res["stdout"] = proc.stdout
     return res
+
+
+def bag_path(name: str, quick: bool) -> Path:
+    """lab8, or the warehouse bag, generated once into build/bench-data (data/generate_warehouse.py:
+    4 robots, 16-beam 3D lidars, 20 s; 4 s with --quick)."""
+    if name == "lab8":
+        return ROOT / "data" / "lab8.bag"
+    bag = DATA / name
+    if not (bag / "metadata.yaml").exists():
+        log(f"generating {bag.relative_to(ROOT)} (data/generate_warehouse.py)")
+        extra = ["--duration", "4"] if quick else []
+        subprocess.run([sys.executable, str(ROOT / "data" / "generate_warehouse.py"), "--out", str(bag)] + extra,
+                       check=True)
+    return bag
+
+
+def bag_maps(name: str, quick: bool) -> Path:
+    """The maps of a bag, built once with `octofuse build` into build/bench-data."""
+    bag = bag_path(name, quick)
+    maps = DATA / f"{name}_maps"
+    if not (maps / "robot1.ot").exists():
+        log(f"building the maps of {bag.name} into {maps.relative_to(ROOT)} (once; minutes for the warehouse)")
+        subprocess.run([str(Path(sys.executable).parent / "octofuse"), "build", str(bag), "--out", str(maps)],
+                       check=True, stdout=subprocess.DEVNULL)
+    return maps
+
+
+def run_map_files(name: str, a: Path, b: Path, repeats: int) -> dict:
+    out = BUILD / f"fuse_maps_{name}.json"
+    log(f"running the tree benchmark on the {name} maps {a.name} + {b.name} ({repeats} runs per method)")
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(EXE), "--repeats", str(repeats), "--map-a", str(a), "--map-b", str(b),
+                           "--threads", "2", "--json", str(out)], text=True, capture_output=True)
+    if proc.returncode not in (0, 1) or not out.exists():
+        sys.stderr.write(proc.stdout + proc.stderr)
+        raise SystemExit(f"the tree benchmark failed on {name} (exit code {proc.returncode})")
+    log(f"  done in {time.perf_counter() - t0:.0f} s")
+    res = json.loads(out.read_text())
+    res["stdout"] = proc.stdout
+    res["ok"] = proc.returncode == 0
+    res["maps"] = [str(a.relative_to(ROOT)), str(b.relative_to(ROOT))]
+    return res
+
+
+def report_maps(sets: dict[str, dict]) -> str:
+    """Maps built from bags, side by side: in place and new tree (with freeing) against the merge."""
+    lines: list[str] = []
+    p = lines.append
+    names = list(sets)
+    p("Tree fusion on maps built from bags (0.05 m), against OctoMap's updateNode merge in the same run")
+    for n, r in sets.items():
+        p(f"   {n}: {r['maps'][0]} ({r['leaves_a']:,} leaves) + {r['maps'][1]} ({r['leaves_b']:,} leaves); "
+          f"{r['voxels']:,} leaf pairs; median of {r['repeats']} runs; same results as the merges and as "
+          f"fuse_maps: {'yes' if r['ok'] else 'NO'}")
+    p(f"   {'method':58s}" + "".join(f" {n + ' s':>12s} {'ratio':>7s}" for n in names))
+    p(f"   {'OctoMap merge in place (expand b + updateNode)':58s}"
+      + "".join(f" {sets[n]['merge_in_place_s']:12.3f} {1.0:7.2f}" for n in names))
+    for i, row in enumerate(sets[names[0]]["in_place"]):
+        label = f"octofuse {row['rule']} fuse_into, {row['threads']} thread(s)"
+        cells = ""
+        for n in names:
+            rr = sets[n]["in_place"][i]
+            cells += f" {rr['median_s']:12.3f} {sets[n]['merge_in_place_s'] / rr['median_s']:7.2f}"
+        p(f"   {label:58s}{cells}")
+    merge = {n: next(r["median_s"] for r in sets[n]["rows"] if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false"))
+             for n in names}
+    p(f"   {'OctoMap merge (copy a + expand b + updateNode)':58s}" + "".join(f" {merge[n]:12.3f} {1.0:7.2f}" for n in names))
+    for i, row in enumerate(sets[names[0]]["whole_cost"]):
+        cells = ""
+        for n in names:
+            rr = sets[n]["whole_cost"][i]
+            tot = rr["fuse_s"] + rr["free_s"]
+            cells += f" {rr['fuse_s']:5.2f}+{rr['free_s']:.2f} {merge[n] / tot:7.2f}"
+        p(f"   {'octofuse ' + row['rule'] + ' fuse_maps + freeing the result':58s}{cells}")
+    return "\n".join(lines)
 
 
 def fmt_rate(x: float) -> str:
@@ -156,7 +237,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=10_000_000, help="pairs for the array benchmark")
     ap.add_argument("--quick", action="store_true", help="small inputs, for a smoke test of the scripts")
     ap.add_argument("--parts", default=",".join(PARTS),
-                    help="what to run: fusion (trees + arrays), ingest, network (comma separated)")
+                    help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network "
+                         "(comma separated)")
     ap.add_argument("--ingest-repeats", type=int, default=3, help="timed runs per insertion method")
     ap.add_argument("--network-repeats", type=int, default=1, help="runs per fusion-run setting")
     ap.add_argument("--network-duration", type=float, default=60.0,
@@ -181,14 +263,32 @@ def main(argv=None) -> int:
         rules = rules_throughput.run(args.pairs, args.repeats)
         text, summary = report(trees, rules)
         print(text)
+    if "maps" in parts:
+        build()
+        sets = {}
+        for name, bag, ma, mb in MAP_SETS:
+            d = bag_maps(bag, args.quick)
+            sets[name] = run_map_files(name, d / f"{ma}.ot", d / f"{mb}.ot", args.repeats)
+        print()
+        print(report_maps(sets))
+        summary["maps"] = {k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in sets.items()}
+        ok = ok and all(v["ok"] for v in sets.values())
     if "ingest" in parts:
+        log("running the insertion benchmark on the warehouse bag (every 40th scan, insertion only)")
+        bag = bag_path("warehouse4", args.quick)
+        wres = ingest.run(bag, args.ingest_repeats, 40 if not args.quick else 100, insertion_only=True)
+        print()
+        print("4a. Scan insertion on the warehouse (16-beam 3D lidar, 12 m)")
+        ingest.print_tables(wres)
+        summary["ingest_warehouse"] = wres
+        ok = ok and all(wres["same_maps"].values())
         log("running the insertion and build benchmark (benchmarks/ingest.py)")
         res = ingest.run(ingest.DEFAULT_BAG, args.ingest_repeats, ingest_every)
         print()
         print("4. Scan insertion and the whole build")
         ingest.print_tables(res)
         summary["ingest"] = res
-        ok = ok and res["same_maps"]["two_maps"] and res["same_maps"]["one_map"]
+        ok = ok and all(res["same_maps"].values())
     if "network" in parts:
         log("running the fusion-run benchmark (benchmarks/network.py)")
         res = network.run(robots, args.network_duration, args.network_repeats, demo_rules, demo_every)

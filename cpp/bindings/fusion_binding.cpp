@@ -3,15 +3,22 @@
 
 #include "octofuse/fuse.hpp"
 #include "octofuse/fuse_into.hpp"
+#include "octofuse/insert.hpp"
 
 #include <cmath>
+#include <string>
 
 namespace octofuse::bindings {
 
 void define_fusion(py::module_& m) {
   m.def(
       "_fuse_into",
-      [](OccupancyMap& dst, const OccupancyMap& msg, Rule rule, UnknownPolicy unknown, ScalarTree* loss) {
+      [](OccupancyMap& dst, const OccupancyMap& msg, Rule rule, UnknownPolicy unknown, ScalarTree* loss,
+         int threads) {
+        if (threads < 1 || threads > static_cast<int>(kMaxThreads)) {
+          throw py::value_error("threads = " + std::to_string(threads) + ": expected 1 to " +
+                                std::to_string(kMaxThreads));
+        }
         check_enum(rule);
         check_enum(unknown);
         if (&dst == &msg) throw py::value_error("cannot fuse a map into itself in place");
@@ -23,11 +30,12 @@ void define_fusion(py::module_& m) {
         FuseIntoStats st;
         {
           py::gil_scoped_release release;
-          st = fuse_into(dst, msg, rule, unknown, loss);
+          st = fuse_into(dst, msg, rule, unknown, loss, static_cast<unsigned>(threads));
         }
         return py::make_tuple(st.fused, st.copied);
       },
-      py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"), py::arg("loss").none(true));
+      py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"), py::arg("loss").none(true),
+      py::arg("threads") = 1);
 
   m.def(
       "_fuse_mutual",

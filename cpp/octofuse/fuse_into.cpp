@@ -1,11 +1,16 @@
 // octofuse: in-place fusion by a walk of the message tree down the destination tree.
 #include "octofuse/fuse_into.hpp"
 
+#include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/loss_tree.hpp"
 #include "octofuse/walk.hpp"
 
+#include <atomic>
+#include <deque>
 #include <memory>
+#include <mutex>
 #include <type_traits>
+#include <vector>
 
 namespace octofuse {
 
@@ -16,7 +21,9 @@ using MsgNode = detail::WalkNode<octomap::OcTree>;
 using ScalarWalk = detail::WalkNode<ScalarTree>;
 using detail::LossCursor;
 
-/// Fuses a message into dst in place; the per-voxel policy is fixed at compile time.
+/// Fuses a message into dst in place; the per-voxel policy is fixed at compile time. `dst` is
+/// the tree whose node operations are called: the destination itself, or in a parallel walk a
+/// worker's scratch tree (which then counts the nodes the worker created and deleted).
 template <class Fusion>
 struct IntoWalker {
   static constexpr bool kPrior = Fusion::kUnknown == UnknownPolicy::Prior;
@@ -24,7 +31,6 @@ struct IntoWalker {
   octomap::OcTree& dst;
   detail::LossAdder loss;
   FuseIntoStats st;
-
   void finish_occ(OcNode* n) {
     if (dst.nodeHasChildren(n) && !dst.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
   }
@@ -107,6 +113,131 @@ struct IntoWalker {
   }
 };
 
+/// fuse_into on several threads: the top of both trees is walked serially, breadth first,
+/// until it has split into enough independent subtree pairs (disjoint regions of space); those
+/// are fused in parallel, each by its own walker with its own VoxelFusion and scratch trees;
+/// then the top nodes are finished serially, children before parents. Every voxel gets what
+/// the serial walk gives it and every node ends as the serial walk leaves it.
+template <class Fusion>
+struct ParallelInto {
+  static constexpr bool kPrior = Fusion::kUnknown == UnknownPolicy::Prior;
+  enum class Kind { Walk, MsgOnly, PriorOnly };
+  struct Part {
+    Kind kind;
+    OcNode* d;
+    MsgNode m;
+    const LossCursor* lc;
+  };
+
+  octomap::OcTree& dst;
+  ScalarTree* loss_tree;
+  float clamp_min, clamp_max;
+  unsigned threads;
+
+  std::deque<LossCursor> cursors;  // stable addresses: cursors point to their parents
+  std::vector<Part> frames;        // top nodes split serially, to finish afterwards
+
+  const LossCursor* keep(LossCursor c) {
+    c.shared = true;
+    cursors.push_back(c);
+    return &cursors.back();
+  }
+
+  FuseIntoStats run(const octomap::OcTree& msg) {
+    detail::LossAdder top(loss_tree);
+    std::vector<Part> level{{Kind::Walk, dst.getRoot(), MsgNode::root(msg), keep(top.root())}};
+    const std::size_t target = 16 * std::size_t{threads};
+    for (unsigned depth = 0; depth < 14 && level.size() < target; ++depth) {
+      std::vector<Part> next;
+      bool split = false;
+      for (const Part& t : level) {
+        const bool d_leaf = !dst.nodeHasChildren(t.d);
+        if (t.kind != Kind::Walk || (d_leaf && t.m.leaf)) {
+          next.push_back(t);
+          continue;
+        }
+        split = true;
+        frames.push_back(t);
+        if (d_leaf) dst.expandNode(t.d);
+        for (unsigned i = 0; i < 8; ++i) {
+          const MsgNode mc = t.m.child(i);
+          if (!dst.nodeChildExists(t.d, i)) {
+            if (mc.present())
+              next.push_back({Kind::MsgOnly, dst.createNodeChild(t.d, i), mc,
+                              keep(kPrior ? top.child(*t.lc, i) : LossCursor{})});
+            continue;
+          }
+          OcNode* dc = dst.getNodeChild(t.d, i);
+          if (mc.present()) {
+            next.push_back({Kind::Walk, dc, mc, keep(top.child(*t.lc, i))});
+          } else if constexpr (kPrior) {
+            next.push_back({Kind::PriorOnly, dc, mc, keep(top.child(*t.lc, i))});
+          }
+        }
+      }
+      level.swap(next);
+      if (!split) break;
+    }
+
+    // the subtrees, in parallel: each worker has its own scratch trees (OctoMap's tree objects
+    // count nodes and own a ray buffer, so they are made once per worker) and VoxelFusion. The
+    // workers are threads of their own and the caller waits: nodes are then allocated from the
+    // workers' malloc arenas, while the nodes they prune go back to the caller's arena (with the
+    // caller allocating too, the two contend for that arena's lock and 2 threads were slower
+    // than one)
+    std::mutex loss_lock;
+    std::atomic<std::size_t> next{0};
+    std::vector<FuseIntoStats> stats(threads);
+    std::vector<std::size_t> sizes(threads, 0), loss_sizes(threads, 0);
+    const double res = dst.getResolution();
+    detail::run_on_workers(threads, [&](std::size_t worker) {
+      octomap::OcTree scratch(res);
+      std::unique_ptr<ScalarTree> scratch_loss;
+      if (loss_tree != nullptr) scratch_loss = std::make_unique<ScalarTree>(res);
+      Fusion fusion(clamp_min, clamp_max);
+      IntoWalker<Fusion> w{fusion, scratch, detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}};
+      struct Settle {  // the scratch trees' counts go to the real trees, also on an exception
+        std::size_t &n, &nl;
+        octomap::OcTree& t;
+        ScalarTree* l;
+        ~Settle() {
+          n = detail::TreeAccess<octomap::OcTree>::size_of(t);
+          detail::TreeAccess<octomap::OcTree>::size_of(t) = 0;  // its nodes are not its own
+          if (l != nullptr) {
+            nl = detail::TreeAccess<ScalarTree>::size_of(*l);
+            detail::TreeAccess<ScalarTree>::size_of(*l) = 0;
+          }
+        }
+      } settle{sizes[worker], loss_sizes[worker], scratch, scratch_loss.get()};
+      for (std::size_t k = next++; k < level.size(); k = next++) {
+        const Part& t = level[k];
+        switch (t.kind) {
+          case Kind::Walk: w.walk(t.d, t.m, *t.lc); break;
+          case Kind::MsgOnly: w.msg_only(t.m, t.d, *t.lc); break;
+          case Kind::PriorOnly: w.prior_only(t.d, *t.lc); break;
+        }
+      }
+      stats[worker] = w.st;
+    });
+
+    FuseIntoStats st;
+    for (std::size_t k = 0; k < threads; ++k) {
+      st.fused += stats[k].fused;
+      st.copied += stats[k].copied;
+      detail::TreeAccess<octomap::OcTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
+      if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
+    }
+    Fusion unused(clamp_min, clamp_max);
+    IntoWalker<Fusion> fin{unused, dst, detail::LossAdder(loss_tree), {}};
+    for (auto it = frames.rbegin(); it != frames.rend(); ++it) {
+      fin.finish_occ(it->d);
+      fin.loss.finish(*it->lc);
+    }
+    fin.loss.done();
+    return st;
+  }
+};
+
 // Both maps fused with each other at once, in place: a bidirectional simultaneous exchange.
 template <class Fusion>
 struct MutualWalker {
@@ -171,13 +302,21 @@ void add_tree(detail::LossAdder& adder, const ScalarWalk& b, const LossCursor& c
 }  // namespace
 
 FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
-                        UnknownPolicy unknown, ScalarTree* loss) {
+                        UnknownPolicy unknown, ScalarTree* loss, unsigned threads) {
   check_compatible(dst, msg);
   FuseIntoStats st;
+  const bool parallel = threads > 1 && dst.tree().getRoot() != nullptr &&
+                        msg.tree().getRoot() != nullptr;
   with_voxel_fusion(rule, unknown, dst.clamp_min_logodds(), dst.clamp_max_logodds(),
                     [&](auto& fusion) {
-                      IntoWalker<std::decay_t<decltype(fusion)>> w{fusion, dst.tree(),
-                                                                    detail::LossAdder(loss), {}};
+                      using Fusion = std::decay_t<decltype(fusion)>;
+                      if (parallel) {
+                        st = ParallelInto<Fusion>{dst.tree(), loss, dst.clamp_min_logodds(),
+                                                  dst.clamp_max_logodds(), threads, {}, {}}
+                                 .run(msg.tree());
+                        return;
+                      }
+                      IntoWalker<Fusion> w{fusion, dst.tree(), detail::LossAdder(loss), {}};
                       w.run(msg.tree());
                       st = w.st;
                     });

@@ -17,9 +17,11 @@ struct FuseIntoStats {
 /// fuse_maps(dst, msg, rule, unknown) (dst is "a"), but with work proportional to the
 /// message where the policy allows it: with UnknownPolicy::Copy, voxels only `dst` knows are
 /// not visited. The information loss of every fused voxel is added into `loss` (in place;
-/// may be null). Requires compatible maps (check_compatible()).
+/// may be null). Requires compatible maps (check_compatible()). With `threads` > 1, disjoint
+/// subtrees are fused on up to that many threads (the caller's included), with the same
+/// result as on one; an exception on a worker reaches the caller.
 FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
-                        UnknownPolicy unknown, ScalarTree* loss);
+                        UnknownPolicy unknown, ScalarTree* loss, unsigned threads = 1);
 
 /// A simultaneous bidirectional exchange: fuses b into a and a into b at once, in place,
 /// each with its own map as "a" of the rule; equal to fuse_into(a, b_before) and

@@ -176,6 +176,13 @@ void apply_items(octomap::OcTree& tree, const std::vector<std::uint64_t>& items)
 }
 
 template <class Real>
+std::vector<float> as_float(const Real* xyz, std::size_t n) {
+  std::vector<float> out(3 * n);
+  for (std::size_t i = 0; i < 3 * n; ++i) out[i] = static_cast<float>(xyz[i]);
+  return out;
+}
+
+template <class Real>
 std::vector<float> to_map_frame(const Real* xyz, std::size_t n, const double pose[16]) {
   const Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> T(pose);
   const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
@@ -208,8 +215,10 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
     const ScanInput& s = scans[i];
     if (s.targets.empty()) return;
     const std::vector<float> pts =
-        s.is_double ? to_map_frame(static_cast<const double*>(s.xyz), s.n, s.pose)
-                    : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
+        s.map_frame ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
+                                   : as_float(static_cast<const float*>(s.xyz), s.n))
+        : s.is_double ? to_map_frame(static_cast<const double*>(s.xyz), s.n, s.pose)
+                      : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
     updates[i] = compute_items(s.targets.front()->tree(), pts.data(), s.n, origin, s.max_range,
@@ -240,5 +249,19 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
       for (std::size_t i : per_map[m]) apply_items(m->tree(), updates[i]);
   });
 }
+
+template <class Real>
+void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
+                         const double origin[3], double max_range) {
+  const std::vector<float> pts = as_float(xyz, n);
+  const float o[3] = {static_cast<float>(origin[0]), static_cast<float>(origin[1]),
+                      static_cast<float>(origin[2])};
+  apply_items(map.tree(), compute_items(map.tree(), pts.data(), n, o, max_range, ""));
+}
+
+template void insert_scan_batched<float>(OccupancyMap&, const float*, std::size_t, const double*,
+                                         double);
+template void insert_scan_batched<double>(OccupancyMap&, const double*, std::size_t,
+                                          const double*, double);
 
 }  // namespace octofuse

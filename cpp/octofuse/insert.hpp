@@ -20,6 +20,9 @@ struct ScanInput {
   double pose[16];            ///< row-major 4x4 sensor-to-map transform
   double max_range = -1.0;
   std::vector<OccupancyMap*> targets;  ///< maps this scan updates (all of equal resolution)
+  /// true: the points are in the map frame and only the translation of `pose` is used (the
+  /// sensor origin), as OccupancyMap::insert_scan() takes a scan
+  bool map_frame = false;
 };
 
 /// Most threads insert_batch() takes.
@@ -36,5 +39,12 @@ unsigned default_threads();
 /// 1..kMaxThreads. An exception of a worker thread (std::bad_alloc included) is rethrown on
 /// the calling thread; if it happens while maps are updated, they may hold part of the batch.
 void insert_batch(const std::vector<ScanInput>& scans, unsigned threads);
+
+/// One scan in the map frame into one map by the depth-first batch path of insert_batch():
+/// the same map as OccupancyMap::insert_scan() (OctoMap's insertPointCloud), with the same
+/// checks and messages (std::invalid_argument naming the point row; no change then).
+template <class Real>
+void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
+                         const double origin[3], double max_range);
 
 }  // namespace octofuse

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <mutex>
 
 namespace octofuse::detail {
 
@@ -20,14 +21,21 @@ struct LossCursor {
   const LossCursor* parent = nullptr;
   unsigned idx = 0;
   bool active = false;
+  bool shared = false;  ///< visited by the serial top of a parallel walk (see LossAdder)
 };
 
 /// Adds values into a ScalarTree while walking down it.
+///
+/// In a parallel walk each worker has its own adder: node operations go through `ops`, a
+/// scratch tree of the worker that counts the nodes it creates and deletes (OctoMap keeps the
+/// count in the tree object; the caller adds the workers' counts to `tree` afterwards), and
+/// nodes under the cursors of the serial top of the walk (`shared`) are created under `lock`.
 class LossAdder {
  public:
   using Node = octomap::OcTreeDataNode<float>;
 
-  explicit LossAdder(ScalarTree* tree) : t_(tree) {}
+  explicit LossAdder(ScalarTree* tree, ScalarTree* ops = nullptr, std::mutex* lock = nullptr)
+      : t_(tree), ops_(ops != nullptr ? ops : tree), lock_(lock) {}
 
   /// The root cursor (inactive if there is no tree).
   LossCursor root() const {
@@ -43,13 +51,13 @@ class LossAdder {
     if (!c.active) return k;
     k.active = true;
     if (c.node != nullptr) {
-      if (!c.fresh && !t_->nodeHasChildren(c.node)) {
-        t_->expandNode(c.node);  // a coarse leaf: its children inherit its value
-        k.node = t_->getNodeChild(c.node, i);
+      if (!c.fresh && !ops_->nodeHasChildren(c.node)) {
+        ops_->expandNode(c.node);  // a coarse leaf: its children inherit its value
+        k.node = ops_->getNodeChild(c.node, i);
         return k;
       }
-      if (t_->nodeChildExists(c.node, i)) {
-        k.node = t_->getNodeChild(c.node, i);
+      if (ops_->nodeChildExists(c.node, i)) {
+        k.node = ops_->getNodeChild(c.node, i);
         k.fresh = c.fresh;
         return k;
       }
@@ -63,7 +71,7 @@ class LossAdder {
   void add(const LossCursor& c, float v) {
     if (!c.active) return;
     materialize(c);
-    if (c.fresh || !t_->nodeHasChildren(c.node)) {
+    if (c.fresh || !ops_->nodeHasChildren(c.node)) {
       c.node->setValue(c.node->getValue() + v);
       return;
     }
@@ -72,11 +80,11 @@ class LossAdder {
 
   /// After the children of a cursor were visited: prune, or hold the max of the children.
   void finish(const LossCursor& c) {
-    if (c.node == nullptr || !t_->nodeHasChildren(c.node)) return;
-    if (t_->pruneNode(c.node)) return;
+    if (c.node == nullptr || !ops_->nodeHasChildren(c.node)) return;
+    if (ops_->pruneNode(c.node)) return;
     float mx = -std::numeric_limits<float>::infinity();
     for (unsigned i = 0; i < 8; ++i)
-      if (t_->nodeChildExists(c.node, i)) mx = std::max(mx, t_->getNodeChild(c.node, i)->getValue());
+      if (ops_->nodeChildExists(c.node, i)) mx = std::max(mx, ops_->getNodeChild(c.node, i)->getValue());
     c.node->setValue(mx);
   }
 
@@ -88,37 +96,54 @@ class LossAdder {
  private:
   void materialize(const LossCursor& c) {
     if (c.node != nullptr) return;
+    if (lock_ != nullptr && (c.shared || (c.parent != nullptr && c.parent->shared))) {
+      const std::lock_guard<std::mutex> guard(*lock_);  // a node under the shared top
+      materialize_here(c, true);
+      return;
+    }
+    materialize_here(c, false);
+  }
+
+  // `held`: the caller holds the lock (then every ancestor is materialized under it too).
+  void materialize_here(const LossCursor& c, bool held) {
+    if (c.node != nullptr) return;
     if (c.parent == nullptr) {  // the root of an empty tree
       c.node = TreeAccess<ScalarTree>::ensure_root(*t_);
       c.node->setValue(0.0f);
       c.fresh = true;
       return;
     }
-    materialize(*c.parent);
+    if (held) {
+      materialize_here(*c.parent, true);
+    } else {
+      materialize(*c.parent);
+    }
     Node* p = c.parent->node;
-    if (t_->nodeChildExists(p, c.idx)) {
-      c.node = t_->getNodeChild(p, c.idx);
+    if (ops_->nodeChildExists(p, c.idx)) {
+      c.node = ops_->getNodeChild(p, c.idx);
       c.fresh = c.parent->fresh;
     } else {
-      c.node = t_->createNodeChild(p, c.idx);
+      c.node = ops_->createNodeChild(p, c.idx);
       c.node->setValue(0.0f);
       c.fresh = true;
     }
   }
 
   void add_all(Node* n, float v) {
-    if (!t_->nodeHasChildren(n)) {
+    if (!ops_->nodeHasChildren(n)) {
       n->setValue(n->getValue() + v);
       return;
     }
     for (unsigned i = 0; i < 8; ++i)
-      if (t_->nodeChildExists(n, i)) add_all(t_->getNodeChild(n, i), v);
+      if (ops_->nodeChildExists(n, i)) add_all(ops_->getNodeChild(n, i), v);
     LossCursor c;
     c.node = n;
     finish(c);
   }
 
   ScalarTree* t_;
+  ScalarTree* ops_;
+  std::mutex* lock_;
 };
 
 }  // namespace octofuse::detail

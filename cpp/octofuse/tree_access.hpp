@@ -23,6 +23,10 @@ struct TreeAccess : Tree {
     return root;
   }
 
+  /// The node count `t` keeps (OctoMap counts nodes in the tree object whose methods created
+  /// or deleted them: a walk that used a scratch tree's methods adds that tree's count here).
+  static std::size_t& size_of(Tree& t) { return t.*(&TreeAccess::tree_size); }
+
   /// Marks the metric bounding box as stale after nodes were added or removed directly.
   static void mark_changed(Tree& t) { t.*(&TreeAccess::size_changed) = true; }
 };

@@ -49,4 +49,34 @@ void parallel_for(std::size_t n, unsigned threads, F f) {
   if (error) std::rethrow_exception(error);
 }
 
+/// Runs f(i) for i in [0, workers), each on a thread of its own, while the calling thread waits:
+/// for work that allocates, so that the allocations come from the workers' own malloc arenas and
+/// do not contend with the caller's. An index whose thread the system refuses runs on the
+/// caller after the others started. Exceptions as in parallel_for: the first one is rethrown
+/// on the calling thread once every thread has ended.
+template <class F>
+void run_on_workers(std::size_t workers, F f) {
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto work = [&](std::size_t i) noexcept {
+    try {
+      f(i);
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+    }
+  };
+  std::vector<std::thread> pool;
+  std::size_t started = 0;
+  try {
+    pool.reserve(workers);
+    for (; started < workers; ++started) pool.emplace_back(work, started);
+  } catch (...) {
+    // fewer threads than asked: the caller runs the rest
+  }
+  for (std::size_t i = started; i < workers; ++i) work(i);
+  for (auto& th : pool) th.join();
+  if (error) std::rethrow_exception(error);
+}
+
 }  // namespace octofuse::detail

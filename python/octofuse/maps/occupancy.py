@@ -71,11 +71,7 @@ class OccupancyMap:
         """
         pts = _points(points)
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
-        fast = getattr(_core, "_insert_scan_batched", None)
-        if fast is None:  # a core built before the batch path took single scans
-            self._m.insert_scan(pts, o, float(max_range), False)
-        else:
-            fast(self._m, pts, o, float(max_range))
+        _core._insert_scan_batched(self._m, pts, o, float(max_range))
 
     def insert_scans(self, scans, max_range: float = -1.0, threads: int | None = None) -> None:
         """Insert several scans in order, as :meth:`insert_scan` (or
@@ -150,44 +146,15 @@ class OccupancyMap:
         return cls._wrap(_core._OccupancyMap.load(_existing_file(path)))
 
     def to_bytes(self, fmt: str = "ot") -> bytes:
-        """The map as an OctoMap stream: exactly the bytes of :meth:`save` to a ``.ot`` file
-        (full log-odds; ``fmt="bt"``: the maximum-likelihood binary stream). This is what a
-        robot sends; :meth:`from_bytes` reads it back."""
-        if fmt not in ("ot", "bt"):
-            raise ValueError(f"fmt must be 'ot' or 'bt', got {fmt!r}")
-        to_stream = getattr(_core, "_map_to_stream", None)
-        if to_stream is not None:  # the core writes streams in memory
-            return to_stream(self._m, fmt == "bt")
-        with _ram_file(fmt) as p:
-            self._m.save(p)
-            with open(p, "rb") as f:
-                return f.read()
-
-    @classmethod
-    def from_bytes(cls, data: bytes | bytearray | memoryview) -> "OccupancyMap":
-        """A map from an OctoMap ``.ot`` or ``.bt`` stream (validated like :meth:`load`:
-        :class:`MapFileError` for a truncated, corrupt or foreign stream)."""
-        buf = bytes(data)
-        from_stream = getattr(_core, "_map_from_stream", None)
-        if from_stream is not None:
-            return cls._wrap(from_stream(buf, "stream"))
-        fmt = "bt" if buf.startswith(b"# Octomap OcTree binary file") else "ot"
-        with _ram_file(fmt) as p:
-            with open(p, "wb") as f:
-                f.write(buf)
-            try:
-                return cls._wrap(_core._OccupancyMap.load(p))
-            except MapFileError as e:
-                raise MapFileError(str(e).replace(f"'{p}'", "stream")) from None
-
-    def to_stream(self, fmt: str = "ot") -> bytes:
-        """The OctoMap stream of :meth:`to_bytes`, built in memory by the C++ core (no file)."""
+        """The map as an OctoMap stream, built in memory: exactly the bytes :meth:`save` writes
+        to a ``.ot`` file (full log-odds; ``fmt="bt"``: the maximum-likelihood binary stream).
+        This is what a robot sends; :meth:`from_bytes` reads it back."""
         if fmt not in ("ot", "bt"):
             raise ValueError(f"fmt must be 'ot' or 'bt', got {fmt!r}")
         return _core._map_to_stream(self._m, fmt == "bt")
 
     @classmethod
-    def from_stream(cls, data: bytes | bytearray | memoryview, name: str = "stream") -> "OccupancyMap":
+    def from_bytes(cls, data: bytes | bytearray | memoryview, name: str = "stream") -> "OccupancyMap":
         """A map from an OctoMap ``.ot`` or ``.bt`` stream held in memory, checked like
         :meth:`load` (:class:`MapFileError` naming ``name`` for a truncated or corrupt one)."""
         return cls._wrap(_core._map_from_stream(bytes(data), str(name)))
@@ -414,25 +381,3 @@ def _points(points) -> np.ndarray:
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
     return np.ascontiguousarray(pts)
-
-
-_RAM_DIR = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
-
-
-class _ram_file:
-    """A fresh temporary file name in a RAM directory (``/dev/shm`` where there is one), removed
-    on exit: streams go through files with a map core that reads and writes only files."""
-
-    def __init__(self, suffix: str):
-        self.suffix = suffix
-
-    def __enter__(self) -> str:
-        import tempfile
-
-        self.dir = tempfile.mkdtemp(prefix="octofuse-", dir=_RAM_DIR)
-        return os.path.join(self.dir, f"map.{self.suffix}")
-
-    def __exit__(self, *exc) -> None:
-        import shutil
-
-        shutil.rmtree(self.dir, ignore_errors=True)

@@ -1,0 +1,171 @@
+"""The fast paths against the plain OctoMap operations they replace, bit for bit.
+
+* ``OccupancyMap.insert_scan`` / ``insert_scans`` (depth-first batch update) against OctoMap's
+  ``insertPointCloud`` scan by scan (the core's plain insertion);
+* ``fuse_into`` on several threads against ``fuse_into`` on one (and against ``fuse_maps``).
+
+On random scans and maps and on scans of the generated warehouse (16-beam 3D lidar).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from octofuse import _core
+from octofuse.maps.occupancy import OccupancyMap, fuse_into, fuse_maps
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _leaves(m: OccupancyMap):
+    lv = m.leaves()
+    order = np.lexsort((lv.depths, lv.centers[:, 2], lv.centers[:, 1], lv.centers[:, 0]))
+    return lv.centers[order], lv.depths[order], lv.values[order]
+
+
+def assert_same_map(a: OccupancyMap, b: OccupancyMap) -> None:
+    ca, da, va = _leaves(a)
+    cb, db, vb = _leaves(b)
+    assert ca.shape == cb.shape
+    np.testing.assert_array_equal(ca, cb)
+    np.testing.assert_array_equal(da, db)
+    np.testing.assert_array_equal(va.view(np.uint32), vb.view(np.uint32))  # bits, not values
+    assert a.num_nodes == b.num_nodes
+
+
+def plain_insert(m: OccupancyMap, points, origin, max_range=-1.0) -> None:
+    """OctoMap's insertPointCloud through the core's plain path."""
+    pts = np.ascontiguousarray(points)
+    m._m.insert_scan(pts, np.asarray(origin, dtype=np.float64).reshape(-1), float(max_range), False)
+
+
+def random_scans(seed: int, n_scans: int, dtype=np.float64):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_scans):
+        origin = rng.uniform(-1.0, 1.0, 3)
+        d = rng.normal(size=(300, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        r = rng.uniform(0.2, 3.0, (300, 1))
+        out.append(((origin + d * r).astype(dtype), origin))
+    return out
+
+
+def warehouse_scans(n_scans: int = 6, az_step: float = 2.0):
+    """Map-frame scans of the generated warehouse (the generator's own ray casting)."""
+    spec = importlib.util.spec_from_file_location("generate_warehouse", ROOT / "data" / "generate_warehouse.py")
+    gw = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gw)
+    rng = np.random.default_rng(3)
+    scene = gw.Scene(gw.build_scene(rng))
+    n_az = int(round(360.0 / az_step))
+    az = np.deg2rad(np.arange(n_az) * az_step)
+    el = np.deg2rad(np.linspace(-15, 15, 16))
+    d = np.stack([np.outer(np.cos(el), np.cos(az)), np.outer(np.cos(el), np.sin(az)),
+                  np.outer(np.sin(el), np.ones_like(az))], axis=-1).reshape(-1, 3)
+    out = []
+    for k in range(n_scans):
+        origin = np.array([3.0 + 1.3 * k, 6.0, 0.6])
+        r = scene.raycast(origin, d)
+        keep = np.isfinite(r) & (r < 12.0)
+        out.append((origin + d[keep] * r[keep, None], origin))
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("max_range", [-1.0, 1.5])
+def test_insert_scan_equals_insert_point_cloud(dtype, max_range):
+    fast, plain = OccupancyMap(0.1), OccupancyMap(0.1)
+    for pts, origin in random_scans(11, 12, dtype):
+        fast.insert_scan(pts, origin, max_range)
+        plain_insert(plain, pts, origin, max_range)
+    assert_same_map(fast, plain)
+
+
+def test_insert_scan_equals_insert_point_cloud_on_warehouse_scans():
+    fast, plain = OccupancyMap(0.05), OccupancyMap(0.05)
+    for pts, origin in warehouse_scans():
+        fast.insert_scan(pts, origin)
+        plain_insert(plain, pts, origin)
+    assert_same_map(fast, plain)
+    assert fast.num_leaves > 10_000
+
+
+def test_insert_scans_equals_scan_by_scan():
+    scans = random_scans(5, 10)
+    rng = np.random.default_rng(9)
+    mixed = []
+    for k, (pts, origin) in enumerate(scans):
+        if k % 2:  # sensor frame with a pose
+            a = rng.uniform(-np.pi, np.pi)
+            T = np.eye(4)
+            T[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+            T[:3, 3] = origin
+            mixed.append(((pts - origin) @ T[:3, :3], T))
+        else:
+            mixed.append((pts, origin))
+    for threads in (1, 2):
+        batch, plain = OccupancyMap(0.1), OccupancyMap(0.1)
+        batch.insert_scans(mixed, max_range=2.0, threads=threads)
+        for pts, where in mixed:
+            if np.shape(where) == (4, 4):
+                plain._m.insert_scan(np.ascontiguousarray(pts), np.ascontiguousarray(where), 2.0, True)
+            else:
+                plain_insert(plain, pts, where, 2.0)
+        assert_same_map(batch, plain)
+
+
+def test_insert_errors_name_the_row_and_leave_the_map():
+    m = OccupancyMap(0.1)
+    with pytest.raises(ValueError, match="non-finite coordinate at row 1"):
+        m.insert_scan(np.array([[1.0, 0, 0], [np.nan, 0, 0]]), (0, 0, 0))
+    with pytest.raises(ValueError, match="scan 1"):
+        m.insert_scans([(np.ones((2, 3)), (0, 0, 0)), (np.array([[np.inf, 0, 0]]), (0, 0, 0))])
+    with pytest.raises(ValueError, match="origin"):
+        m.insert_scans([(np.ones((2, 3)), (0, 0))])
+    assert m.num_leaves == 0
+    m.insert_scans([])
+    assert m.num_leaves == 0
+
+
+def random_map(seed: int, offset: float) -> OccupancyMap:
+    m = OccupancyMap(0.1)
+    for pts, origin in random_scans(seed, 8):
+        m.insert_scan(pts + offset, origin + offset)
+    return m
+
+
+@pytest.mark.parametrize("rule", ["naive-bayes", "min-info-loss", "chernoff", "entropy-weighted-chernoff"])
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+def test_parallel_fuse_into_equals_one_thread(rule, unknown):
+    for a0, b0 in ((random_map(1, 0.0), random_map(2, 0.4)), (random_map(3, 40.0), random_map(4, 40.7))):
+        one, two = OccupancyMap.from_bytes(a0.to_bytes()), OccupancyMap.from_bytes(a0.to_bytes())
+        l1, l2 = _core._ScalarTree(0.1), _core._ScalarTree(0.1)
+        f1 = _core._fuse_into(one._m, b0._m, _rule(rule), _unknown(unknown), l1, threads=1)
+        f2 = _core._fuse_into(two._m, b0._m, _rule(rule), _unknown(unknown), l2, threads=2)
+        assert f1 == f2
+        assert_same_map(one, two)
+        assert_same_map(one, fuse_maps(a0, b0, rule, unknown).map)
+        np.testing.assert_array_equal(l1.leaves()["values"], l2.leaves()["values"])
+        np.testing.assert_array_equal(l1.leaves()["centers"], l2.leaves()["centers"])
+
+
+def _rule(name):
+    from octofuse.rules import parse_rule
+    return parse_rule(name)
+
+
+def _unknown(name):
+    from octofuse.rules import parse_unknown
+    return parse_unknown(name)
+
+
+def test_fuse_into_rejects_bad_thread_counts():
+    a, b = random_map(1, 0.0), random_map(2, 0.0)
+    with pytest.raises(ValueError, match="threads"):
+        _core._fuse_into(a._m, b._m, _rule("naive-bayes"), _unknown("copy"), None, threads=0)
+    fuse_into(a, b, "naive-bayes")  # the public call is unchanged
