@@ -661,3 +661,9 @@ def voxel_keys(m) -> tuple[np.ndarray, np.ndarray]:
     packed = (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
     order = np.argsort(packed)
     return packed[order], v.astype(np.float64)[order]
+
+
+def team_bag(folder, n_robots: int, scans_per_robot: int, name: str = "team"):
+    """An MCAP bag of ``n_robots`` robots of :func:`team` with ``scans_per_robot`` scans each."""
+    robots = team(n_robots)
+    return robot_recording(robots, team_times(robots, scans_per_robot)).write(folder / name, "mcap")

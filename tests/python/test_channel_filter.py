@@ -63,9 +63,7 @@ def empty_open(res: float = RES) -> OccupancyMap:
 
 @pytest.fixture(scope="module")
 def team_bag(tmp_path_factory):
-    robots = bf.team(4)
-    rec = bf.robot_recording(robots, bf.team_times(robots, 5))
-    return rec.write(tmp_path_factory.mktemp("team") / "team", "mcap")
+    return bf.team_bag(tmp_path_factory.mktemp("team"), 4, 5)
 
 
 @pytest.fixture(scope="module")

@@ -25,9 +25,7 @@ RES = "0.2"
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory):
     """Two robots, four scans each (a few seconds of work at most)."""
-    robots = bf.team(2)
-    rec = bf.robot_recording(robots, bf.team_times(robots, 4))
-    return rec.write(tmp_path_factory.mktemp("bag") / "pair", "mcap")
+    return bf.team_bag(tmp_path_factory.mktemp("bag"), 2, 4, name="pair")
 
 
 @pytest.fixture(scope="module")

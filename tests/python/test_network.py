@@ -152,9 +152,7 @@ PERIOD = "periodic:0.33"
 
 @pytest.fixture(scope="module")
 def team_bag(tmp_path_factory):
-    robots = bf.team(4)
-    rec = bf.robot_recording(robots, bf.team_times(robots, 4))
-    return rec.write(tmp_path_factory.mktemp("team") / "team", "mcap")
+    return bf.team_bag(tmp_path_factory.mktemp("team"), 4, 4)
 
 
 def run_config(bag, resolution=RES):
