@@ -115,13 +115,15 @@ def _given(**values) -> dict:
     return {k: v for k, v in values.items() if v is not None and v != () and v != []}
 
 
-def run_config(p: dict, *, bags=None) -> RunConfig:
-    """The configuration of a command: defaults, then ``--config``, then the flags in ``p``."""
+def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunConfig:
+    """The configuration of a command: the configuration's defaults, then the command's own
+    ``defaults`` (e.g. bench's every rule), then ``--config``, then the flags in ``p``."""
     from .config import from_dict, merge, read_yaml
 
     data = read_yaml(p["config"]) if p.get("config") else {}
     if data:  # the file's own errors name the file and the key
         from_dict(RunConfig, data, where=str(p["config"]))
+    data = merge(defaults or {}, data)
     build = _given(fixed_frame=p.get("fixed_frame"), max_range=p.get("max_range"),
                    no_return=p.get("no_return"), scan_stride=p.get("every"),
                    threads=p.get("threads"))
@@ -162,16 +164,6 @@ def _agent_poses(data: dict, p: dict) -> None:
         except ValueError:
             raise click.BadParameter(f"--sensor-offset {name}: expected 7 numbers "
                                      "x,y,z,qx,qy,qz,qw") from None
-
-
-def _config_sets(p: dict, section: str, key: str) -> bool:
-    """Whether the ``--config`` file sets ``section.key`` (a command's own default yields to it)."""
-    from .config import read_yaml
-
-    if not p.get("config"):
-        return False
-    part = read_yaml(p["config"]).get(section)
-    return isinstance(part, dict) and key in part
 
 
 def _dump(cfg) -> None:
@@ -326,10 +318,10 @@ def bundled_dataset() -> Path:
 def demo(**p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
-    p = {**p, "rule": p["rule"] or ("all", "channel-filter"), "topology": "max-robust:3",
-         "schedule": "aperiodic:20",
-         "samples": 8, "export_agents": "first"}
-    cfg = run_config(p, bags=[bag])
+    cfg = run_config(p, bags=[bag], defaults={
+        "fuse": {"rules": ["all", "channel-filter"], "topology": "max-robust:3",
+                 "schedule": "aperiodic:20"},
+        "samples": 8, "export_agents": "first"})
     say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
         "aperiodic exchanges, every rule")
     _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo")
@@ -358,10 +350,8 @@ def fuse_cmd(maps_dir, rounds, **p):
     from .outputs.report import write_outputs
     from .outputs.staging import check_replaceable, staged_folder
 
-    if rounds is None and not _config_sets(p, "fuse", "schedule"):
-        rounds = 3
     cfg = run_config({**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
-                     bags=[maps_dir])
+                     bags=[maps_dir], defaults={"fuse": {"schedule": "rounds:3"}})
     if p["dump_config"]:
         return _dump(cfg)
     out = check_replaceable(_need_out(cfg, p["out"]))
@@ -405,8 +395,7 @@ def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p
     from .outputs.staging import check_replaceable, staged_folder
     from .outputs.study import run_study
 
-    default_rules = () if _config_sets(p, "fuse", "rules") else ("all",)
-    cfg = run_config({**p, "rule": p["rule"] or default_rules}, bags=bags)
+    cfg = run_config(p, bags=bags, defaults={"fuse": {"rules": ["all"]}})
     if p["dump_config"]:
         return _dump(cfg)
     _need_bags(cfg, "octofuse bench BAG... --out DIR")

@@ -11,9 +11,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from conftest import random_map  # noqa: E402
 
 from octofuse import InfoLossMap, fuse_into  # noqa: E402
-from octofuse.config import MapConfig  # noqa: E402
+from octofuse.config import BuildConfig, FuseConfig, MapConfig  # noqa: E402
 from octofuse.fusion.network import message_bytes  # noqa: E402
-from octofuse.fusion.swarm import SwarmWorker  # noqa: E402
+from octofuse.fusion.swarm import SwarmWorker, simulate_swarm  # noqa: E402
 
 
 def worker(names, delta=False, cap=None):
@@ -47,3 +47,13 @@ def test_a_worker_over_its_memory_cap_says_so():
     w = worker(["a"], cap=2**20)
     with pytest.raises(MemoryError, match="over its cap of 1 MiB"):
         w.insert([])
+
+
+@pytest.mark.parametrize("fuse", [
+    FuseConfig(rules=["chernoff", "channel-filter"], schedule="periodic:1"),
+    FuseConfig(rules=["chernoff"], schedule="periodic:1", loss=0.2),
+])
+def test_a_swarm_refuses_what_it_cannot_run_before_starting(fuse):
+    # checked before Ray starts or a bag opens (the bag does not exist)
+    with pytest.raises(ValueError, match="not available in a swarm"):
+        simulate_swarm(BuildConfig(bags=["no-such.bag"]), fuse)

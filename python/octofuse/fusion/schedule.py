@@ -67,6 +67,16 @@ def drop_messages(events, loss: float, seed: int) -> list[Exchange]:
             for e, u in zip(events, draws.tolist())]
 
 
+def mission_events(spec: "ScheduleSpec", graph, fuse_cfg, start_ns: int | None,
+                   end_ns: int | None) -> tuple[float, list[Exchange]]:
+    """The mission's length (seconds, from the bags' first to last message) and the exchanges of
+    a run in time on ``graph``, with ``fuse_cfg.loss`` applied (:func:`drop_messages`)."""
+    duration = max((end_ns - start_ns) / 1e9, 1e-3) if start_ns is not None else 1e-3
+    events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed,
+                        directions=fuse_cfg.directions)
+    return duration, drop_messages(events, fuse_cfg.loss, fuse_cfg.seed)
+
+
 def periodic(
     graph, *, period_s: float, duration_s: float, start_s: float | None = None,
     directions: str = "both",

@@ -14,7 +14,7 @@ from ..maps.occupancy import OccupancyMap
 from ..scans.source import ScanSource, prefetch
 from .graph import make_graph
 from .network import LOCAL, SimResult, Network, score_result
-from .schedule import drop_messages, parse_schedule
+from .schedule import mission_events, parse_schedule
 
 
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
@@ -48,11 +48,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         done = [0]
         agents = [a.name for a in src.agents]
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
-        start, end = src.bags.start_ns, src.bags.end_ns
-        duration = max((end - start) / 1e9, 1e-3) if start is not None else 1e-3
-        events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed,
-                            directions=fuse_cfg.directions)
-        events = drop_messages(events, fuse_cfg.loss, fuse_cfg.seed)
+        start = src.bags.start_ns
+        duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
         tree = exact = None
         if CHANNEL_FILTER in rules:

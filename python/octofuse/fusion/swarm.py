@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from itertools import groupby
 from typing import Callable, Optional
 
-from ..config import BuildConfig, FuseConfig, MapConfig
+from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig, MapConfig
 from .executors import ray_session
 from .network import LOCAL, Traffic, message_bytes
 
@@ -269,12 +269,15 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     """
     from ..scans.source import ScanSource, prefetch
     from .graph import make_graph
-    from .schedule import parse_schedule
+    from .schedule import mission_events, parse_schedule
 
     fuse_cfg.validate("fuse")
     if fuse_cfg.robust.enabled:
         raise ValueError("robust fusion is not available in a swarm (the vote needs every "
                          "robot's map in one place); use simulate")
+    if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
+        raise ValueError("channel filters and message loss are not available in a swarm; use "
+                         "simulate")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -287,9 +290,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     with ray_session(address, num_cpus) as ray, ScanSource(build_cfg) as src:
         agents = [a.name for a in src.agents]
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
-        start, end = src.bags.start_ns, src.bags.end_ns
-        duration = max((end - start) / 1e9, 1e-3) if start is not None else 1e-3
-        events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed, directions=fuse_cfg.directions)
+        start = src.bags.start_ns
+        _, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
 
         opts: dict = {"num_cpus": cpus_per_worker, "max_restarts": 0}
         if memory_per_worker:
