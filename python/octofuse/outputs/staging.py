@@ -41,9 +41,20 @@ def staged_folder(out: str | os.PathLike, command: str) -> Iterator[Path]:
         yield stage
         (stage / MARKER).write_text(f"written by octofuse {command}\n")
         _replace(stage, final)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(stage, ignore_errors=True)
+        _name_final_paths(e, stage, final)
         raise
+
+
+def _name_final_paths(e: BaseException, stage: Path, final: Path) -> None:
+    """Errors name the files as the user will find them (``--out``), not the staging folder."""
+    def fix(x):
+        return x.replace(str(stage), str(final)) if isinstance(x, str) else x
+
+    if isinstance(e, OSError):
+        e.filename, e.filename2 = fix(e.filename), fix(e.filename2)
+    e.args = tuple(fix(a) for a in e.args)
 
 
 def _replace(stage: Path, final: Path) -> None:
