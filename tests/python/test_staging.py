@@ -39,3 +39,10 @@ def test_messages_of_other_errors_name_the_final_path(tmp_path):
             raise ValueError(f"cannot write '{stage / 'a.ply'}'")
     assert str((out / "a.ply").absolute()) in str(info.value)
     assert not out.exists()
+
+
+def test_plain_os_errors_keep_their_message(tmp_path):
+    with pytest.raises(OSError) as info:
+        with staged_folder(tmp_path / "out", "run"):
+            raise OSError("no space left on the device")
+    assert str(info.value) == "no space left on the device"

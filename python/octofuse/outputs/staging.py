@@ -52,9 +52,12 @@ def _name_final_paths(e: BaseException, stage: Path, final: Path) -> None:
     def fix(x):
         return x.replace(str(stage), str(final)) if isinstance(x, str) else x
 
-    if isinstance(e, OSError):
-        e.filename, e.filename2 = fix(e.filename), fix(e.filename2)
-    e.args = tuple(fix(a) for a in e.args)
+    if isinstance(e, OSError):  # its message is built from errno, strerror and the file names
+        for name in ("filename", "filename2"):
+            if isinstance(getattr(e, name), str):
+                setattr(e, name, fix(getattr(e, name)))
+    elif any(isinstance(a, str) and str(stage) in a for a in e.args):
+        e.args = tuple(fix(a) for a in e.args)
 
 
 def _replace(stage: Path, final: Path) -> None:
