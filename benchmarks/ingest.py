@@ -20,12 +20,20 @@
    deserializing the scan messages, decoding + transform look-ups, de-skewing, insertion
    (from the scans in memory) and writing the maps.
 
+3. The build both ways (``--builds-only`` runs only this part, e.g. on the warehouse bag):
+   ``build()`` as it runs (the poses and per-beam de-skew poses of up to 64 consecutive
+   scans looked up together, one call per sensor frame) and with ``per_scan_transforms``
+   (a look-up per scan and, for de-skew, one per scan over its beams: the previous path),
+   taking turns in each round, with ``ScanSource.scans()`` alone both ways; every map of both
+   builds is compared leaf by leaf.
+
 Points are the points of the decoded scans (the build's defaults: beams with no return are
 skipped, so on lab8 these are the returns); a scan's points count once however many maps it
 goes into. Every figure is the median of ``--repeats`` runs, the
 methods taking turns in each round.
 
     .venv/bin/python benchmarks/ingest.py [--bag BAG] [--repeats R] [--every N] [--json FILE]
+        [--insertion-only | --builds-only]
 """
 
 from __future__ import annotations
@@ -164,9 +172,9 @@ def time_read(cfg) -> tuple[float, int]:
         return time.perf_counter() - t0, n
 
 
-def time_scans(cfg) -> tuple[float, int, int]:
+def time_scans(cfg, per_scan_transforms: bool = False) -> tuple[float, int, int]:
     """ScanSource.scans() alone: read + deserialize + transform look-ups + decode (+ de-skew)."""
-    with ScanSource(cfg) as src:
+    with ScanSource(cfg, per_scan_transforms=per_scan_transforms) as src:
         t0 = time.perf_counter()
         n = pts = 0
         for s in src.scans():
@@ -184,6 +192,41 @@ def time_build(cfg, out_dir: Path):
     t_write = time.perf_counter() - t1
     size = sum(p.stat().st_size for p in paths)
     return t_build, t_write, res, size
+
+
+def compare_builds(cfg, repeats: int) -> dict:
+    """``build()`` with the scans' poses and beam poses looked up many scans at once (the
+    build's way) and scan by scan (``per_scan_transforms``, the previous way), taking turns in
+    each round; ``scans()`` alone both ways; the maps of both compared leaf by leaf."""
+    paths = {"batched": False, "per_scan": True}
+    build_s: dict[str, list[float]] = {k: [] for k in paths}
+    scans_s: dict[str, list[float]] = {k: [] for k in paths}
+    insert_s: dict[str, list[float]] = {k: [] for k in paths}
+    maps: dict[str, dict] = {}
+    points = 0
+    for r in range(repeats):
+        log(f"build, batched and per-scan transform look-ups, round {r + 1} of {repeats}")
+        for name, per_scan in paths.items():
+            gc.collect()
+            scans_s[name].append(time_scans(cfg, per_scan)[0])
+            gc.collect()
+            t0 = time.perf_counter()
+            bres = build(cfg, per_scan_transforms=per_scan)
+            build_s[name].append(time.perf_counter() - t0)
+            insert_s[name].append(bres.timings.get("insert (C++, GIL released)", float("nan")))
+            points = sum(st.points for st in bres.stats)
+            if r == repeats - 1:
+                maps[name] = bres.all_maps()
+            del bres
+    same = all(same_map(maps["batched"][k], maps["per_scan"][k]) for k in maps["per_scan"])
+    out = {name: {"build_s": median_of(build_s[name]), "build_runs_s": build_s[name],
+                  "build_points_per_s": points / median_of(build_s[name]),
+                  "insert_calls_s": median_of(insert_s[name]), "scans_s": median_of(scans_s[name]),
+                  "scans_runs_s": scans_s[name]} for name in paths}
+    out["points"] = points
+    out["speedup"] = out["per_scan"]["build_s"] / out["batched"]["build_s"]
+    out["same_maps"] = same
+    return out
 
 
 def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, insertion_only: bool = False) -> dict:
@@ -291,6 +334,7 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
         # the same stages with OctoMap's insertion, one after the other (not measured end to end)
         "octomap_sequential_s": med["open"] + med["scans"] + base2 + med["write"],
     }
+    res["build_paths"] = compare_builds(cfg, repeats)
     res["process_peak_rss_mib"] = peak_rss_mib()
     return res
 
@@ -347,6 +391,24 @@ def print_tables(res: dict, out=sys.stdout) -> None:
       f"{b['build_insert_calls_s']:.2f} s in insertion calls, the rest waiting for scans")
     p(f"   the same stages with OctoMap's insertion, one after the other: {b['octomap_sequential_s']:.2f} s "
       f"({b['octomap_sequential_s'] / b['end_to_end_s']:.2f}x the octofuse build)")
+    if "build_paths" in res:
+        p()
+        print_build_paths(res["build_paths"], res["bag"], res["repeats"], out)
+
+
+def print_build_paths(c: dict, bag: str, repeats: int, out=sys.stdout) -> None:
+    p = lambda s="": print(s, file=out)  # noqa: E731
+    p(f"build() of {bag}: transform look-ups many scans at once vs scan by scan, same run, "
+      f"median of {repeats}; {c['points']:,} points; same maps (every leaf of every map): "
+      f"{'yes' if c['same_maps'] else 'NO'}")
+    p(f"   {'path':44s} {'build s':>8s} {'points/s':>10s} {'insert calls s':>15s} {'scans() alone s':>16s}")
+    for name, label in (("per_scan", "scan by scan (previous path, baseline)"),
+                        ("batched", "many scans at once (the build's path)")):
+        r = c[name]
+        p(f"   {label:44s} {r['build_s']:8.2f} {fmt_rate(r['build_points_per_s']):>10s} "
+          f"{r['insert_calls_s']:15.2f} {r['scans_s']:16.2f}")
+    p(f"   speed-up of the build: {c['speedup']:.2f}x; scans() alone: "
+      f"{c['per_scan']['scans_s'] / c['batched']['scans_s']:.2f}x")
 
 
 def main(argv=None) -> int:
@@ -357,15 +419,27 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="every 20th scan, 1 run (checks that it runs)")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     ap.add_argument("--insertion-only", action="store_true", help="skip the build and its stages")
+    ap.add_argument("--builds-only", action="store_true",
+                    help="only build() with batched vs per-scan transform look-ups")
     args = ap.parse_args(argv)
     if args.quick:
         args.every, args.repeats = 20, 1
+    if args.builds_only:
+        c = compare_builds(make_build_config(str(args.bag), scan_stride=args.every), args.repeats)
+        bag = Path(args.bag).name + (f" (every {args.every}th scan)" if args.every > 1 else "")
+        print(f"machine: {machine()}")
+        print_build_paths(c, bag, args.repeats)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps({"bag": str(args.bag), "every": args.every,
+                                                   "machine": machine(), "build_paths": c}, indent=2))
+        return 0 if c["same_maps"] else 1
     res = run(args.bag, args.repeats, args.every, args.insertion_only)
     print_tables(res)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(res, indent=2))
-    return 0 if all(res["same_maps"].values()) else 1
+    return 0 if all(res["same_maps"].values()) and res.get("build_paths", {}).get("same_maps", True) else 1
 
 
 if __name__ == "__main__":

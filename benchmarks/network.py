@@ -11,22 +11,24 @@
    ``write_outputs`` (plots, summary, report) and the rest of ``simulate`` (reading and
    decoding the bag as far as insertion does not hide it, and bookkeeping).
 
-2. Growth with the number of agents: datasets of 4, 8, 16 and 32 robots generated with
+2. Growth with the number of agents: datasets of 4, 8, 16, 32 and 64 robots generated with
    ``data/generate_lab.py --robots N --duration D`` into build/bench-data/ (kept there and
    reused), each run with two rules (min-info-loss and naive-bayes) on max-robust:3 with the
    same schedule and samples, without writing outputs.
 
-Every run is a fresh Python process, so its peak memory (VmHWM, the peak resident set that
-``resource.getrusage`` reports as ``ru_maxrss``) is its own.
+Every run is a fresh Python process, so its peak memory (VmHWM, the peak resident set; the
+JSON also keeps ``resource.getrusage(RUSAGE_SELF).ru_maxrss``, which a process started by
+fork + exec may inherit from its parent) is its own.
 
-    .venv/bin/python benchmarks/network.py [--robots 4,8,16,32] [--duration 60] [--repeats R]
-        [--demo-rules all|RULE,RULE] [--json FILE]
+    .venv/bin/python benchmarks/network.py [--robots 4,8,16,32,64] [--duration 60] [--repeats R]
+        [--demo-rules all|RULE,RULE] [--growth-only] [--json FILE]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import statistics
 import subprocess
@@ -116,6 +118,7 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
         "fusion_summed_s": tm.get("fusion", 0.0), "exchange_summed_s": tm.get("exchange", 0.0),
         "central_leaves": res.central.num_leaves,
         "peak_rss_mib": peak_rss_mib(),
+        "ru_maxrss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
 
 
@@ -139,6 +142,7 @@ def median_run(runs: list[dict]) -> dict:
     for k in ("simulate_s", "outputs_s", "wall_s", "fusion_summed_s", "exchange_summed_s"):
         mid[k] = statistics.median(r[k] for r in runs)
     mid["peak_rss_mib"] = max(r["peak_rss_mib"] for r in runs)
+    mid["ru_maxrss_mib"] = max(r.get("ru_maxrss_mib", 0.0) for r in runs)
     mid["runs_wall_s"] = [r["wall_s"] for r in runs]
     return mid
 
@@ -164,8 +168,8 @@ def dataset(robots: int, duration: float, rate: float | None = None) -> Path:
 # -- the benchmark -----------------------------------------------------------------------------
 
 
-def run(robots=(4, 8, 16, 32), duration: float = 60.0, repeats: int = 1, demo_rules=None,
-        demo_every: int = 1, rate: float | None = None) -> dict:
+def run(robots=(4, 8, 16, 32, 64), duration: float = 60.0, repeats: int = 1, demo_rules=None,
+        demo_every: int = 1, rate: float | None = None, demo: bool = True) -> dict:
     from octofuse.rules import RULES
 
     demo_rules = list(demo_rules or RULES)
@@ -173,13 +177,14 @@ def run(robots=(4, 8, 16, 32), duration: float = 60.0, repeats: int = 1, demo_ru
                  "repeats": repeats}
     out = OUT / "network-demo-out"
     runs = []
-    for r in range(repeats):
+    for r in range(repeats if demo else 0):
         log(f"demo setting on {LAB8.name} with {len(demo_rules)} rules"
             + (f" (every {demo_every}th scan)" if demo_every > 1 else "") + f", run {r + 1} of {repeats}")
         runs.append(run_in_process(LAB8, demo_rules, out, demo_every))
     shutil.rmtree(out, ignore_errors=True)
-    res["demo"] = median_run(runs)
-    res["demo"]["every"] = demo_every
+    if runs:
+        res["demo"] = median_run(runs)
+        res["demo"]["every"] = demo_every
     res["growth"] = []
     res["growth_duration_s"] = duration
     res["growth_rules"] = list(GROWTH_RULES)
@@ -201,6 +206,13 @@ def fmt_s(x: float) -> str:
 
 def print_tables(res: dict, out=sys.stdout) -> None:
     p = lambda s="": print(s, file=out)  # noqa: E731
+    if "demo" in res:
+        print_demo(res, out)
+    print_growth(res, out)
+
+
+def print_demo(res: dict, out=sys.stdout) -> None:
+    p = lambda s="": print(s, file=out)  # noqa: E731
     d = res["demo"]
     p(f"Fusion run in the demo's setting: {Path(d['bag']).name}"
       + (f" (every {d['every']}th scan)" if d.get("every", 1) > 1 else "")
@@ -219,9 +231,14 @@ def print_tables(res: dict, out=sys.stdout) -> None:
       f"(wall; the rules run on 2 threads: fusion calls {fmt_s(d['fusion_summed_s'])} s, building messages "
       f"{fmt_s(d['exchange_summed_s'])} s, summed over threads)")
     p()
+
+
+def print_growth(res: dict, out=sys.stdout) -> None:
+    p = lambda s="": print(s, file=out)  # noqa: E731
     g = res["growth"]
     if not g:
         return
+    p(f"machine: {res['machine']}")
     p(f"Growth with the number of agents: generated labN bags of {res['growth_duration_s']:g} s, rules "
       f"{' + '.join(res['growth_rules'])}, {res['topology']}, {res['schedule']}, {res['samples']} samples, "
       f"no outputs; median of {res['repeats']} runs")
@@ -245,7 +262,8 @@ def print_tables(res: dict, out=sys.stdout) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robots", default="4,8,16,32", help="agent counts of the growth table")
+    ap.add_argument("--robots", default="4,8,16,32,64", help="agent counts of the growth table")
+    ap.add_argument("--growth-only", action="store_true", help="skip the demo-setting run")
     ap.add_argument("--duration", type=float, default=60.0, help="length of the generated bags, s")
     ap.add_argument("--rate", type=float, default=None, help="scan rate of the generated bags (default 5 Hz)")
     ap.add_argument("--repeats", type=int, default=1)
@@ -270,7 +288,8 @@ def main(argv=None) -> int:
     if args.quick:
         robots, args.duration, args.repeats, demo_every = (4, 8), 10.0, 1, 20
         demo_rules = list(GROWTH_RULES)
-    res = run(robots, args.duration, args.repeats, demo_rules, demo_every, args.rate)
+    res = run(robots, args.duration, args.repeats, demo_rules, demo_every, args.rate,
+              demo=not args.growth_only)
     print_tables(res)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

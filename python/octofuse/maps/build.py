@@ -37,13 +37,16 @@ class BuildResult:
         return {**self.maps, "centralized": self.centralized}
 
 
-def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = None) -> BuildResult:
+def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = None, *,
+          per_scan_transforms: bool = False) -> BuildResult:
     """Read the bags and build every agent's map and the centralized map (all scans).
 
     ``progress(done, total)`` is called with the scans inserted so far.
+    ``per_scan_transforms`` looks poses up scan by scan instead of many scans at once (see
+    :class:`~octofuse.scans.source.ScanSource`; the maps agree).
     """
     t_start = time.perf_counter()
-    with ScanSource(cfg) as src:
+    with ScanSource(cfg, per_scan_transforms=per_scan_transforms) as src:
         maps = {a.name: OccupancyMap.from_config(cfg.map) for a in src.agents}
         agent_maps = [maps[a.name] for a in src.agents]
         central = OccupancyMap.from_config(cfg.map)

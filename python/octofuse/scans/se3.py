@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_rigid", "invert_transform", "matrix_to_quaternion", "quaternion_to_matrix", "slerp",
-           "transform_matrix"]
+__all__ = ["check_rigid", "invert_transform", "matrix_to_quaternion", "quaternion_to_matrix",
+           "rotate_vectors", "slerp", "transform_matrix"]
 
 
 def normalize_quaternions(q: np.ndarray) -> np.ndarray:
@@ -116,13 +116,41 @@ def invert_transform(m: Any) -> np.ndarray:
     return out
 
 
+def rotate_vectors(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors v (K, 3) rotated by unit quaternions q (K, 4) ``(x, y, z, w)``, one per row.
+
+    ``v + w t + u x t`` with ``u = (x, y, z)`` and ``t = 2 u x v``: the product ``q v q*``
+    without forming rotation matrices.
+    """
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    vx, vy, vz = v[:, 0], v[:, 1], v[:, 2]
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    out = np.empty(v.shape, dtype=np.float64)
+    out[:, 0] = vx + w * tx + (y * tz - z * ty)
+    out[:, 1] = vy + w * ty + (z * tx - x * tz)
+    out[:, 2] = vz + w * tz + (x * ty - y * tx)
+    return out
+
+
 def slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
     """Shortest-arc slerp between unit quaternions (K, 4) at fractions a (K,)."""
+    return slerp_at(q0, *slerp_arcs(q0, q1), a)
+
+
+def slerp_arcs(q0: np.ndarray, q1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`slerp` needs of each pair of unit quaternions (K, 4), whatever the
+    fraction: ``q1`` on the short arc's side, the arc's angle and its sine (K,)."""
     d = np.einsum("ij,ij->i", q0, q1)
     q1 = np.where((d < 0)[:, None], -q1, q1)
-    d = np.abs(d)
-    theta = np.arccos(np.clip(d, -1.0, 1.0))
-    sin_t = np.sin(theta)
+    theta = np.arccos(np.clip(np.abs(d), -1.0, 1.0))
+    return q1, theta, np.sin(theta)
+
+
+def slerp_at(q0: np.ndarray, q1: np.ndarray, theta: np.ndarray, sin_t: np.ndarray,
+             a: np.ndarray) -> np.ndarray:
+    """Slerp at fractions a (K,) between q0 and q1 (K, 4) given their :func:`slerp_arcs`."""
     small = sin_t < 1e-9
     safe = np.where(small, 1.0, sin_t)
     w0 = np.where(small, 1.0 - a, np.sin((1.0 - a) * theta) / safe)

@@ -6,6 +6,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 import queue
 import threading
+import time
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -32,6 +33,8 @@ RESERVED_NAMES = ("centralized",)
 EXTENT_VOXELS = 32767.0
 #: longest ray, in voxels crossed (OctoMap traces a ray into a buffer of 100,000 keys)
 MAX_RAY_VOXELS = 90_000
+#: scan messages placed together: their poses and beam poses in one look-up per frame
+PLACE_CHUNK = 64
 
 
 @dataclass
@@ -94,9 +97,12 @@ class ScanSource:
     a missing topic or fixed frame raises an error listing what the bags contain.
     """
 
-    def __init__(self, cfg: BuildConfig):
+    def __init__(self, cfg: BuildConfig, *, per_scan_transforms: bool = False):
         cfg.validate("build")
         self.cfg = cfg
+        #: look poses and beam poses up scan by scan (the reference the batched look-ups of
+        #: :data:`PLACE_CHUNK` scans are checked and timed against)
+        self.per_scan_transforms = per_scan_transforms
         if not cfg.bags:
             raise ValueError("no bag files given")
         self.bags = BagSet(cfg.bags).open()
@@ -182,12 +188,12 @@ class ScanSource:
 
     def scans(self) -> Iterator[Scan]:
         """Scans of all agents in log-time order (skipped scans are counted, not yielded)."""
-        import time
-
         cfg = self.cfg
         self.stats = [AgentStats(a.name, a.topic) for a in self.agents]  # per pass
         seen = [0] * len(self.agents)
         fixed = cfg.fixed_frame.lstrip("/")
+        chunk = 1 if self.per_scan_transforms else PLACE_CHUNK
+        pending: list[_Pending] = []
         for m in self.bags.messages({a.topic: list(SCAN_TYPES) for a in self.agents}):
             i = self.topic_agent[m.topic]
             seen[i] += 1
@@ -209,40 +215,111 @@ class ScanSource:
             if not frame.strip("/"):
                 st.skipped["empty header.frame_id"] += 1
                 continue
-            try:
-                pose = self.tf.lookup(fixed, frame, stamp)
-            except ExtrapolationError as e:
-                st.skipped["before the first transform" if stamp < e.first_ns
-                           else "after the last transform"] += 1
-                continue
-            except ConnectivityError:
-                st.skipped[f"no transform chain from '{frame}' to '{fixed}'"] += 1
-                continue
-            except UnknownFrameError:
-                st.skipped[f"unknown frame '{frame}'"] += 1
-                continue
-            except TransformError as e:
-                st.skipped[f"transform error: {e}"] += 1
+            pending.append(_Pending(i, m.topic, msg, stamp, frame))
+            st.seconds += time.perf_counter() - t0
+            if len(pending) >= chunk:
+                yield from self._place(pending, fixed)
+                pending = []
+        yield from self._place(pending, fixed)
+
+    def _place(self, pending: list["_Pending"], fixed: str) -> list[Scan]:
+        """Poses, decoding, de-skew and range checks of consecutive scans; the scans placed.
+
+        Poses and per-beam poses are looked up for all the scans of one frame at once (one
+        call per frame), unless :attr:`per_scan_transforms` asks for a call per scan.
+        """
+        if not pending:
+            return []
+        t0 = time.perf_counter()
+        poses = self._poses(pending, fixed)
+        placed: list[tuple[_Pending, np.ndarray, np.ndarray, float]] = []
+        for p, pose in zip(pending, poses):
+            if pose is None:
                 continue
             if not self._in_extent(pose[:3, 3]):
-                st.skipped["sensor pose outside the map's extent "
-                           f"(±{self._extent():g} m at resolution {cfg.map.resolution:g} m)"] += 1
+                self.stats[p.agent].skipped[
+                    "sensor pose outside the map's extent "
+                    f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] += 1
                 continue
             try:
-                points, max_range = self._decode(msg)
+                points, max_range = self._decode(p.msg)
             except (ValueError, AttributeError, TypeError, OverflowError) as e:
-                raise ValueError(f"cannot decode the message on '{m.topic}' stamped {stamp} ns: "
+                raise ValueError(f"cannot decode the message on '{p.topic}' stamped {p.stamp} ns: "
                                  f"{e}") from None
-            if self.cfg.deskew and hasattr(msg, "ranges") and msg.time_increment > 0 and len(points):
-                points = self._deskew(msg, points, fixed, frame, stamp, pose)
-            points = self._keep_traceable(points, pose, max_range, st)
+            placed.append((p, points, pose, max_range))
+        skewed = [k for k, (p, points, _, _) in enumerate(placed) if self.cfg.deskew
+                  and hasattr(p.msg, "ranges") and p.msg.time_increment > 0 and len(points)]
+        if self.per_scan_transforms:
+            for k in skewed:
+                p, points, pose, max_range = placed[k]
+                points = self._deskew(p.msg, points, fixed, p.frame, p.stamp, pose)
+                placed[k] = (p, points, pose, max_range)
+        elif skewed:
+            self._deskew_many(placed, skewed, fixed)
+        out = []
+        for (p, _, pose, max_range), points in zip(placed, self._keep_traceable(placed)):
+            st = self.stats[p.agent]
             if len(points) == 0:
                 st.skipped["no valid points"] += 1
                 continue
             st.scans_used += 1
             st.points += len(points)
-            st.seconds += time.perf_counter() - t0
-            yield Scan(i, stamp, points, pose, max_range)
+            out.append(Scan(p.agent, p.stamp, points, pose, max_range))
+        dt = (time.perf_counter() - t0) / len(pending)
+        for p in pending:
+            self.stats[p.agent].seconds += dt
+        return out
+
+    def _poses(self, pending: list["_Pending"], fixed: str) -> list[np.ndarray | None]:
+        """The sensor pose of each scan at its stamp, or ``None`` (the skip counted)."""
+        poses: list[np.ndarray | None] = [None] * len(pending)
+        if self.per_scan_transforms:
+            for k, p in enumerate(pending):
+                poses[k] = self._pose_or_skip(p, fixed)
+            return poses
+        by_frame: dict[str, list[int]] = {}
+        for k, p in enumerate(pending):
+            by_frame.setdefault(p.frame, []).append(k)
+        for frame, ks in by_frame.items():
+            rng = self._time_range(fixed, frame)
+            if rng is None:  # the chain cannot be evaluated: each scan says why
+                inside = []
+            else:
+                lo, hi = rng
+                inside = [k for k in ks if lo is None or lo <= pending[k].stamp <= hi]
+            if inside:
+                stamps = np.array([pending[k].stamp for k in inside], dtype=np.int64)
+                for k, pose in zip(inside, self.tf.lookup_many(fixed, frame, stamps)):
+                    poses[k] = pose
+            for k in set(ks).difference(inside):
+                poses[k] = self._pose_or_skip(pending[k], fixed)
+        return poses
+
+    def _time_range(self, fixed: str, frame: str) -> tuple | None:
+        """Stamps ``(lo, hi)`` at which ``frame`` can be placed in ``fixed`` (``(None, None)``:
+        always, an all-static chain); ``None`` if the chain is broken or the frame unknown."""
+        if frame not in self._time_ranges:
+            try:
+                self._time_ranges[frame] = self.tf.time_range(fixed, frame) or (None, None)
+            except TransformError:
+                self._time_ranges[frame] = None
+        return self._time_ranges[frame]
+
+    def _pose_or_skip(self, p: "_Pending", fixed: str) -> np.ndarray | None:
+        """One scan's pose, or ``None`` with the reason counted in its agent's skips."""
+        st = self.stats[p.agent]
+        try:
+            return self.tf.lookup(fixed, p.frame, p.stamp)
+        except ExtrapolationError as e:
+            st.skipped["before the first transform" if p.stamp < e.first_ns
+                       else "after the last transform"] += 1
+        except ConnectivityError:
+            st.skipped[f"no transform chain from '{p.frame}' to '{fixed}'"] += 1
+        except UnknownFrameError:
+            st.skipped[f"unknown frame '{p.frame}'"] += 1
+        except TransformError as e:
+            st.skipped[f"transform error: {e}"] += 1
+        return None
 
     def _extent(self) -> float:
         return EXTENT_VOXELS * self.cfg.map.resolution
@@ -250,34 +327,43 @@ class ScanSource:
     def _in_extent(self, xyz: np.ndarray) -> bool:
         return bool(np.all(np.isfinite(xyz)) and np.all(np.abs(xyz) < self._extent()))
 
-    def _keep_traceable(self, points: np.ndarray, pose: np.ndarray, max_range: float,
-                        st: AgentStats) -> np.ndarray:
-        """Drop (and count) points outside the map's extent or whose ray is too long to trace."""
-        if len(points) == 0:
-            return points
-        origin = pose[:3, 3]
-        with np.errstate(over="ignore", invalid="ignore"):
-            d = points @ pose[:3, :3].T
-            world = d + origin
-            inside = np.isfinite(world).all(axis=1) & (np.abs(world) < self._extent()).all(axis=1)
-            dist = np.linalg.norm(d, axis=1)
-            scale = np.ones_like(dist)
-            if max_range > 0:
-                scale = np.minimum(1.0, max_range / np.maximum(dist, 1e-300))
-            voxels = scale * np.abs(d).sum(axis=1) / self.cfg.map.resolution
+    def _keep_traceable(self, placed: list) -> list[np.ndarray]:
+        """Each placed scan's points without (and counting) those outside the map's extent
+        or whose ray is too long to trace; all the scans' points checked at once."""
+        sizes = np.array([len(points) for _, points, _, _ in placed])
+        if not sizes.sum():
+            return [points for _, points, _, _ in placed]
+        d = np.concatenate([points @ pose[:3, :3].T for _, points, pose, _ in placed])
+        origin = np.repeat(np.array([pose[:3, 3] for _, _, pose, _ in placed]), sizes, axis=0)
+        max_range = np.repeat(np.array([r for _, _, _, r in placed], dtype=np.float64), sizes)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            near = np.abs(d + origin) < self._extent()  # False for NaN and inf
+            inside = near[:, 0] & near[:, 1] & near[:, 2]
+            x, y, z = d[:, 0], d[:, 1], d[:, 2]
+            dist = np.sqrt(x * x + y * y + z * z)
+            scale = np.where(max_range > 0, np.minimum(1.0, max_range / np.maximum(dist, 1e-300)),
+                             1.0)
+            voxels = scale * (np.abs(x) + np.abs(y) + np.abs(z)) / self.cfg.map.resolution
             short = voxels < MAX_RAY_VOXELS
         keep = inside & short
         if keep.all():
-            return points
-        n_out = int((~inside).sum())
-        n_long = int((inside & ~short).sum())
-        if n_out:
-            st.dropped["outside the map's extent "
-                       f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] += n_out
-        if n_long:
-            st.dropped[f"ray crosses more than {MAX_RAY_VOXELS:,} voxels "
-                       "(set max_range to shorten it)"] += n_long
-        return points[keep]
+            return [points for _, points, _, _ in placed]
+        scan_of = np.repeat(np.arange(len(placed)), sizes)
+        n_out = np.bincount(scan_of, weights=~inside, minlength=len(placed))
+        n_long = np.bincount(scan_of, weights=inside & ~short, minlength=len(placed))
+        ends = np.cumsum(sizes)
+        out = []
+        for k, (p, points, _, _) in enumerate(placed):
+            dropped = self.stats[p.agent].dropped
+            if n_out[k]:
+                dropped["outside the map's extent "
+                        f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] \
+                    += int(n_out[k])
+            if n_long[k]:
+                dropped[f"ray crosses more than {MAX_RAY_VOXELS:,} voxels "
+                        "(set max_range to shorten it)"] += int(n_long[k])
+            out.append(points[keep[ends[k] - sizes[k]:ends[k]]])
+        return out
 
     def _deskew(self, msg, points, fixed, frame, stamp, pose) -> np.ndarray:
         """Move each beam's point by the sensor motion between the scan stamp and its beam time.
@@ -285,23 +371,51 @@ class ScanSource:
         Points come back in the sensor frame at ``stamp``: p = T(stamp)^-1 T(t_i) p_i, with
         t_i = stamp + i * time_increment (beam times clipped to the transforms' time range).
         """
-        ang = np.arctan2(points[:, 1], points[:, 0])
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            idx = np.rint(np.mod(ang - msg.angle_min, 2 * np.pi) / msg.angle_increment)
-            t = stamp + idx * (float(msg.time_increment) * 1e9)
+        t = _beam_times(points, msg.angle_min, msg.angle_increment,
+                        float(msg.time_increment) * 1e9, stamp)
         if not np.all(np.isfinite(t)):  # degenerate beam timing: no motion correction
             return points
-        rng = self._time_ranges.get(frame)
-        if rng is None:
-            rng = self.tf.time_range(fixed, frame) or (None, None)
-            self._time_ranges[frame] = rng
-        lo, hi = rng
+        lo, hi = self._time_range(fixed, frame)
         if lo is not None:
             t = np.clip(t, lo, hi)
         T = self.tf.lookup_many(fixed, frame, t.astype(np.int64))
         world = np.einsum("kij,kj->ki", T[:, :3, :3], points) + T[:, :3, 3]
         inv = np.linalg.inv(pose)
         return world @ inv[:3, :3].T + inv[:3, 3]
+
+    def _deskew_many(self, placed: list, skewed: list[int], fixed: str) -> None:
+        """:meth:`_deskew` of the scans ``placed[k]`` for ``k`` in ``skewed``, in place: the
+        beam times of all of them at once, and one :meth:`TransformBuffer.transform_points`
+        per frame over all their beams (no 4x4 matrix per beam)."""
+        msgs = [placed[k][0].msg for k in skewed]
+        pts = [placed[k][1] for k in skewed]
+        sizes = np.array([len(p) for p in pts])
+        starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+        per_beam = lambda values: np.repeat(np.array(values, dtype=np.float64), sizes)  # noqa: E731
+        t = _beam_times(np.concatenate(pts), per_beam([m.angle_min for m in msgs]),
+                        per_beam([m.angle_increment for m in msgs]),
+                        per_beam([float(m.time_increment) * 1e9 for m in msgs]),
+                        per_beam([placed[k][0].stamp for k in skewed]))
+        timed = np.logical_and.reduceat(np.isfinite(t), starts)  # else no motion correction
+        by_frame: dict[str, list[int]] = {}
+        for j, k in enumerate(skewed):
+            if timed[j]:
+                by_frame.setdefault(placed[k][0].frame, []).append(j)
+        for frame, js in by_frame.items():
+            beams = np.concatenate([np.arange(starts[j], starts[j] + sizes[j]) for j in js])
+            tf = t[beams]
+            lo, hi = self._time_range(fixed, frame)
+            if lo is not None:
+                tf = np.clip(tf, lo, hi)
+            world = self.tf.transform_points(fixed, frame, tf.astype(np.int64),
+                                             np.concatenate([pts[j] for j in js]))
+            at = 0
+            for j in js:
+                p, _, pose, max_range = placed[skewed[j]]
+                mine = world[at:at + sizes[j]]
+                at += sizes[j]
+                # back into the sensor frame at the scan's stamp: R^T (x - t)
+                placed[skewed[j]] = (p, (mine - pose[:3, 3]) @ pose[:3, :3], pose, max_range)
 
     def _decode(self, msg) -> tuple[np.ndarray, float]:
         cfg = self.cfg
@@ -317,6 +431,27 @@ class ScanSource:
             return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
         pts = pointcloud2_to_xyz(msg)
         return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)
+
+
+@dataclass
+class _Pending:
+    """A scan message that passed the header checks, waiting for its pose."""
+
+    agent: int
+    topic: str
+    msg: object
+    stamp: int
+    frame: str
+
+
+def _beam_times(points: np.ndarray, angle_min, angle_increment, time_increment_ns,
+                stamp) -> np.ndarray:
+    """Stamps (float ns) of the beams that gave the points of a LaserScan: the beam index
+    from each point's bearing, ``stamp + index * time_increment`` (scalars or per point)."""
+    ang = np.arctan2(points[:, 1], points[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        idx = np.rint(np.mod(ang - angle_min, 2 * np.pi) / angle_increment)
+        return stamp + idx * time_increment_ns
 
 
 def _laserscan_problem(msg) -> str | None:

@@ -34,7 +34,9 @@ from .se3 import (
     matrix_to_quaternion,
     normalize_quaternions,
     quaternion_to_matrix,
-    slerp,
+    rotate_vectors,
+    slerp_arcs,
+    slerp_at,
     transform_matrix,
 )
 
@@ -115,6 +117,10 @@ class ExtrapolationError(TransformError):
         self.last_ns = last_ns
 
 
+#: multiplies a quaternion (x, y, z, w) into its conjugate (the inverse rotation)
+_CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])
+
+
 def _fmt_ns(ns: int) -> str:
     return f"{ns} ns ({ns / 1e9:.6f} s)"
 
@@ -134,6 +140,7 @@ class _Link:
         self.stamps = np.empty(0, dtype=np.int64)
         self.trans = np.empty((0, 3), dtype=np.float64)
         self.quats = np.empty((0, 4), dtype=np.float64)
+        self._arcs_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def add(self, stamps: np.ndarray, trans: np.ndarray, quats: np.ndarray) -> None:
         self._pending.append((stamps, trans, quats))
@@ -154,6 +161,13 @@ class _Link:
         self.stamps = stamps[keep]
         self.trans = trans[order]
         self.quats = quats[order]
+        self._arcs_cache = None
+
+    def _arcs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`slerp_arcs` of every pair of consecutive samples (computed once)."""
+        if self._arcs_cache is None:
+            self._arcs_cache = slerp_arcs(self.quats[:-1], self.quats[1:])
+        return self._arcs_cache
 
     def _extrapolation(self, stamps: np.ndarray, bad: np.ndarray, what: str) -> ExtrapolationError:
         s = self.stamps
@@ -188,6 +202,32 @@ class _Link:
         """Transforms T_parent_child at the stamps (K,), shape (K, 4, 4)."""
         if self.static:
             return np.broadcast_to(self.static_matrix, (stamps.size, 4, 4))
+        trans, quats = self.interpolate(stamps, tolerance_ns, what)
+        m = np.zeros((stamps.size, 4, 4), dtype=np.float64)
+        m[:, :3, :3] = quaternion_to_matrix(quats)
+        m[:, :3, 3] = trans
+        m[:, 3, 3] = 1.0
+        return m
+
+    def to_parent(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
+                  what: str) -> np.ndarray:
+        """Points (K, 3) of the child frame, each at its stamp (K,), in the parent frame."""
+        if self.static:
+            return points @ self.static_matrix[:3, :3].T + self.static_matrix[:3, 3]
+        trans, quats = self.interpolate(stamps, tolerance_ns, what)
+        return rotate_vectors(quats, points) + trans
+
+    def to_child(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
+                 what: str) -> np.ndarray:
+        """Points (K, 3) of the parent frame, each at its stamp (K,), in the child frame."""
+        if self.static:
+            return (points - self.static_matrix[:3, 3]) @ self.static_matrix[:3, :3]
+        trans, quats = self.interpolate(stamps, tolerance_ns, what)
+        return rotate_vectors(quats * _CONJUGATE, points - trans)
+
+    def interpolate(self, stamps: np.ndarray, tolerance_ns: int,
+                    what: str) -> tuple[np.ndarray, np.ndarray]:
+        """Translations (K, 3) and unit quaternions (K, 4) of a dynamic link at the stamps (K,)."""
         self._finalize()
         s = self.stamps
         first, last = int(s[0]), int(s[-1])
@@ -207,16 +247,14 @@ class _Link:
             q0, q1 = self.quats[i0], self.quats[i1]
             t0, t1 = self.trans[i0], self.trans[i1]
             trans = t0 + a[:, None] * (t1 - t0)
-            quats = slerp(q0, q1, a)
+            q1_near, theta, sin_t = self._arcs()
+            quats = slerp_at(q0, q1_near[i0], theta[i0], sin_t[i0], a)
             # Exact at the samples.
             at0, at1 = (a == 0.0)[:, None], (a == 1.0)[:, None]
-            trans = np.where(at0, t0, np.where(at1, t1, trans))
-            quats = np.where(at0, q0, np.where(at1, q1, quats))
-        m = np.zeros((t.size, 4, 4), dtype=np.float64)
-        m[:, :3, :3] = quaternion_to_matrix(quats)
-        m[:, :3, 3] = trans
-        m[:, 3, 3] = 1.0
-        return m
+            if at0.any() or at1.any():
+                trans = np.where(at0, t0, np.where(at1, t1, trans))
+                quats = np.where(at0, q0, np.where(at1, q1, quats))
+        return trans, quats
 
 
 def _norm_frame(frame: str) -> str:
@@ -570,6 +608,42 @@ class TransformBuffer:
         else:
             result = invert_transform(t_anc_tgt) @ t_anc_src
         return np.array(result, dtype=np.float64)
+
+    def transform_points(self, target: str, source: str, stamps_ns: Any,
+                         points: Any) -> np.ndarray:
+        """Points of ``source``, each at its own stamp, in ``target``.
+
+        ``out[k] = T_target_source(stamps_ns[k]) @ points[k]``, as :meth:`lookup_many` would
+        give, without building a 4x4 matrix per point: each link of the chain moves the
+        points one frame along (a rotation by the interpolated quaternion and a translation,
+        or the static link's rotation and translation).
+
+        Parameters
+        ----------
+        target, source : str
+        stamps_ns : array_like of int, shape (K,)
+        points : array_like, shape (K, 3)
+
+        Returns
+        -------
+        numpy.ndarray, shape (K, 3)
+
+        Raises
+        ------
+        UnknownFrameError, ConnectivityError, ExtrapolationError
+        """
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if pts.shape[0] != stamps.size:
+            raise ValueError(f"transform_points: {stamps.size} stamps for {pts.shape[0]} points")
+        tgt, src = self._check_frame(target), self._check_frame(source)
+        up_s, up_t = self._path(tgt, src)
+        what = f"cannot transform from {src!r} into {tgt!r}"
+        for link in up_s:  # up from the source to the common ancestor
+            pts = link.to_parent(pts, stamps, self.tolerance_ns, what)
+        for link in reversed(up_t):  # down from the common ancestor to the target
+            pts = link.to_child(pts, stamps, self.tolerance_ns, what)
+        return pts
 
     def lookup(self, target: str, source: str, stamp_ns: int) -> np.ndarray:
         """Transform from ``source`` into ``target`` at one stamp.
