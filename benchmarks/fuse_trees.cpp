@@ -49,6 +49,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <malloc.h>
 #include <functional>
@@ -186,6 +187,19 @@ std::size_t walk_differences(const detail::WalkNode<octomap::OcTree>& x,
   return d;
 }
 
+/// Leaf pairs of two trees walked together (`pairs`) and those known to both (returned).
+std::size_t walk_pairs(const detail::WalkNode<octomap::OcTree>& x,
+                       const detail::WalkNode<octomap::OcTree>& y, std::size_t& pairs) {
+  if (!x.present() && !y.present()) return 0;
+  if ((x.leaf || !x.present()) && (y.leaf || !y.present())) {
+    ++pairs;
+    return x.present() && y.present();
+  }
+  std::size_t both = 0;
+  for (unsigned i = 0; i < 8; ++i) both += walk_pairs(x.child(i), y.child(i), pairs);
+  return both;
+}
+
 /// Leaf pairs of two trees that differ (every voxel compared, without expanding the trees).
 std::size_t tree_differences(const octomap::OcTree& x, const octomap::OcTree& y,
                              std::size_t* pairs = nullptr) {
@@ -225,6 +239,13 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+/// CPU time of the whole process (every thread), seconds.
+double cpu_seconds() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
 /// Consolidates glibc's free lists (a large request does) outside the timed region.
@@ -385,12 +406,12 @@ int main(int argc, char** argv) {
   // --- timing: rounds over all methods (every method once per round, so that a change in
   // the machine's other load during the run affects all methods alike); round -1 is a
   // warm-up and is not timed.
-  std::vector<std::vector<double>> rule_times(kNumRules), free_times(kNumRules);
+  std::vector<std::vector<double>> rule_times(kNumRules), free_times(kNumRules), whole_cpu(kNumRules);
   // in place: naive-bayes and min-info-loss, on 1 thread and on `threads`
   struct IntoRun {
     Rule rule;
     unsigned threads;
-    std::vector<double> times;
+    std::vector<double> times, cpu;
   };
   std::vector<IntoRun> into_runs;
   for (Rule r : {Rule::NaiveBayes, Rule::MinInfoLoss})
@@ -399,30 +420,37 @@ int main(int argc, char** argv) {
       if (threads == 1) break;
     }
   std::vector<MergeTimes> eager_runs, lazy_runs;
-  std::size_t pairs = 0, pairs_both = 0;
+  std::size_t pairs = 0;
+  const std::size_t pairs_both = walk_pairs(detail::WalkNode<octomap::OcTree>::root(a->tree()),
+                                            detail::WalkNode<octomap::OcTree>::root(b->tree()), pairs);
   for (int k = -1; k < repeats; ++k) {
     for (int r = 0; r < kNumRules; ++r) {
       settle_heap();
+      const double c0 = cpu_seconds();
       t0 = Clock::now();
       FusionResult res = fuse_maps(*a, *b, static_cast<Rule>(r), UnknownPolicy::Copy);
       const double dt = seconds_since(t0);
-      pairs = res.voxels_fused + res.voxels_copied;
-      if (r == static_cast<int>(Rule::NaiveBayes)) pairs_both = res.voxels_fused;
       t0 = Clock::now();
       res.map.reset();  // freeing the result: part of the cost of every fuse_maps call
       res.info_loss.reset();
       const double df = seconds_since(t0);
+      const double dc = cpu_seconds() - c0;
       if (k >= 0) {
         rule_times[r].push_back(dt);
         free_times[r].push_back(df);
+        whole_cpu[r].push_back(dc);
       }
     }
     for (IntoRun& run : into_runs) {  // in place, as an agent fuses a received map into its own
       OccupancyMap dst(*a);  // (the copy of a is not timed)
       settle_heap();
+      const double c0 = cpu_seconds();
       t0 = Clock::now();
       fuse_into(dst, *b, run.rule, UnknownPolicy::Copy, nullptr, run.threads);
-      if (k >= 0) run.times.push_back(seconds_since(t0));
+      if (k >= 0) {
+        run.times.push_back(seconds_since(t0));
+        run.cpu.push_back(cpu_seconds() - c0);
+      }
     }
     const MergeTimes eager = updatenode_merge(a->tree(), b->tree(), false, nullptr);
     const MergeTimes lazy = updatenode_merge(a->tree(), b->tree(), true, nullptr);
@@ -547,11 +575,11 @@ int main(int argc, char** argv) {
     for (std::size_t i = 0; i < into_runs.size(); ++i)
       j << (i ? ", " : "") << "{\"rule\": \"" << kRuleNames[static_cast<int>(into_runs[i].rule)]
         << "\", \"threads\": " << into_runs[i].threads << ", \"median_s\": " << median(into_runs[i].times)
-        << "}";
+        << ", \"cpu_s\": " << median(into_runs[i].cpu) << "}";
     j << "],\n  \"whole_cost\": [";
     for (int r = 0; r < kNumRules; ++r)
       j << (r ? ", " : "") << "{\"rule\": \"" << kRuleNames[r] << "\", \"fuse_s\": " << rule_median[r]
-        << ", \"free_s\": " << median(free_times[r]) << "}";
+        << ", \"free_s\": " << median(free_times[r]) << ", \"cpu_s\": " << median(whole_cpu[r]) << "}";
     j << "],\n  \"rows\": [\n";
     for (std::size_t i = 0; i < rows.size(); ++i)
       j << "    {\"name\": \"" << rows[i].name << "\", \"median_s\": " << rows[i].median_s
@@ -567,15 +595,18 @@ int main(int argc, char** argv) {
               eager_inplace);
   for (const IntoRun& run : into_runs) {
     const double t = median(run.times);
-    std::printf("  octofuse %-22s fuse_into, %u thread(s): %.3f s  %5.1fx\n",
-                kRuleNames[static_cast<int>(run.rule)], run.threads, t, eager_inplace / t);
+    std::printf("  octofuse %-22s fuse_into, %u thread(s): %.3f s (CPU %.3f s)  %5.1fx\n",
+                kRuleNames[static_cast<int>(run.rule)], run.threads, t, median(run.cpu),
+                eager_inplace / t);
   }
   std::printf("\nnew tree with its whole cost (fuse_maps, then freeing the result) against the "
-              "updateNode merge (copy a + expand b + updateNode: %.3f s)\n", eager_s);
+              "updateNode merge (copy a + expand b + updateNode: %.3f s), all on the caller's "
+              "thread (CPU time of the process in brackets)\n", eager_s);
   for (int r = 0; r < kNumRules; ++r) {
     const double f = median(free_times[r]);
-    std::printf("  octofuse %-28s fuse %.3f s + free %.3f s = %.3f s  %5.1fx\n", kRuleNames[r],
-                rule_median[r], f, rule_median[r] + f, eager_s / (rule_median[r] + f));
+    std::printf("  octofuse %-28s fuse %.3f s + free %.3f s = %.3f s (CPU %.3f s)  %5.1fx\n",
+                kRuleNames[r], rule_median[r], f, rule_median[r] + f, median(whole_cpu[r]),
+                eager_s / (rule_median[r] + f));
   }
 
   return diff_eager == 0 && diff_lazy == 0 && diff_into == 0 ? 0 : 1;

@@ -10,6 +10,13 @@
 
 namespace octofuse::bindings {
 
+namespace {
+
+/// (voxels fused, voxels copied, loss summed over the fused voxels): finest voxels, nats.
+py::tuple counts_tuple(const FusionCounts& c) { return py::make_tuple(c.fused, c.copied, c.loss_sum); }
+
+}  // namespace
+
 void define_fusion(py::module_& m) {
   m.def(
       "_fuse_into",
@@ -32,7 +39,7 @@ void define_fusion(py::module_& m) {
           py::gil_scoped_release release;
           st = fuse_into(dst, msg, rule, unknown, loss, static_cast<unsigned>(threads));
         }
-        return py::make_tuple(st.fused, st.copied);
+        return counts_tuple(st);
       },
       py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"), py::arg("loss").none(true),
       py::arg("threads") = 1);
@@ -51,7 +58,7 @@ void define_fusion(py::module_& m) {
           py::gil_scoped_release release;
           st = fuse_mutual(a, b, rule, unknown, loss_a, loss_b);
         }
-        return py::make_tuple(st.first.fused, st.first.copied, st.second.fused, st.second.copied);
+        return py::make_tuple(counts_tuple(st.first), counts_tuple(st.second));
       },
       py::arg("a"), py::arg("b"), py::arg("rule"), py::arg("unknown"), py::arg("loss_a").none(true),
       py::arg("loss_b").none(true));
@@ -67,8 +74,7 @@ void define_fusion(py::module_& m) {
           py::gil_scoped_release release;
           r = fuse_maps(a, b, rule, unknown);
         }
-        return py::make_tuple(std::move(r.map), std::move(r.info_loss), r.voxels_fused,
-                              r.voxels_copied);
+        return py::make_tuple(std::move(r.map), std::move(r.info_loss), counts_tuple(r.counts));
       },
       py::arg("a"), py::arg("b"), py::arg("rule"), py::arg("unknown"));
 }

@@ -115,6 +115,10 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;  // counting walks the tree
         return s.num_leaves();
       })
+      .def_property_readonly("known_voxels", [](const OccupancyMap& s) {
+        py::gil_scoped_release release;
+        return s.known_voxels();
+      })
       .def_property_readonly("num_nodes", &OccupancyMap::num_nodes)
       .def_property_readonly("memory_bytes", &OccupancyMap::memory_bytes)
       .def_property_readonly("resolution", [](const OccupancyMap& s) { return s.params().resolution; })

@@ -14,7 +14,11 @@ void define_transform(py::module_& m) {
   m.def(
       "_transform_map",
       [](const OccupancyMap& src, py::array_t<double, py::array::c_style | py::array::forcecast> T,
-         double resolution) {
+         double resolution, const std::string& resampling) {
+        if (resampling != "vote" && resampling != "nearest") {
+          throw py::value_error("resampling '" + resampling + "': expected vote or nearest");
+        }
+        const Resampling mode = resampling == "vote" ? Resampling::Vote : Resampling::Nearest;
         if (T.ndim() != 2 || T.shape(0) != 4 || T.shape(1) != 4) {
           throw py::value_error("T must be a 4x4 matrix");
         }
@@ -28,7 +32,7 @@ void define_transform(py::module_& m) {
         std::unique_ptr<OccupancyMap> out;
         {
           py::gil_scoped_release release;
-          out = transform_map(src, copy, resolution, &st);
+          out = transform_map(src, copy, resolution, mode, &st);
         }
         py::dict d;
         d["source_leaves"] = st.source_leaves;
@@ -36,7 +40,7 @@ void define_transform(py::module_& m) {
         d["target_voxels"] = st.target_voxels;
         return py::make_tuple(std::move(out), d);
       },
-      py::arg("src"), py::arg("T"), py::arg("resolution"));
+      py::arg("src"), py::arg("T"), py::arg("resolution"), py::arg("resampling") = "vote");
 
   m.def(
       "_map_to_stream",

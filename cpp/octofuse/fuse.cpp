@@ -79,17 +79,17 @@ struct Walker {
   Fusion& fusion;
   octomap::OcTree& out;
   ScalarTree& loss;
-  std::size_t fused = 0, copied = 0;
+  FusionCounts counts;
 
-  /// Values of a voxel (or a block of voxels) given the input nodes covering it (null =
-  /// unknown; not both null).
-  void leaf(const OcNode* a, const OcNode* b, float& value, float& info_loss) {
+  /// Values of a voxel (or a block of voxels at `depth`) given the input nodes covering it
+  /// (null = unknown; not both null).
+  void leaf(const OcNode* a, const OcNode* b, unsigned depth, float& value, float& info_loss) {
     const VoxelValue v = a == nullptr   ? fusion.only_b(b->getLogOdds())
                          : b == nullptr ? fusion.only_a(a->getLogOdds())
                                         : fusion.both(a->getLogOdds(), b->getLogOdds());
     value = v.value;
     info_loss = v.loss;
-    ++(v.fused ? fused : copied);
+    counts.add(v, depth);
   }
 
   /// Child i of an input node of tree t as seen by the walk: a leaf stands for all its
@@ -109,10 +109,11 @@ struct Walker {
     return c;
   }
 
-  /// Walks the node pair (a, b), not both leaves or unknown. Returns for each output tree
-  /// whether the subtree collapsed to one leaf, whose value is then in vm / vl.
-  void walk(const OcNode* a, bool a_leaf, const OcNode* b, bool b_leaf, Lazy<octomap::OcTree>& om,
-            Lazy<ScalarTree>& ol, bool& leaf_m, float& vm, bool& leaf_l, float& vl) {
+  /// Walks the node pair (a, b) at `depth`, not both leaves or unknown. Returns for each
+  /// output tree whether the subtree collapsed to one leaf, whose value is then in vm / vl.
+  void walk(const OcNode* a, bool a_leaf, const OcNode* b, bool b_leaf, unsigned depth,
+            Lazy<octomap::OcTree>& om, Lazy<ScalarTree>& ol, bool& leaf_m, float& vm,
+            bool& leaf_l, float& vl) {
     Kids km, kl;
     for (unsigned i = 0; i < 8; ++i) {
       bool ca_leaf, cb_leaf;
@@ -122,13 +123,13 @@ struct Walker {
       km.present |= static_cast<std::uint8_t>(1u << i);
       kl.present |= static_cast<std::uint8_t>(1u << i);
       if (ca_leaf && cb_leaf) {
-        leaf(ca, cb, km.value[i], kl.value[i]);
+        leaf(ca, cb, depth + 1, km.value[i], kl.value[i]);
         continue;
       }
       Lazy<octomap::OcTree> cm{&om, i, nullptr};
       Lazy<ScalarTree> cl{&ol, i, nullptr};
       bool lm, ll;
-      walk(ca, ca_leaf, cb, cb_leaf, cm, cl, lm, km.value[i], ll, kl.value[i]);
+      walk(ca, ca_leaf, cb, cb_leaf, depth + 1, cm, cl, lm, km.value[i], ll, kl.value[i]);
       if (!lm) km.inner |= static_cast<std::uint8_t>(1u << i);
       if (!ll) kl.inner |= static_cast<std::uint8_t>(1u << i);
     }
@@ -147,13 +148,13 @@ struct Walker {
     Lazy<ScalarTree> ol{nullptr, 0, nullptr};
     float vm, vl;
     if (a_leaf && b_leaf) {
-      leaf(ra, rb, vm, vl);
+      leaf(ra, rb, 0, vm, vl);
       om.get(out)->setLogOdds(vm);
       ol.get(loss)->setValue(vl);
       return;
     }
     bool leaf_m, leaf_l;
-    walk(ra, a_leaf, rb, b_leaf, om, ol, leaf_m, vm, leaf_l, vl);
+    walk(ra, a_leaf, rb, b_leaf, 0, om, ol, leaf_m, vm, leaf_l, vl);
     if (leaf_m) om.get(out)->setLogOdds(vm);
     if (leaf_l) ol.get(loss)->setValue(vl);
   }
@@ -171,10 +172,9 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
     with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
                       [&](auto& fusion) {
                         Walker<std::decay_t<decltype(fusion)>> w{
-                            a.tree(), b.tree(), fusion, res.map->tree(), *res.info_loss};
+                            a.tree(), b.tree(), fusion, res.map->tree(), *res.info_loss, {}};
                         w.run();
-                        res.voxels_fused = w.fused;
-                        res.voxels_copied = w.copied;
+                        res.counts = w.counts;
                       });
   }
   return res;

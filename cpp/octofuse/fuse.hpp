@@ -15,8 +15,7 @@ namespace octofuse {
 struct FusionResult {
   std::unique_ptr<OccupancyMap> map;
   std::unique_ptr<ScalarTree> info_loss;
-  std::size_t voxels_fused = 0;   ///< leaf pairs the rule was applied to (result leaves)
-  std::size_t voxels_copied = 0;  ///< result leaves known to only one input (policy Copy)
+  FusionCounts counts;  ///< finest voxels fused and copied, and their summed loss
 };
 
 /// Fuses `a` and `b` voxel by voxel: the result equals VoxelFusion<rule, unknown> on every

@@ -35,46 +35,44 @@ struct IntoWalker {
     if (dst.nodeHasChildren(n) && !dst.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
   }
 
-  void set(OcNode* d, const VoxelValue& v, const LossCursor& lc) {
+  // The leaf d at `depth` gets v.
+  void set(OcNode* d, const VoxelValue& v, const LossCursor& lc, unsigned depth) {
     d->setLogOdds(v.value);
-    if (v.fused) {
-      loss.add(lc, v.loss);
-      ++st.fused;
-    } else {
-      ++st.copied;
-    }
+    if (v.fused) loss.add(lc, v.loss);
+    st.add(v, depth);
   }
 
   // A dst subtree the message does not know, under UnknownPolicy::Prior.
-  void prior_only(OcNode* d, const LossCursor& lc) {
+  void prior_only(OcNode* d, const LossCursor& lc, unsigned depth) {
     if (!dst.nodeHasChildren(d)) {
-      set(d, fusion.only_a(d->getLogOdds()), lc);
+      set(d, fusion.only_a(d->getLogOdds()), lc, depth);
       return;
     }
     for (unsigned i = 0; i < 8; ++i)
-      if (dst.nodeChildExists(d, i)) prior_only(dst.getNodeChild(d, i), loss.child(lc, i));
+      if (dst.nodeChildExists(d, i)) prior_only(dst.getNodeChild(d, i), loss.child(lc, i), depth + 1);
     finish_occ(d);
     loss.finish(lc);
   }
 
   // A message subtree dst does not know, written into the new dst node d.
-  void msg_only(const MsgNode& m, OcNode* d, const LossCursor& lc) {
+  void msg_only(const MsgNode& m, OcNode* d, const LossCursor& lc, unsigned depth) {
     if (m.leaf) {
-      set(d, fusion.only_b(m.node->getLogOdds()), lc);
+      set(d, fusion.only_b(m.node->getLogOdds()), lc, depth);
       return;
     }
     for (unsigned i = 0; i < 8; ++i) {
       const MsgNode c = m.child(i);
-      if (c.present()) msg_only(c, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{});
+      if (c.present())
+        msg_only(c, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{}, depth + 1);
     }
     finish_occ(d);
     if (kPrior) loss.finish(lc);
   }
 
-  void walk(OcNode* d, const MsgNode& m, const LossCursor& lc) {
+  void walk(OcNode* d, const MsgNode& m, const LossCursor& lc, unsigned depth) {
     const bool d_leaf = !dst.nodeHasChildren(d);
     if (d_leaf && m.leaf) {
-      set(d, fusion.both(d->getLogOdds(), m.node->getLogOdds()), lc);
+      set(d, fusion.both(d->getLogOdds(), m.node->getLogOdds()), lc, depth);
       return;
     }
     if (d_leaf) dst.expandNode(d);  // the message is finer here
@@ -82,15 +80,16 @@ struct IntoWalker {
       const MsgNode mc = m.child(i);
       if (!dst.nodeChildExists(d, i)) {
         if (mc.present()) {
-          msg_only(mc, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{});
+          msg_only(mc, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{},
+                   depth + 1);
         }
         continue;
       }
       OcNode* dc = dst.getNodeChild(d, i);
       if (mc.present()) {
-        walk(dc, mc, loss.child(lc, i));
+        walk(dc, mc, loss.child(lc, i), depth + 1);
       } else if constexpr (kPrior) {
-        prior_only(dc, loss.child(lc, i));
+        prior_only(dc, loss.child(lc, i), depth + 1);
       }
     }
     finish_occ(d);
@@ -103,11 +102,11 @@ struct IntoWalker {
     if (!m.present() && !(kPrior && root != nullptr)) return;
     const LossCursor lc = loss.root();
     if (!m.present()) {
-      if constexpr (kPrior) prior_only(root, lc);  // dst meets an empty message
+      if constexpr (kPrior) prior_only(root, lc, 0);  // dst meets an empty message
     } else if (root == nullptr) {
-      msg_only(m, detail::TreeAccess<octomap::OcTree>::ensure_root(dst), lc);
+      msg_only(m, detail::TreeAccess<octomap::OcTree>::ensure_root(dst), lc, 0);
     } else {
-      walk(root, m, lc);
+      walk(root, m, lc, 0);
     }
     loss.done();
   }
@@ -127,6 +126,7 @@ struct ParallelInto {
     OcNode* d;
     MsgNode m;
     const LossCursor* lc;
+    unsigned depth;
   };
 
   octomap::OcTree& dst;
@@ -145,7 +145,7 @@ struct ParallelInto {
 
   FuseIntoStats run(const octomap::OcTree& msg) {
     detail::LossAdder top(loss_tree);
-    std::vector<Part> level{{Kind::Walk, dst.getRoot(), MsgNode::root(msg), keep(top.root())}};
+    std::vector<Part> level{{Kind::Walk, dst.getRoot(), MsgNode::root(msg), keep(top.root()), 0}};
     const std::size_t target = 16 * std::size_t{threads};
     for (unsigned depth = 0; depth < 14 && level.size() < target; ++depth) {
       std::vector<Part> next;
@@ -164,14 +164,14 @@ struct ParallelInto {
           if (!dst.nodeChildExists(t.d, i)) {
             if (mc.present())
               next.push_back({Kind::MsgOnly, dst.createNodeChild(t.d, i), mc,
-                              keep(kPrior ? top.child(*t.lc, i) : LossCursor{})});
+                              keep(kPrior ? top.child(*t.lc, i) : LossCursor{}), t.depth + 1});
             continue;
           }
           OcNode* dc = dst.getNodeChild(t.d, i);
           if (mc.present()) {
-            next.push_back({Kind::Walk, dc, mc, keep(top.child(*t.lc, i))});
+            next.push_back({Kind::Walk, dc, mc, keep(top.child(*t.lc, i)), t.depth + 1});
           } else if constexpr (kPrior) {
-            next.push_back({Kind::PriorOnly, dc, mc, keep(top.child(*t.lc, i))});
+            next.push_back({Kind::PriorOnly, dc, mc, keep(top.child(*t.lc, i)), t.depth + 1});
           }
         }
       }
@@ -212,9 +212,9 @@ struct ParallelInto {
       for (std::size_t k = next++; k < level.size(); k = next++) {
         const Part& t = level[k];
         switch (t.kind) {
-          case Kind::Walk: w.walk(t.d, t.m, *t.lc); break;
-          case Kind::MsgOnly: w.msg_only(t.m, t.d, *t.lc); break;
-          case Kind::PriorOnly: w.prior_only(t.d, *t.lc); break;
+          case Kind::Walk: w.walk(t.d, t.m, *t.lc, t.depth); break;
+          case Kind::MsgOnly: w.msg_only(t.m, t.d, *t.lc, t.depth); break;
+          case Kind::PriorOnly: w.prior_only(t.d, *t.lc, t.depth); break;
         }
       }
       stats[worker] = w.st;
@@ -222,8 +222,7 @@ struct ParallelInto {
 
     FuseIntoStats st;
     for (std::size_t k = 0; k < threads; ++k) {
-      st.fused += stats[k].fused;
-      st.copied += stats[k].copied;
+      st += stats[k];
       detail::TreeAccess<octomap::OcTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
       if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
     }
@@ -245,13 +244,13 @@ struct MutualWalker {
   IntoWalker<Fusion>& a;  // dst = map a
   IntoWalker<Fusion>& b;  // dst = map b
 
-  void walk(OcNode* da, OcNode* db, const LossCursor& la, const LossCursor& lb) {
+  void walk(OcNode* da, OcNode* db, const LossCursor& la, const LossCursor& lb, unsigned depth) {
     octomap::OcTree &ta = a.dst, &tb = b.dst;
     const bool a_leaf = !ta.nodeHasChildren(da), b_leaf = !tb.nodeHasChildren(db);
     if (a_leaf && b_leaf) {
       const float va = da->getLogOdds(), vb = db->getLogOdds();
-      a.set(da, a.fusion.both(va, vb), la);
-      b.set(db, b.fusion.both(vb, va), lb);
+      a.set(da, a.fusion.both(va, vb), la, depth);
+      b.set(db, b.fusion.both(vb, va), lb, depth);
       return;
     }
     if (a_leaf) ta.expandNode(da);
@@ -260,17 +259,17 @@ struct MutualWalker {
       const bool ea = ta.nodeChildExists(da, i), eb = tb.nodeChildExists(db, i);
       if (ea && eb) {
         walk(ta.getNodeChild(da, i), tb.getNodeChild(db, i), a.loss.child(la, i),
-             b.loss.child(lb, i));
+             b.loss.child(lb, i), depth + 1);
       } else if (ea) {  // only a knows this part: b receives it, a meets b's unknown
         OcNode* ca = ta.getNodeChild(da, i);
         b.msg_only(MsgNode{&ta, ca, !ta.nodeHasChildren(ca)}, tb.createNodeChild(db, i),
-                   kPrior ? b.loss.child(lb, i) : LossCursor{});
-        if constexpr (kPrior) a.prior_only(ca, a.loss.child(la, i));
+                   kPrior ? b.loss.child(lb, i) : LossCursor{}, depth + 1);
+        if constexpr (kPrior) a.prior_only(ca, a.loss.child(la, i), depth + 1);
       } else if (eb) {
         OcNode* cb = tb.getNodeChild(db, i);
         a.msg_only(MsgNode{&tb, cb, !tb.nodeHasChildren(cb)}, ta.createNodeChild(da, i),
-                   kPrior ? a.loss.child(la, i) : LossCursor{});
-        if constexpr (kPrior) b.prior_only(cb, b.loss.child(lb, i));
+                   kPrior ? a.loss.child(la, i) : LossCursor{}, depth + 1);
+        if constexpr (kPrior) b.prior_only(cb, b.loss.child(lb, i), depth + 1);
       }
     }
     a.finish_occ(da);
@@ -281,7 +280,7 @@ struct MutualWalker {
 
   void run(OcNode* ra, OcNode* rb) {
     const LossCursor la = a.loss.root(), lb = b.loss.root();
-    walk(ra, rb, la, lb);
+    walk(ra, rb, la, lb, 0);
     a.loss.done();
     b.loss.done();
   }

@@ -7,11 +7,9 @@
 
 namespace octofuse {
 
-/// Counts of an in-place fusion.
-struct FuseIntoStats {
-  std::size_t fused = 0;   ///< leaves where both maps had a value
-  std::size_t copied = 0;  ///< leaves known only to the message and copied (policy Copy)
-};
+/// Counts of an in-place fusion, in finest voxels: `copied` counts the voxels known only to
+/// the message (policy Copy; voxels only the destination knows are not visited).
+using FuseIntoStats = FusionCounts;
 
 /// Fuses `msg` into `dst` in place, voxel by voxel, with the same per-voxel result as
 /// fuse_maps(dst, msg, rule, unknown) (dst is "a"), but with work proportional to the

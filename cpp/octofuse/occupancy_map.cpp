@@ -124,6 +124,13 @@ template void OccupancyMap::insert_scan_from_sensor<double>(const double*, std::
                                                             const double*, double);
 
 LeafArrays OccupancyMap::leaves() const { return collect_leaves(*tree_); }
+
+std::uint64_t OccupancyMap::known_voxels() const {
+  std::uint64_t n = 0;
+  for (auto it = tree_->begin_leafs(), end = tree_->end_leafs(); it != end; ++it)
+    n += std::uint64_t{1} << (3 * (tree_->getTreeDepth() - it.getDepth()));
+  return n;
+}
 LeafArrays scalar_leaves(const ScalarTree& tree) { return collect_leaves(tree); }
 
 void check_compatible(const OccupancyMap& a, const OccupancyMap& b) {

@@ -79,6 +79,8 @@ class OccupancyMap {
 
   const MapParams& params() const { return params_; }
   std::size_t num_leaves() const { return tree_->getNumLeafNodes(); }
+  /// Finest voxels the map knows: a leaf at depth d counts for the 8^(16-d) below it.
+  std::uint64_t known_voxels() const;
   std::size_t num_nodes() const { return tree_->size(); }
   std::size_t memory_bytes() const { return tree_->memoryUsage(); }
   octomap::OcTree& tree() { return *tree_; }

@@ -21,6 +21,8 @@ struct Cell {
   double sum = 0.0;            ///< sum of votes
   float max = 0.0f;            ///< largest vote
   std::uint32_t n = 0;         ///< number of votes
+  float nearest = 0.0f;        ///< the vote of the cell nearest to the voxel's centre
+  double nearest_d2 = 0.0;     ///< that distance, in half cell edges (Chebyshev, source axes)
   static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
 };
 
@@ -34,17 +36,22 @@ class VoteTable {
     mask_ = cap - 1;
   }
 
-  void vote(std::uint64_t key, float v, std::uint32_t count) {
+  void vote(std::uint64_t key, float v, std::uint32_t count, double d2) {
     Cell* c = &find(key);
     if (c->key == Cell::kEmpty) {
       c->key = key;
-      c->max = v;
+      c->max = c->nearest = v;
+      c->nearest_d2 = d2;
       if (2 * ++used_ > cells_.size()) {
         grow();
         c = &find(key);
       }
-    } else if (v > c->max) {
-      c->max = v;
+    } else {
+      if (v > c->max) c->max = v;
+      if (d2 < c->nearest_d2) {
+        c->nearest = v;
+        c->nearest_d2 = d2;
+      }
     }
     c->sum += static_cast<double>(v) * count;
     c->n += count;
@@ -108,19 +115,22 @@ bool grid_preserving(const double T[16], double res) {
 class LeafVotes {
  public:
   explicit LeafVotes(VoteTable& table) : table_(table) {}
-  void add(std::uint64_t key) {
+  /// A vote in voxel `key` from a cell at distance `d2` of the voxel's centre (see Cell).
+  void add(std::uint64_t key, double d2) {
     for (unsigned i = 0; i < n_; ++i) {
       if (keys_[i] == key) {
         ++counts_[i];
+        d2_[i] = std::min(d2_[i], d2);
         return;
       }
     }
     if (n_ == kSize) flush();
     keys_[n_] = key;
+    d2_[n_] = d2;
     counts_[n_++] = 1;
   }
   void flush() {
-    for (unsigned i = 0; i < n_; ++i) table_.vote(keys_[i], value_, counts_[i]);
+    for (unsigned i = 0; i < n_; ++i) table_.vote(keys_[i], value_, counts_[i], d2_[i]);
     n_ = 0;
   }
   void start(float value) {
@@ -133,6 +143,7 @@ class LeafVotes {
   VoteTable& table_;
   std::uint64_t keys_[kSize];
   std::uint32_t counts_[kSize];
+  double d2_[kSize];
   unsigned n_ = 0;
   float value_ = 0.0f;
 };
@@ -191,7 +202,8 @@ bool build(octomap::OcTree& tree, octomap::OcTreeNode* node, unsigned depth, con
 }  // namespace
 
 std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const double T[16],
-                                            double resolution, TransformStats* stats) {
+                                            double resolution, Resampling resampling,
+                                            TransformStats* stats) {
   MapParams params = src.params();
   const double src_res = params.resolution;
   params.resolution = resolution;
@@ -236,6 +248,7 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
     leaf.start(v);
     const long n = std::max(1L, static_cast<long>(std::ceil(s / h0 - 1e-9)));
     const double h = s / static_cast<double>(n);
+    const double half = h / 2;
     const double x0 = c.x() - s / 2 + h / 2, y0 = c.y() - s / 2 + h / 2, z0 = c.z() - s / 2 + h / 2;
     for (long i = 0; i < n; ++i) {
       const double x = x0 + static_cast<double>(i) * h;
@@ -248,8 +261,10 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
           const double z = z0 + static_cast<double>(k) * h;
           const double p[3] = {bx + T[2] * z, by + T[6] * z, bz + T[10] * z};
           std::uint64_t packed = 0;
+          double off[3];  // from the target voxel's centre to the sample
           for (int a = 0; a < 3; ++a) {
             const double f = std::floor(p[a] * inv);
+            off[a] = p[a] - (f + 0.5) * resolution;
             if (!(f >= -lim && f < lim)) {
               throw std::invalid_argument(
                   "the transformed map reaches " + std::string(1, "xyz"[a]) + " = " +
@@ -259,7 +274,14 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
             }
             packed |= static_cast<std::uint64_t>(static_cast<long>(f) + 32768) << (16 * a);
           }
-          leaf.add(packed);
+          // where the voxel's centre lies in the sample's cell (source axes, in half edges):
+          // at most 1 if the cell contains the pre-image of the centre
+          double cell = 0.0;
+          for (int a = 0; a < 3; ++a) {
+            const double o = T[a] * off[0] + T[4 + a] * off[1] + T[8 + a] * off[2];
+            cell = std::max(cell, std::fabs(o));
+          }
+          leaf.add(packed, cell / half);
         }
       }
     }
@@ -273,7 +295,12 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
   voxels.reserve(votes.size());
   for (const Cell& c : votes.cells()) {
     if (c.key == Cell::kEmpty) continue;
-    voxels.push_back({morton(c.key), c.max > 0.0f ? c.max : static_cast<float>(c.sum / c.n)});
+    // point sampling: a voxel whose centre's pre-image is in unknown space stays unknown
+    if (resampling == Resampling::Nearest && c.nearest_d2 > 1.0 + 1e-9) continue;
+    const float v = resampling == Resampling::Nearest ? c.nearest
+                    : c.max > 0.0f                    ? c.max
+                                                      : static_cast<float>(c.sum / c.n);
+    voxels.push_back({morton(c.key), v});
   }
   std::vector<Cell>().swap(votes.cells());
   std::sort(voxels.begin(), voxels.end(),

@@ -14,6 +14,12 @@ struct TransformStats {
   std::size_t target_voxels = 0;  ///< finest target voxels that received a value
 };
 
+/// How a target voxel gets its value from the source cells whose centres land in it.
+enum class Resampling {
+  Vote,     ///< occupied wins (the largest vote if any is occupied), else the mean of the votes
+  Nearest,  ///< the value at the pre-image of the voxel's centre (point sampling)
+};
+
 /// A new map holding `src` moved by the rigid transform `T` (4x4, row-major; a point p of the
 /// source frame goes to T p in the target frame) on a grid of voxel size `resolution`, with the
 /// sensor model and clamping of `src`.
@@ -34,7 +40,15 @@ struct TransformStats {
 ///
 /// T must be rigid (the caller checks); throws std::invalid_argument if the transformed map
 /// leaves the octree's key range at `resolution`.
+///
+/// With Resampling::Nearest a target voxel instead takes the value of the source cell that holds
+/// the pre-image of its centre (point sampling), and stays unknown where that pre-image is in
+/// unknown space. Surfaces keep their thickness and known space does not grow, so maps moved back
+/// and forth between frames (messages between agents) do not thicken at every move; the exact
+/// cases above stay exact.
 std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const double T[16],
-                                            double resolution, TransformStats* stats = nullptr);
+                                            double resolution,
+                                            Resampling resampling = Resampling::Vote,
+                                            TransformStats* stats = nullptr);
 
 }  // namespace octofuse

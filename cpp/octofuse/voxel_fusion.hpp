@@ -29,6 +29,37 @@ struct VoxelValue {
   bool fused;   ///< false when copied from the only map that knows the voxel
 };
 
+/// Finest voxels under a node at `depth` of an OctoMap tree (depth 16 = one finest voxel).
+inline constexpr std::uint64_t voxels_at_depth(unsigned depth) {
+  return std::uint64_t{1} << (3 * (16 - depth));
+}
+
+/// What a tree fusion did, in finest voxels: a leaf at depth d counts for the 8^(16-d)
+/// voxels it stands for.
+struct FusionCounts {
+  std::uint64_t fused = 0;   ///< voxels the rule was applied to
+  std::uint64_t copied = 0;  ///< voxels known to one map only and copied (policy Copy)
+  double loss_sum = 0.0;     ///< information loss summed over the fused voxels (nats)
+
+  /// Counts the voxels of one leaf at `depth` that got `v`.
+  void add(const VoxelValue& v, unsigned depth) {
+    const std::uint64_t n = voxels_at_depth(depth);
+    if (v.fused) {
+      fused += n;
+      loss_sum += static_cast<double>(v.loss) * static_cast<double>(n);
+    } else {
+      copied += n;
+    }
+  }
+
+  FusionCounts& operator+=(const FusionCounts& o) {
+    fused += o.fused;
+    copied += o.copied;
+    loss_sum += o.loss_sum;
+    return *this;
+  }
+};
+
 namespace detail {
 
 /// The last results of the rule for a few thousand pairs of stored values (direct mapped).

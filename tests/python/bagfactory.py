@@ -619,6 +619,26 @@ def run_cli(capsys, *args) -> tuple[int, str, str]:
     return code, strip_ansi(out), strip_ansi(err)
 
 
+def run_keeping_result(*args):
+    """Run ``octofuse ARGS`` in-process: (exit code, the SimResult its outputs were written
+    from, or None), to check the files against."""
+    import pytest
+
+    import octofuse.outputs.report as report
+    from octofuse.cli import main
+
+    kept, write = {}, report.write_outputs
+
+    def keep(res, *a, **kw):
+        kept["res"] = res
+        return write(res, *a, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(report, "write_outputs", keep)
+        code = main([str(a) for a in args])
+    return code, kept.get("res")
+
+
 # -- robot teams ------------------------------------------------------------------------------
 
 #: (start, velocity) of up to 4 lidar robots, one per quarter of :data:`ROOM`; each drives

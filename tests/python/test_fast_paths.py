@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from octofuse import _core
+from octofuse.maps.infoloss import InfoLossMap
 from octofuse.maps.occupancy import OccupancyMap, fuse_into, fuse_maps
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -147,7 +148,7 @@ def test_parallel_fuse_into_equals_one_thread(rule, unknown):
         l1, l2 = _core._ScalarTree(0.1), _core._ScalarTree(0.1)
         f1 = _core._fuse_into(one._m, b0._m, _rule(rule), _unknown(unknown), l1, threads=1)
         f2 = _core._fuse_into(two._m, b0._m, _rule(rule), _unknown(unknown), l2, threads=2)
-        assert f1 == f2
+        assert f1[:2] == f2[:2] and f1[2] == pytest.approx(f2[2], rel=1e-12)  # sums in another order
         assert_same_map(one, two)
         assert_same_map(one, fuse_maps(a0, b0, rule, unknown).map)
         np.testing.assert_array_equal(l1.leaves()["values"], l2.leaves()["values"])
@@ -168,4 +169,20 @@ def test_fuse_into_rejects_bad_thread_counts():
     a, b = random_map(1, 0.0), random_map(2, 0.0)
     with pytest.raises(ValueError, match="threads"):
         _core._fuse_into(a._m, b._m, _rule("naive-bayes"), _unknown("copy"), None, threads=0)
+    for bad in (0, -1, 2.5, "2", True):
+        with pytest.raises(ValueError, match="threads"):
+            fuse_into(a, b, "naive-bayes", threads=bad)
+    assert_same_map(a, random_map(1, 0.0))  # nothing fused by the refused calls
     fuse_into(a, b, "naive-bayes")  # the public call is unchanged
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_public_fuse_into_on_threads_equals_one_thread(threads):
+    a0, b0 = random_map(5, 0.0), random_map(6, 0.3)
+    one, many = a0.copy(), a0.copy()
+    l1, l2 = InfoLossMap(0.1), InfoLossMap(0.1)
+    fuse_into(one, b0, "min-info-loss", loss=l1)
+    fuse_into(many, b0, "min-info-loss", loss=l2, threads=threads)
+    assert_same_map(one, many)
+    assert (l1.voxels_fused, l1.voxels_copied) == (l2.voxels_fused, l2.voxels_copied)
+    assert l1.loss_sum == pytest.approx(l2.loss_sum, rel=1e-12)

@@ -300,3 +300,52 @@ def test_fuse_map_files_errors(tmp_path, room):
         fuse_map_files([tmp_path / "a.ot", tmp_path / "b.ot"], frames=[None])
     with pytest.raises(FileNotFoundError):
         fuse_map_files([tmp_path / "a.ot", tmp_path / "nope.ot"])
+
+
+# ------------------------------------------------------------------ point sampling ("nearest")
+
+ODD_MOVES = [pose_matrix(0.03, 0.02, 0.0, 0.0, 0.0, math.radians(3)),
+             pose_matrix(0.37, -0.21, 0.05, 0.02, -0.01, math.radians(-17))]
+
+
+@pytest.mark.parametrize("T", ODD_MOVES)
+def test_nearest_takes_the_value_at_the_pre_image_of_each_centre(room, T):
+    moved = room.transformed(T, resampling="nearest")
+    lv = moved.leaves()
+    back = (invert(T) @ np.c_[lv.centers, np.ones(len(lv.values))].T).T[:, :3]
+    src = room.leaves()
+    for centre, value in zip(back[::7], lv.values[::7]):  # brute force over the source leaves
+        inside = np.all(np.abs(src.centers - centre) <= src.sizes[:, None] / 2 + 1e-9, axis=1)
+        assert inside.any(), "a voxel appeared whose centre came from unknown space"
+        assert value == pytest.approx(float(src.values[inside][0]), abs=1e-6)
+
+
+@pytest.mark.parametrize("T", ODD_MOVES)
+def test_nearest_keeps_surfaces_thin_when_moved_back_and_forth(room, T):
+    def counts(m):
+        lv = m.leaves()
+        w = np.power(8.0, 16 - lv.depths.astype(float))
+        return w[lv.values > 0].sum(), w.sum()
+
+    occ0, known0 = counts(room)
+    vote = nearest = room
+    for _ in range(4):
+        vote = vote.transformed(T).transformed(invert(T))
+        nearest = nearest.transformed(T, resampling="nearest").transformed(
+            invert(T), resampling="nearest")
+    occ_v, known_v = counts(vote)
+    occ_n, known_n = counts(nearest)
+    assert occ_v > 1.5 * occ0  # occupied wins: surfaces thicken at every move
+    assert abs(occ_n - occ0) <= 0.1 * occ0 and abs(known_n - known0) <= 0.05 * known0
+
+
+@pytest.mark.parametrize("T", [pose_matrix(0.4, -0.2, 0.1), pose_matrix(yaw=math.pi / 2)])
+def test_nearest_is_exact_where_the_grid_maps_onto_itself(room, T):
+    a = room.transformed(T).leaves()
+    b = room.transformed(T, resampling="nearest").leaves()
+    assert np.array_equal(a.centers, b.centers) and np.array_equal(a.values, b.values)
+
+
+def test_unknown_resampling_is_refused(room):
+    with pytest.raises(ValueError, match="resampling 'cubic'"):
+        room.transformed(np.eye(4), resampling="cubic")

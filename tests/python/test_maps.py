@@ -270,3 +270,91 @@ def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unkn
     assert expand(xb.leaves(), 0.1) == expand(rb.leaves(), 0.1)
     assert expand(la.leaves(), 0.1) == expand(la_ref.leaves(), 0.1)
     assert expand(lb.leaves(), 0.1) == expand(lb_ref.leaves(), 0.1)
+
+
+def _random_tree_data(rng, top_depth=11, leaf_prob=(0.25, 0.3, 0.35, 0.45, 1.0)):
+    """OctoMap node data (``OcTree::writeData``: each node's float log-odds and its child mask,
+    depth first) of a random tree: one path from the root down to ``top_depth``, then random
+    subtrees whose leaves lie at every depth from top_depth + 1 to 16 (a leaf at depth d stands
+    for 8^(16-d) finest voxels). Values are a few sensor-model sums and some continuous ones."""
+    out = bytearray()
+    steps = np.array([-2.0, -1.23, -0.41, 0.0, 0.85, 1.7, 3.5], dtype=np.float32)
+
+    def node(value, mask):
+        out.extend(np.float32(value).tobytes())
+        out.append(mask)
+
+    def subtree(depth):
+        v = rng.choice(steps) if rng.random() < 0.7 else rng.uniform(-2.0, 3.5)
+        if depth == 16 or rng.random() < leaf_prob[depth - top_depth - 1]:
+            node(v, 0)
+            return
+        mask = int(rng.integers(1, 256))
+        node(v, mask)
+        for i in range(8):
+            if mask >> i & 1:
+                subtree(depth + 1)
+
+    for depth in range(top_depth):  # the path: child 7 at the root, then child 0 (near 0, 0, 0)
+        node(0.0, 1 << (7 if depth == 0 else 0))
+    mask = int(rng.integers(1, 256)) | 1
+    node(0.0, mask)
+    for i in range(8):
+        if mask >> i & 1:
+            subtree(top_depth + 1)
+    return bytes(out)
+
+
+def _random_tree_pair(seed):
+    rng = np.random.default_rng(seed)
+    a, b = (OccupancyMap.from_tree_data(_random_tree_data(rng), 0.1) for _ in range(2))
+    return a, b
+
+
+def _brute_force_counts(a, b, rule, unknown):
+    """Finest voxels fused and copied by fusing ``a`` and ``b`` and the summed loss, from the
+    expanded maps: (fused, only in a, only in b, loss sum)."""
+    ea, eb = expand(a.leaves(), 0.1), expand(b.leaves(), 0.1)
+    keys = sorted(ea.keys() | eb.keys())
+    la = np.array([ea.get(k, np.nan) for k in keys], dtype=np.float64)
+    lb = np.array([eb.get(k, np.nan) for k in keys], dtype=np.float64)
+    both = ~np.isnan(la) & ~np.isnan(lb)
+    only_a, only_b = int((~np.isnan(la) & np.isnan(lb)).sum()), int((np.isnan(la) & ~np.isnan(lb)).sum())
+    if unknown == "copy":
+        loss = fuse_logodds(la[both], lb[both], rule=rule).info_loss
+        return int(both.sum()), only_a, only_b, float(loss.astype(np.float32).astype(np.float64).sum())
+    loss = fuse_logodds(np.nan_to_num(la, nan=0.0), np.nan_to_num(lb, nan=0.0), rule=rule).info_loss
+    return len(keys), only_a, only_b, float(loss.astype(np.float32).astype(np.float64).sum())
+
+
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+@pytest.mark.parametrize("rule", ["naive-bayes", "min-info-loss", "chernoff"])
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_counts_are_finest_voxels_and_the_loss_sum_is_the_voxels_loss(seed, rule, unknown):
+    a, b = _random_tree_pair(seed)
+    assert len(np.unique(np.concatenate([a.leaves().depths, b.leaves().depths]))) >= 4
+    fused, only_a, only_b, loss_sum = _brute_force_counts(a, b, rule, unknown)
+    assert fused > 0 and only_a > 0 and only_b > 0
+    assert a.known_voxels == len(expand(a.leaves(), 0.1))
+    prior = unknown == "prior"
+
+    _, loss = fuse_maps(a, b, rule=rule, unknown=unknown)
+    assert (loss.voxels_fused, loss.voxels_copied) == (fused, 0 if prior else only_a + only_b)
+    assert loss.loss_sum == pytest.approx(loss_sum, rel=1e-9, abs=1e-9)
+
+    for threads in (1, 2, 3):  # in place: voxels only dst knows are not visited
+        for dst, msg, only_msg in ((a, b, only_b), (b, a, only_a)):
+            loss = octofuse.InfoLossMap(0.1)
+            octofuse.fuse_into(dst.copy(), msg, rule, unknown, loss, threads=threads)
+            assert (loss.voxels_fused, loss.voxels_copied) == (fused, 0 if prior else only_msg)
+            assert loss.loss_sum == pytest.approx(loss_sum, rel=1e-9, abs=1e-9)
+
+    la, lb = octofuse.InfoLossMap(0.1), octofuse.InfoLossMap(0.1)
+    octofuse.exchange_maps(a.copy(), b.copy(), rule, unknown, la, lb)
+    assert (la.voxels_fused, la.voxels_copied) == (fused, 0 if prior else only_b)
+    assert (lb.voxels_fused, lb.voxels_copied) == (fused, 0 if prior else only_a)
+    assert la.loss_sum == pytest.approx(loss_sum, rel=1e-9, abs=1e-9)
+    # the counts follow the loss map through copy and accumulate
+    acc = la.copy()
+    acc.accumulate(lb)
+    assert (acc.voxels_fused, acc.loss_sum) == (2 * fused, pytest.approx(la.loss_sum + lb.loss_sum))

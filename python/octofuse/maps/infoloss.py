@@ -22,6 +22,30 @@ class Leaves(NamedTuple):
     values: np.ndarray  #: (N,) float32 stored value (log-odds for occupancy maps)
     depths: np.ndarray  #: (N,) uint8 tree depth (16 = finest voxel)
 
+    def values_at(self, points: np.ndarray, resolution: float) -> np.ndarray:
+        """Value of the leaf containing each point (N, 3) (NaN where no leaf does), for leaves
+        of a tree of finest voxel size ``resolution``: looked up depth by depth through the
+        leaves' integer keys."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(points), np.nan, dtype=np.float32)
+        depths = np.asarray(self.depths)
+        for d in np.unique(depths):
+            sel = depths == d
+            size = resolution * 2.0 ** (16 - int(d))
+            keys = _pack_keys(np.floor(np.asarray(self.centers)[sel] / size))
+            order = np.argsort(keys)
+            keys, vals = keys[order], np.asarray(self.values)[sel][order]
+            q = _pack_keys(np.floor(points / size))
+            i = np.clip(np.searchsorted(keys, q), 0, len(keys) - 1)
+            hit = keys[i] == q
+            out[hit] = vals[i[hit]]
+        return out
+
+
+def _pack_keys(k: np.ndarray) -> np.ndarray:
+    k = k.astype(np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
 
 def leaves_from_core(raw: dict) -> Leaves:
     return Leaves(raw["centers"], raw["sizes"], raw["values"], raw["depths"])
@@ -32,20 +56,32 @@ class InfoLossMap:
 
     A tree over the same voxel keys as the maps. :meth:`accumulate` adds another loss map
     voxel by voxel, which is how an agent's loss over all its fusions is kept.
+
+    ``voxels_fused`` and ``voxels_copied`` count finest voxels (a coarse leaf counts for every
+    voxel below it) over the fusions recorded here; ``loss_sum`` is the loss (nats) summed over
+    the fused voxels, so ``loss_sum / voxels_fused`` is the mean loss of a fused voxel.
     """
 
-    __slots__ = ("_t", "voxels_fused", "voxels_copied")
+    __slots__ = ("_t", "voxels_fused", "voxels_copied", "loss_sum")
 
     def __init__(self, resolution: float):
         self._t = _core._ScalarTree(float(resolution))
         self.voxels_fused = 0
         self.voxels_copied = 0
+        self.loss_sum = 0.0
 
     @classmethod
-    def _wrap(cls, raw, fused: int = 0, copied: int = 0) -> "InfoLossMap":
+    def _wrap(cls, raw, fused: int = 0, copied: int = 0, loss_sum: float = 0.0) -> "InfoLossMap":
         obj = cls.__new__(cls)
-        obj._t, obj.voxels_fused, obj.voxels_copied = raw, fused, copied
+        obj._t, obj.voxels_fused, obj.voxels_copied, obj.loss_sum = raw, fused, copied, loss_sum
         return obj
+
+    def _record(self, counts) -> None:
+        """Adds the core's counts of one fusion: (voxels fused, voxels copied, loss sum)."""
+        fused, copied, loss_sum = counts
+        self.voxels_fused += int(fused)
+        self.voxels_copied += int(copied)
+        self.loss_sum += float(loss_sum)
 
     def leaves(self) -> Leaves:
         """Leaf centres, sizes, loss values (nats) and depths."""
@@ -54,11 +90,11 @@ class InfoLossMap:
     def accumulate(self, other: "InfoLossMap") -> None:
         """Add ``other`` into this map voxel by voxel (in place)."""
         self._t.accumulate(other._t)
-        self.voxels_fused += other.voxels_fused
-        self.voxels_copied += other.voxels_copied
+        self._record((other.voxels_fused, other.voxels_copied, other.loss_sum))
 
     def copy(self) -> "InfoLossMap":
-        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied)
+        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied,
+                                 self.loss_sum)
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the leaves as ``.npz`` arrays (read back by :func:`read_info_loss`)."""

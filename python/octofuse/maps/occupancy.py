@@ -176,7 +176,8 @@ class OccupancyMap:
                                                    float(prob_miss), float(cmin), float(cmax)))
 
     # -- frames --------------------------------------------------------------------------
-    def transformed(self, T, resolution: float | None = None) -> "OccupancyMap":
+    def transformed(self, T, resolution: float | None = None,
+                    resampling: str = "vote") -> "OccupancyMap":
         """A new map: this map moved by the rigid transform ``T`` and resampled onto a grid of
         voxel size ``resolution`` (default: this map's), with this map's sensor model and
         clamping. ``T`` is a 4x4 homogeneous matrix taking a point of this map's frame into the
@@ -195,6 +196,11 @@ class OccupancyMap:
         Resampling to a coarser grid gives each coarse voxel the maximum of its occupied parts
         (OctoMap's own rule for inner nodes) or the mean of its free parts.
 
+        ``resampling="nearest"`` gives a target voxel instead the vote cast closest to its
+        centre (about the value at the pre-image of its centre): surfaces keep their thickness,
+        so a map moved back and forth between frames (messages between agents) does not grow
+        thicker at every move. The exact cases above stay exact.
+
         Raises ``ValueError`` naming the value for a ``T`` that is not a finite rigid 4x4
         matrix, a bad resolution, or a result outside the octree's key range. The GIL is
         released while the C++ core works.
@@ -203,7 +209,9 @@ class OccupancyMap:
 
         T = check_rigid(T)
         res = self.resolution if resolution is None else _resolution(resolution)
-        raw, _stats = _core._transform_map(self._m, T, res)
+        if resampling not in ("vote", "nearest"):
+            raise ValueError(f"resampling {resampling!r}: expected 'vote' or 'nearest'")
+        raw, _stats = _core._transform_map(self._m, T, res, resampling)
         return OccupancyMap._wrap(raw)
 
     # -- contents ----------------------------------------------------------------------
@@ -249,6 +257,11 @@ class OccupancyMap:
     @property
     def num_leaves(self) -> int:
         return self._m.num_leaves
+
+    @property
+    def known_voxels(self) -> int:
+        """Finest voxels the map knows (a coarse leaf counts for every voxel below it)."""
+        return self._m.known_voxels
 
     @property
     def num_nodes(self) -> int:
@@ -308,26 +321,28 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
         raise TypeError("fuse_maps expects two OccupancyMap objects")
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    raw_map, raw_loss, fused, copied = _core._fuse_maps(a._m, b._m, rule, unknown)
-    return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, fused, copied))
+    raw_map, raw_loss, counts = _core._fuse_maps(a._m, b._m, rule, unknown)
+    return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, *counts))
 
 
 def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
-              unknown: str = "copy", loss: InfoLossMap | None = None) -> InfoLossMap | None:
+              unknown: str = "copy", loss: InfoLossMap | None = None,
+              threads: int = 1) -> InfoLossMap | None:
     """Fuse ``msg`` into ``dst`` in place (the result equals ``fuse_maps(dst, msg)``).
 
     With ``unknown="copy"`` the work is proportional to the message, not to ``dst``: this is
     how an agent fuses each received map (or delta) into its own. The information loss of
-    the fused voxels is added into ``loss`` (in place) if given; returns ``loss``.
+    the fused voxels is added into ``loss`` (in place) if given, with the counts of finest
+    voxels fused and copied (voxels only the message knows); returns ``loss``. With
+    ``threads`` > 1, disjoint subtrees are fused on that many threads (same result).
     """
     if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
         raise TypeError("fuse_into expects two OccupancyMap objects")
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    fused, copied = _core._fuse_into(dst._m, msg._m, rule, unknown,
-                                     None if loss is None else loss._t)
+    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, None if loss is None else loss._t,
+                              threads=_threads(threads))
     if loss is not None:
-        loss.voxels_fused += fused
-        loss.voxels_copied += copied
+        loss._record(counts)
     return loss
 
 
@@ -341,13 +356,12 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
         raise TypeError("exchange_maps expects two OccupancyMap objects")
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    fa, ca, fb, cb = _core._fuse_mutual(a._m, b._m, rule, unknown,
-                                        None if loss_a is None else loss_a._t,
-                                        None if loss_b is None else loss_b._t)
-    for loss, f, c in ((loss_a, fa, ca), (loss_b, fb, cb)):
+    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown,
+                                            None if loss_a is None else loss_a._t,
+                                            None if loss_b is None else loss_b._t)
+    for loss, counts in ((loss_a, counts_a), (loss_b, counts_b)):
         if loss is not None:
-            loss.voxels_fused += f
-            loss.voxels_copied += c
+            loss._record(counts)
 
 
 def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np.ndarray,
@@ -362,6 +376,12 @@ def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np
                         [np.ascontiguousarray(p) for p in points],
                         np.ascontiguousarray(poses, dtype=np.float64),
                         np.ascontiguousarray(max_ranges, dtype=np.float64), int(threads))
+
+
+def _threads(threads) -> int:
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
+        raise ValueError(f"threads must be a whole number, got {threads!r}")
+    return int(threads)
 
 
 def _resolution(resolution) -> float:
