@@ -205,7 +205,6 @@ def fmt_s(x: float) -> str:
 
 
 def print_tables(res: dict, out=sys.stdout) -> None:
-    p = lambda s="": print(s, file=out)  # noqa: E731
     if "demo" in res:
         print_demo(res, out)
     print_growth(res, out)

@@ -15,7 +15,7 @@ from typing import Optional
 
 import click
 
-from .config import BuildConfig, FuseConfig, RunConfig
+from .config import RunConfig
 
 _DEFAULT = RunConfig()
 CONTEXT = {"help_option_names": ["-h", "--help"], "show_default": True, "max_content_width": 100}
@@ -94,11 +94,28 @@ exchange_options = _options(
                  help="probability that a message is lost (seeded, the same messages for every rule)",
                  show_default=str(_DEFAULT.fuse.loss)),
 )
+frame_options = _options(
+    click.option("--agent-frame", multiple=True,
+                 help="NAME=x,y,z,roll,pitch,yaw: the rigid transform from agent NAME's map frame "
+                      "into the common frame (metres, radians; repeatable)",
+                 show_default="every agent in the common frame"),
+    click.option("--align", type=click.Choice(["off", "planar", "full"]), metavar="MODE",
+                 help="estimate each link's transform on first contact: off, planar (x, y, z, "
+                      "yaw) or full", show_default=_DEFAULT.fuse.align),
+)
 topology_option = click.option("--topology", help="ring, line, star, complete, grid, random:P, "
                                 "max-robust:K or a graph file", show_default=_DEFAULT.fuse.topology)
 out_option = click.option("--out", type=click.Path(file_okay=False, path_type=Path),
                           help="output folder (replaced whole when it holds an earlier octofuse "
                                "output)")
+export_options = _options(
+    click.option("--export", type=click.Choice(["all", "fused", "none"]), metavar="MODE",
+                 help="per rule and exported agent: fused map and heat maps (all), the fused map "
+                      "only (fused), or nothing (none: report, summary and plots)",
+                 show_default=_DEFAULT.export),
+    click.option("--formats", help="heat-map formats, comma separated: ply, pcd",
+                 show_default=",".join(_DEFAULT.formats)),
+)
 
 
 def _pairs(values, what: str) -> dict[str, str]:
@@ -140,9 +157,17 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunCon
                   spanning_tree=p.get("spanning_tree"), loss=p.get("loss"))
     if p.get("robust") is not None:
         fuse["robust"] = {"enabled": p["robust"]}
+    if p.get("agent_frame"):
+        from .maps.frames import parse_frame_values
+
+        fuse["agent_frames"] = [dict(zip(("name", "pose"), parse_frame_values(f)))
+                                for f in p["agent_frame"]]
+    if p.get("align") is not None:
+        fuse["align"] = p["align"]
     run = _given(out=str(p["out"]) if p.get("out") else None,
                  truth=str(p["truth"]) if p.get("truth") else None,
-                 samples=p.get("samples"), export_agents=p.get("export_agents"))
+                 samples=p.get("samples"), export_agents=p.get("export_agents"),
+                 export=p.get("export"), formats=[p["formats"]] if p.get("formats") else None)
     data = merge(data, {"build": build, "fuse": fuse, **run})
     _agent_poses(data, p)
     return from_dict(RunConfig, data, where="options")
@@ -245,7 +270,8 @@ def build(bags, **p):
     say(f"wrote {len(result.all_maps())} maps to {out}/")
 
 
-def _run_and_report(cfg: RunConfig, title: str, command: str) -> None:
+def _run_and_report(cfg: RunConfig, title: str, command: str,
+                    export_bag: Optional[Path] = None) -> None:
     from .fusion.simulate import simulate
     from .maps.truth import Scene
     from .outputs.report import write_outputs
@@ -254,13 +280,43 @@ def _run_and_report(cfg: RunConfig, title: str, command: str) -> None:
 
     out = check_replaceable(cfg.out)
     truth = Scene.find(cfg.truth, cfg.build.bags)
-    with Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))") as bar:
-        res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar)
-    with staged_folder(out, command) as stage:
-        write_outputs(res, stage, cfg, export_agents=_export_agents(cfg.export_agents, res.agents),
-                      title=title)
+    bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
+    try:
+        with Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))") as bar:
+            if bag is None:
+                res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar)
+            else:
+                from .scans.source import ScanSource
+
+                with ScanSource(cfg.build) as src:
+                    bag.start_ns = src.bags.start_ns or 0
+                    res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
+                                   progress=bar, source=src, observer=bag)
+        with staged_folder(out, command) as stage:
+            write_outputs(res, stage, cfg, export_agents=_export_agents(cfg.export_agents, res.agents),
+                          title=title, event_bag=bag)
+            if bag is not None:
+                bag.close()
+    finally:
+        if bag is not None:
+            bag.abort()  # nothing once closed
     _console().print(scores_table(res, title))
+    if bag is not None:
+        say(f"bag: {bag.path} ({bag.messages} map messages)")
     say(f"report: {out / 'report.md'}")
+
+
+def _event_bag(path: Path, cfg: RunConfig, out: Path):
+    """The per-event bag of ``--export-bag``, checked and opened before the run."""
+    from .outputs.event_bag import FusionEventBag
+
+    if cfg.export_agents == "none":
+        raise CliError("--export-bag: no agent is exported (--export-agents none)")
+    if path.absolute() == out.absolute() or out.absolute() in path.absolute().parents:
+        raise CliError(f"--export-bag '{path}' is inside --out '{out}', which is replaced "
+                       "whole; give a path outside it")
+    return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"),
+                          select=lambda agents: _export_agents(cfg.export_agents, agents))
 
 
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
@@ -278,24 +334,30 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
 @rule_option
 @topology_option
 @exchange_options
+@frame_options
 @build_options
 @click.option("--samples", type=click.IntRange(0, 10_000), help="points in time at which KL is recorded",
               show_default=str(_DEFAULT.samples))
 @click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
               "or names", show_default=_DEFAULT.export_agents)
+@export_options
+@click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
+              help="also write every exported agent's map after each fusion it received, per "
+                   "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
+                   "folder) to replay the run in RViz or Foxglove")
 @click.option("--robust/--no-robust", default=None, show_default="off",
               help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
                    "its time and parameters: fuse.robust in --config)")
 @config_options
 @out_option
-def run(bags, **p):
+def run(bags, export_bag, **p):
     """The whole job in time order: build, exchange, fuse, score, export, report."""
     cfg = run_config(p, bags=bags)
     if p["dump_config"]:
         return _dump(cfg)
     _need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
     _need_out(cfg, p["out"])
-    _run_and_report(cfg, "octofuse run", "run")
+    _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag)
 
 
 def bundled_dataset() -> Path:
@@ -315,6 +377,7 @@ def bundled_dataset() -> Path:
               show_default="all,channel-filter")
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@export_options
 def demo(**p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
@@ -340,6 +403,8 @@ def demo(**p):
 @click.option("--seed", type=int, help="seed of random topologies", show_default="0")
 @click.option("--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@frame_options
+@export_options
 @config_options
 @out_option
 def fuse_cmd(maps_dir, rounds, **p):
@@ -487,21 +552,26 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
 @click.option("--planar", is_flag=True, help="ground robots: estimate x, y, z and yaw only")
 @click.option("--min-fitness", type=click.FloatRange(0.0, 1.0), default=0.5,
               help="refuse an alignment with fewer matching voxels than this fraction")
+@click.option("--max-conflict", type=click.FloatRange(0.0, 1.0), default=0.03,
+              help="refuse an alignment that puts more of B's occupied voxels than this fraction "
+                   "where A saw free space")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def align(a, b, planar, min_fitness, as_json):
+def align(a, b, planar, min_fitness, max_conflict, as_json):
     """Estimate the rigid transform that takes map B's frame into map A's (occupied voxels)."""
     import json
 
     from .maps.occupancy import OccupancyMap
     from .maps.registration import register
 
-    r = register(OccupancyMap.load(a), OccupancyMap.load(b), planar=planar, min_fitness=min_fitness)
+    r = register(OccupancyMap.load(a), OccupancyMap.load(b), planar=planar, min_fitness=min_fitness,
+                 max_conflict=max_conflict)
     d = r.as_dict()
     if as_json:
         click.echo(json.dumps(d))
     else:
         say(f"B -> A: x {d['x']:.4f} m, y {d['y']:.4f} m, z {d['z']:.4f} m, roll {d['roll']:.5f}, "
-            f"pitch {d['pitch']:.5f}, yaw {d['yaw']:.5f} rad; fitness {d['fitness']:.3f}")
+            f"pitch {d['pitch']:.5f}, yaw {d['yaw']:.5f} rad; fitness {d['fitness']:.3f}, "
+            f"conflict {d['conflict']:.3f}")
 
 
 @cli.command()

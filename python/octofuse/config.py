@@ -27,6 +27,9 @@ CHANNEL_FILTER = "channel-filter"
 #: how the channel filter's tree is chosen on a graph with loops: a breadth-first tree from a
 #: centre of the graph, or the topology itself (which must then be a tree); or a graph file
 SPANNING_TREES = ("bfs", "given")
+#: what a run writes per rule and exported agent (``RunConfig.export``), and heat-map formats
+EXPORTS = ("all", "fused", "none")
+HEATMAP_FORMATS = ("ply", "pcd")
 
 
 @dataclass
@@ -150,6 +153,26 @@ class RobustConfig:
 
 
 @dataclass
+class AgentFrame:
+    """An agent's map frame: the rigid transform taking a point of agent ``name``'s map frame
+    into the common frame, as ``x, y, z`` (metres) and ``roll, pitch, yaw`` (radians)."""
+
+    name: str
+    pose: list[float]
+
+    def validate(self, where: str) -> None:
+        if not self.name:
+            raise ValueError(f"{where}.name: expected an agent's name")
+        if len(self.pose) != 6 or not all(math.isfinite(v) for v in self.pose):
+            raise ValueError(f"{where}.pose = {self.pose}: expected 6 finite numbers x, y, z, "
+                             "roll, pitch, yaw (metres, radians)")
+
+
+#: alignment of a link on first contact (``FuseConfig.align``): none, x y z + yaw, or 6-DoF
+ALIGN_MODES = ("off", "planar", "full")
+
+
+@dataclass
 class FuseConfig:
     """How maps are exchanged and fused (``octofuse fuse`` / ``run``)."""
 
@@ -174,6 +197,10 @@ class FuseConfig:
     #: probability that a message is lost (drawn once per message from ``seed``, the same
     #: messages for every rule)
     loss: float = 0.0
+    #: the agents' own map frames (agents not listed are in the common frame)
+    agent_frames: list[AgentFrame] = field(default_factory=list)
+    #: estimate each link's transform on first contact: off, planar (x, y, z, yaw) or full
+    align: str = "off"
 
     def validate(self, where: str) -> None:
         from .rules import RULES, UNKNOWN_POLICIES
@@ -209,6 +236,29 @@ class FuseConfig:
             raise ValueError(f"{where}.spanning_tree = {self.spanning_tree!r}: expected "
                              f"{' or '.join(SPANNING_TREES)}, or a graph file with the tree's links")
         self.spanning_tree = tree
+        self._validate_frames(where)
+
+    def _validate_frames(self, where: str) -> None:
+        seen: set[str] = set()
+        for i, f in enumerate(self.agent_frames):
+            f.validate(f"{where}.agent_frames[{i}]")
+            if f.name in seen:
+                raise ValueError(f"{where}.agent_frames: agent '{f.name}' is given twice")
+            seen.add(f.name)
+        if self.align not in ALIGN_MODES:
+            raise ValueError(f"{where}.align = {self.align!r}: expected one of "
+                             f"{', '.join(ALIGN_MODES)}")
+        moved = [f.name for f in self.agent_frames if any(v != 0 for v in f.pose)]
+        if not moved and self.align == "off":
+            return
+        why = (f"agent '{moved[0]}' has a frame of its own" if moved
+               else f"align = {self.align}")
+        if CHANNEL_FILTER in self.rules:
+            raise ValueError(f"{where}: the {CHANNEL_FILTER} rule needs every agent in one frame "
+                             f"(its arithmetic on resampled maps is not exact), but {why}")
+        if self.robust.enabled:
+            raise ValueError(f"{where}: robust fusion needs every agent in one frame (it "
+                             f"measures the maps' offsets itself), but {why}")
 
 
 @dataclass
@@ -222,6 +272,11 @@ class RunConfig:
     samples: int = 12
     #: agents whose fused maps and heat maps are written: all, first, none or names
     export_agents: str = "all"
+    #: what is written per rule and exported agent: all (fused map and heat maps), fused
+    #: (fused map only) or none (report, summary and plots only)
+    export: str = "all"
+    #: file formats of the heat maps: ply, pcd
+    formats: list[str] = field(default_factory=lambda: ["ply"])
     #: scene ground truth JSON (default: NAME_scene.json beside the first bag)
     truth: Optional[str] = None
 
@@ -230,6 +285,15 @@ class RunConfig:
         self.fuse.validate(f"{where}.fuse")
         if not 0 <= self.samples <= 10_000:
             raise ValueError(f"{where}.samples = {self.samples}: expected 0 to 10000")
+        if self.export not in EXPORTS:
+            raise ValueError(f"{where}.export = {self.export!r}: expected one of "
+                             f"{', '.join(EXPORTS)}")
+        names = [x.strip() for f in self.formats for x in str(f).split(",") if x.strip()]
+        bad = [x for x in names if x not in HEATMAP_FORMATS]
+        if bad or not names:
+            raise ValueError(f"{where}.formats = {self.formats!r}: expected one or more of "
+                             f"{', '.join(HEATMAP_FORMATS)}")
+        self.formats = list(dict.fromkeys(names))
 
 
 # ------------------------------------------------------------------------------ plain data

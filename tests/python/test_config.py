@@ -55,11 +55,13 @@ def command_args(command: str, bag: Path, maps_dir: Path, out: Path) -> list:
     return {
         "build": ["build", bag, *build, "--no-return", "free", "--out", out],
         "run": ["run", bag, *build, *exchange, "--rules", "chernoff,naive-bayes", "--topology",
-                "line", "--samples", "3", "--export-agents", "first", "--out", out],
+                "line", "--samples", "3", "--export-agents", "first", "--agent-frame",
+                "b=0.2,-0.1,0,0,0,0.5", "--align", "planar", "--out", out],
         "bench": ["bench", bag, *build, *exchange, "--rules", "chernoff", "--executor", "serial",
                   "--out", out],
         "fuse": ["fuse", maps_dir, "--rules", "chernoff", "--topology", "complete", "--rounds", "2",
-                 "--directions", "one", "--threads", "1", "--out", out],
+                 "--directions", "one", "--threads", "1", "--agent-frame", "a=1,2,0.5,0,0.1,-3",
+                 "--out", out],
     }[command]
 
 
@@ -74,6 +76,7 @@ def test_a_dumped_config_fed_back_dumps_the_same(bag, maps_dir, tmp_path, capsys
     if command == "fuse":
         assert cfg["fuse"]["schedule"] == "rounds:2" and cfg["fuse"]["rules"] == ["chernoff"]
         assert cfg["fuse"]["directions"] == "one" and cfg["build"]["threads"] == 1
+        assert cfg["fuse"]["agent_frames"] == [{"name": "a", "pose": [1, 2, 0.5, 0, 0.1, -3]}]
     else:
         assert cfg["build"]["bags"] == [str(bag)] and cfg["build"]["scan_stride"] == 2
         assert cfg["build"]["map"]["resolution"] == 0.2
@@ -85,6 +88,8 @@ def test_a_dumped_config_fed_back_dumps_the_same(bag, maps_dir, tmp_path, capsys
     if command == "run":
         assert cfg["fuse"]["rules"] == ["chernoff", "naive-bayes"]
         assert cfg["samples"] == 3 and cfg["export_agents"] == "first"
+        assert cfg["fuse"]["agent_frames"] == [{"name": "b", "pose": [0.2, -0.1, 0, 0, 0, 0.5]}]
+        assert cfg["fuse"]["align"] == "planar"
     if command == "bench":  # the config's rules, not bench's default of every rule
         assert cfg["fuse"]["rules"] == ["chernoff"]
     conf = tmp_path / f"{command}.yaml"

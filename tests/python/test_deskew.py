@@ -9,7 +9,6 @@ de-skewed points within 1e-9 m, and both within 1e-9 m of the robot's true motio
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np

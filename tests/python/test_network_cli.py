@@ -10,19 +10,15 @@ import shutil
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import S, T0, assert_same_map, run_cli  # noqa: E402
+from bagfactory import S, T0, assert_same_map, run_cli, run_keeping_result  # noqa: E402
 
-import octofuse  # noqa: E402
-import octofuse.outputs.report  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
-from octofuse.outputs.export import read_cloud  # noqa: E402
 from octofuse.fusion.network import LOCAL
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 
@@ -58,21 +54,10 @@ RUN_ARGS = ["--rule", "chernoff", "--topology", "ring", "--schedule", "periodic:
 @pytest.fixture(scope="module")
 def run_out(bag, tmp_path_factory):
     """``octofuse run`` once; the SimResult it wrote is kept to check the files against."""
-    from octofuse.cli import main
-
     out = tmp_path_factory.mktemp("run") / "out"
-    kept = {}
-    write = octofuse.outputs.report.write_outputs
-
-    def keep(res, *args, **kw):
-        kept["res"] = res
-        return write(res, *args, **kw)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(octofuse.outputs.report, "write_outputs", keep)
-        code = main(["run", str(bag), *RUN_ARGS, "--out", str(out)])
+    code, res = run_keeping_result("run", bag, *RUN_ARGS, "--out", out)
     assert code == 0
-    return out, kept["res"]
+    return out, res
 
 
 # -- run ----------------------------------------------------------------------------------------
@@ -84,7 +69,7 @@ def test_run_writes_every_output(run_out, team_recording):
         assert (out / name).is_file(), name
     assert is_png(out / "kl_over_time.png") and is_png(out / "info_loss_histogram.png")
     assert sorted(p.name for p in (out / "chernoff").iterdir()) == sorted(
-        f"{a}{suffix}" for a in AGENTS for suffix in (".ot", "_info_loss.ply", "_info_loss.pcd"))
+        f"{a}{suffix}" for a in AGENTS for suffix in (".ot", "_info_loss.ply"))
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["chernoff"]
     # the maps written are the run's maps; the centralized one is every scan of the bag
     want = bf.reference_maps(team_recording.shots, bf.team_agents(bf.team(4)), resolution=0.2)
@@ -140,20 +125,6 @@ def test_run_report(run_out):
     assert "### chernoff" in md and "| `a` |" in md
 
 
-def test_run_heat_maps_hold_the_loss_maps(run_out):
-    out, res = run_out
-    for a in AGENTS:
-        lv = res.loss["chernoff"][a].leaves()
-        assert len(lv.values) > 100
-        for suffix in (".ply", ".pcd"):
-            cloud = read_cloud(out / "chernoff" / f"{a}_info_loss{suffix}")
-            assert cloud["info_loss"].dtype == np.float32
-            np.testing.assert_array_equal(cloud["info_loss"], lv.values)
-            np.testing.assert_allclose(cloud["positions"], lv.centers, atol=1e-6)
-            np.testing.assert_allclose(cloud["voxel_size"], lv.sizes, rtol=1e-6)
-            assert cloud["colors"].shape == (len(lv.values), 3)
-
-
 def test_run_prints_the_table(bag, tmp_path, capsys):
     code, out, err = run_cli(capsys, "run", bag, "--rules", "naive-bayes,min-info-loss",
                              "--topology", "complete", "--schedule", "aperiodic:0.5",
@@ -166,7 +137,7 @@ def test_run_prints_the_table(bag, tmp_path, capsys):
     assert f"report: {tmp_path / 'o' / 'report.md'}" in out
     for rule in ("naive-bayes", "min-info-loss"):
         assert sorted(p.name for p in (tmp_path / "o" / rule).iterdir()) == [
-            "b.ot", "b_info_loss.pcd", "b_info_loss.ply"]
+            "b.ot", "b_info_loss.ply"]
     assert not (tmp_path / "o" / "kl_over_time.png").exists()  # no samples, no timeline
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["events"] > 0 and s["timeline"] == []
@@ -320,7 +291,7 @@ def test_demo_on_every_400th_scan(tmp_path, capsys):
     assert s["rules"] == ["naive-bayes", "min-info-loss"]
     for rule in s["rules"]:  # only the first agent's maps are exported
         assert sorted(p.name for p in (out / rule).iterdir()) == [
-            "robot1.ot", "robot1_info_loss.pcd", "robot1_info_loss.ply"]
+            "robot1.ot", "robot1_info_loss.ply"]
     nb, mil = s["mean"]["naive-bayes"], s["mean"]["min-info-loss"]
     assert nb["overconfidence"] > 0.5 > 0.05 > mil["overconfidence"]
     assert fraction(mil["occupied_accuracy"]) and mil["occupied_accuracy"] > 0.9  # ground truth

@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
-from bagfactory import Box, Scene, lidar_directions
+from bagfactory import ROOM, Box, Scene, lidar_directions
 from test_frames import SENSORS, room_map
 
 from octofuse import OccupancyMap
 from octofuse.maps.frames import pose_matrix
-from octofuse.maps.registration import register
+from octofuse.maps.registration import MAX_CONFLICT, free_space_conflict, register
 
 RES = 0.1
 
@@ -97,3 +97,22 @@ def test_bad_options(a_map):
         register(a_map, a_map, voxel=-1)
     with pytest.raises(ValueError, match="min_fitness"):
         register(a_map, a_map, min_fitness=2)
+
+
+def test_free_space_conflict_tells_the_place_from_a_similar_one(a_map):
+    T = pose_matrix(0.5, -0.3, 0.0, 0, 0, math.radians(30))
+    b = room_map(T=T)
+    assert free_space_conflict(a_map, b, T) < MAX_CONFLICT
+    assert register(a_map, b).conflict < MAX_CONFLICT
+    # B's walls half a metre off: they stand in A's empty room
+    assert free_space_conflict(a_map, b, pose_matrix(0.5) @ T) > 3 * MAX_CONFLICT
+
+
+def test_a_similar_place_is_refused(a_map):
+    """The same room with a large cabinet A saw as free space: the walls match, the cabinet
+    stands where A saw nothing."""
+    cabinet = Scene(ROOM.room, (*ROOM.obstacles, Box((-0.6, -1.9, -0.05), (0.4, -0.6, 2.0))))
+    b = _scene_map(cabinet, SENSORS)
+    with pytest.raises(ValueError, match="cannot register: .* in space A saw free"):
+        register(a_map, b)
+    assert register(a_map, b, max_conflict=1.0).fitness > 0.5  # geometry alone accepts it

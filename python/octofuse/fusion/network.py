@@ -12,6 +12,7 @@ from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.compare import Score, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
+from .agent_frames import AgentFrames, moved
 from .graph import Graph
 from .schedule import Exchange
 
@@ -30,6 +31,30 @@ class Traffic:
     sent_32b: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     messages: int = 0
     lost: int = 0  #: messages sent that never arrived (counted in ``sent``, not ``received``)
+    fusions: list["FusionEvent"] = field(default_factory=list)  #: messages fused, in order
+
+
+@dataclass(frozen=True)
+class FusionEvent:
+    """One message fused: when, by which rule, from whom into whom, the voxels fused and the
+    information loss summed over them (nats; None where the loss is not kept)."""
+
+    time_s: float
+    rule: str
+    sender: str
+    receiver: str
+    voxels: Optional[int]
+    loss: Optional[float]
+
+    @property
+    def mean_loss(self) -> Optional[float]:
+        """Loss per fused voxel (None without loss or voxels)."""
+        return self.loss / self.voxels if self.loss is not None and self.voxels else None
+
+    def to_dict(self) -> dict:
+        return {"t": self.time_s, "rule": self.rule, "sender": self.sender,
+                "receiver": self.receiver, "voxels": self.voxels, "loss": self.loss,
+                "mean_loss": self.mean_loss}
 
 
 @dataclass
@@ -63,20 +88,27 @@ class SimResult:
     unclamped: dict[str, OccupancyMap] = field(default_factory=dict)
     #: the centralized map without clamping (runs with the channel filter): the exact target
     central_unclamped: Optional[OccupancyMap] = None
+    #: agent -> its map frame into the common frame (agents in the common frame left out),
+    #: and per link the alignment on first contact (:mod:`octofuse.fusion.agent_frames`)
+    frames: dict = field(default_factory=dict)
+    alignment: list[dict] = field(default_factory=list)
 
 
 class Network:
     """Per-rule agent maps, message exchange and fusion."""
 
     def __init__(self, agents, rules, fcfg: FuseConfig, make_map: Callable[[], OccupancyMap],
-                 threads: int, tree: Optional[Sequence[tuple[int, int]]] = None):
+                 threads: int, tree: Optional[Sequence[tuple[int, int]]] = None,
+                 frames: Optional[AgentFrames] = None):
         self.agents, self.rules, self.cfg = agents, rules, fcfg
+        self.frames = frames or AgentFrames(agents)
         self.fused = {r: {a: make_map() for a in agents} for r in rules}
         self.loss: dict[str, dict[str, InfoLossMap]] = {r: {} for r in rules}
         self.traffic = {r: Traffic() for r in rules}
         self.sent_snapshot: dict[tuple, OccupancyMap] = {}  # (rule, sender, receiver) -> map
         self.timings: dict[str, float] = defaultdict(float)
         self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
+        self.fuse_threads = max(1, threads // max(1, len(rules)))  # threads of one fuse_into
         #: lossy links, deltas: (rule, sender, receiver) -> last seq sent / applied, and the
         #: snapshots sent but not yet acknowledged (a delta goes against the last acknowledged)
         self._seq: dict[tuple, int] = defaultdict(int)
@@ -133,6 +165,8 @@ class Network:
     def exchange(self, group: Sequence[Exchange]) -> None:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
         t0 = time.perf_counter()
+        self.frames.align_links([(self.agents[e.sender], self.agents[e.receiver], e.lost, e.time_s)
+                                 for e in group], self.fused[self.rules[0]])
         if self.pool is None or len(self.rules) == 1:
             for r in self.rules:
                 self._exchange_rule(r, group)
@@ -176,6 +210,8 @@ class Network:
             self._count(r, msg.sender, msg.receiver, msg.payload, lost=e.lost)
             if not e.lost:
                 cf.deliver(msg)
+                self.traffic[r].fusions.append(
+                    FusionEvent(e.time_s, r, msg.sender, msg.receiver, None, None))
         self.timings["fusion"] += time.perf_counter() - t1
 
     def _exchange_rule(self, r: str, group: Sequence[Exchange]) -> None:
@@ -204,6 +240,7 @@ class Network:
             s, d = ev_names[k]
             two_way = (not cfg.delta and k + 1 < len(ev_names) and ev_names[k + 1] == (d, s)
                        and s not in modified and d not in modified
+                       and self.frames.plain(s, d) and self.frames.plain(d, s)
                        and not group[k].lost and not group[k + 1].lost)
             if two_way:
                 sends_left[s] -= 1
@@ -213,16 +250,26 @@ class Network:
                 before_modifying(s)
                 before_modifying(d)
                 t1 = time.perf_counter()
+                loss_d = self._loss(r, d, maps[d].resolution)
+                loss_s = self._loss(r, s, maps[s].resolution)
+                before = _loss_totals(loss_d), _loss_totals(loss_s)
                 exchange_maps(maps[d], maps[s], rule=r, unknown=cfg.unknown,
-                              loss_a=self._loss(r, d, maps[d].resolution),
-                              loss_b=self._loss(r, s, maps[s].resolution))
+                              loss_a=loss_d, loss_b=loss_s)
                 self.timings["fusion"] += time.perf_counter() - t1
+                self._record(r, group[k], loss_d, before[0])
+                self._record(r, group[k + 1], loss_s, before[1])
                 modified |= {s, d}
                 k += 2
                 continue
             t0 = time.perf_counter()
             state = start.get(s, maps[s]) if s in modified else maps[s]
             m = state
+            if not self.frames.aligned(s, d):  # sent, but no transform to fuse it with yet
+                sends_left[s] -= 1
+                self._count(r, s, d, m, lost=group[k].lost)
+                self.timings["exchange"] += time.perf_counter() - t0
+                k += 1
+                continue
             seq = ack = 0
             if cfg.delta:
                 prev = self.sent_snapshot.get((r, s, d))
@@ -252,16 +299,32 @@ class Network:
                         del pend[q]
             before_modifying(d)
             self._count(r, s, d, m)
+            m = self.frames.to_receiver(s, d, m, maps[d].resolution)
             t1 = time.perf_counter()
             self.timings["exchange"] += t1 - t0
-            fuse_into(maps[d], m, rule=r, unknown=cfg.unknown,
-                      loss=self._loss(r, d, m.resolution))
+            loss_d = self._loss(r, d, m.resolution)
+            before = _loss_totals(loss_d)
+            fuse_into(maps[d], m, rule=r, unknown=cfg.unknown, loss=loss_d,
+                      threads=self.fuse_threads)
             self.timings["fusion"] += time.perf_counter() - t1
+            self._record(r, group[k], loss_d, before)
             modified.add(d)
             k += 1
 
+    def _record(self, r: str, e: Exchange, loss: InfoLossMap, before: tuple) -> None:
+        """Append the fusion of message ``e`` (its loss: ``loss`` less its totals ``before``)."""
+        voxels, total = _loss_totals(loss)
+        self.traffic[r].fusions.append(FusionEvent(
+            e.time_s, r, self.agents[e.sender], self.agents[e.receiver], voxels - before[0],
+            max(0.0, total - before[1])))
+
     def loss_map(self, rule: str, agent: str, resolution: float) -> InfoLossMap:
         return self.loss[rule].get(agent) or InfoLossMap(resolution)
+
+
+def _loss_totals(loss: InfoLossMap) -> tuple[int, float]:
+    """Voxels fused and information loss summed over them (nats)."""
+    return loss.voxels_fused, float(loss.loss_sum)
 
 
 def score_result(res: SimResult, tol: float, truth=None, threads: int = 1) -> dict[str, dict[str, Score]]:
@@ -270,11 +333,13 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1) -> di
 
     def one(job):
         r, a = job
+        T = res.frames.get(a)  # maps of agents in frames of their own scored in the common one
+        common = lambda m: moved(m, T)  # noqa: E731
         if r == LOCAL:
-            return score(res.local[a], res.central, tol=tol, truth=truth)
+            return score(common(res.local[a]), res.central, tol=tol, truth=truth)
         tr = res.traffic[r]
         loss = None if r == CHANNEL_FILTER else res.loss[r][a]  # exact: no WEP loss
-        return score(res.fused[r][a], res.central, tol=tol, loss=loss, truth=truth,
+        return score(common(res.fused[r][a]), res.central, tol=tol, loss=loss, truth=truth,
                      bytes_sent=tr.sent[a], bytes_received=tr.received[a],
                      bytes_sent_32b=tr.sent_32b[a])
 

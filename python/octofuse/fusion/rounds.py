@@ -8,6 +8,7 @@ from typing import Optional
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
+from .agent_frames import AgentFrames
 from .graph import make_graph
 from .network import SimResult, Network, score_result
 from .schedule import drop_messages, parse_schedule, rounds as make_rounds
@@ -19,7 +20,11 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
     start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
     (the same for every rule); the ``channel-filter`` runs on the links of
-    ``fuse_cfg.spanning_tree`` and treats each finished map as its agent's own information."""
+    ``fuse_cfg.spanning_tree`` and treats each finished map as its agent's own information.
+
+    Each map is in its agent's frame (``fuse_cfg.agent_frames``; messages are moved into the
+    receiver's, or the links aligned on first contact with ``fuse_cfg.align``) and ``central``
+    in the common frame: the agents' maps are moved into it to be scored."""
     fuse_cfg.validate("fuse")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
@@ -30,6 +35,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     agents = list(maps)
     if len(agents) < 2:
         raise ValueError(f"fusion needs at least 2 agent maps, got {len(agents)}")
+    frames = AgentFrames.from_config(agents, fuse_cfg)
     graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
     rounds = make_rounds(graph, int(spec.value), directions=fuse_cfg.directions)
     if fuse_cfg.loss > 0:
@@ -45,7 +51,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
         tree = spanning_tree(graph, fuse_cfg.spanning_tree)
     first = next(iter(maps.values()))
     net = Network(agents, rules, fuse_cfg, lambda: OccupancyMap(first.resolution), threads,
-                  tree=tree)
+                  tree=tree, frames=frames)
     net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
     for rnd in rounds:
@@ -56,7 +62,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
                     central, dict(maps), fused,
                     {r: {a: net.loss_map(r, a, first.resolution) for a in agents} for r in rules},
                     net.traffic, [], net.timings, memory=net.memory(), tree=tree,
-                    unclamped=unclamped)
+                    unclamped=unclamped, frames=frames.frames, alignment=frames.report())
     if central is not None:
         t0 = time.perf_counter()
         res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, threads)

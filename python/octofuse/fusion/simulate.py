@@ -12,6 +12,7 @@ from ..maps.build import insert_scans
 from ..maps.compare import compare
 from ..maps.occupancy import OccupancyMap
 from ..scans.source import ScanSource, prefetch
+from .agent_frames import AgentFrames
 from .graph import make_graph
 from .network import LOCAL, SimResult, Network, score_result
 from .schedule import mission_events, parse_schedule
@@ -31,9 +32,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     KL to the centralized map (``samples`` points in time) and the scores.
 
     ``fuse_cfg.loss`` drops messages (the same ones for every rule); the ``channel-filter``
-    runs on the links of ``fuse_cfg.spanning_tree`` only. ``observer(t, group, network,
-    scans)``, if given, is called after every group of exchanges with the number of scans
-    inserted so far per agent.
+    runs on the links of ``fuse_cfg.spanning_tree`` only. An agent of ``fuse_cfg.agent_frames``
+    maps its scans in its own frame (they reach the centralized map moved by its frame, its maps
+    are moved into the common frame to be scored; :mod:`.agent_frames`).
+    ``observer(t, group, network, scans)``, if given, is called after every group of exchanges
+    with the number of scans inserted so far per agent.
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
@@ -57,7 +60,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
             tree = spanning_tree(graph, fuse_cfg.spanning_tree)
             exact = open_map(mk())  # the centralized map without clamping
-        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree)
+        frames = AgentFrames.from_config(agents, fuse_cfg)
+        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
         local = {a: mk() for a in agents}
         central = mk()
         inserted: dict[str, int] = {a: 0 for a in agents}
@@ -73,7 +77,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             tol = fuse_cfg.overconfidence_tol
 
             def one(j):
-                m = j[2]
+                m = frames.to_common(j[1], j[2])
                 if j[0] == CHANNEL_FILTER:
                     from .channel_filter import clamped
 
@@ -99,8 +103,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 return
             t0 = time.perf_counter()
             targets = [[net.fused[r][agents[s.agent]] for r in rules if r != CHANNEL_FILTER]
-                       + [local[agents[s.agent]], central] for s in batch]
-            insert_scans(batch, targets, build_cfg.workers)
+                       + [local[agents[s.agent]]] for s in batch]
+            # the centralized map in the common frame: scans of agents with a frame moved there
+            insert_scans(*frames.scan_targets(batch, targets, central), build_cfg.workers)
             if exact is not None:  # maps with open clamping: one call of their own
                 insert_scans(batch, [[net.fused[CHANNEL_FILTER][agents[s.agent]], exact]
                                      for s in batch], build_cfg.workers)
@@ -153,7 +158,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree, unclamped=unclamped,
-                    central_unclamped=exact)
+                    central_unclamped=exact, frames=frames.frames, alignment=frames.report())
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     t0 = time.perf_counter()

@@ -9,7 +9,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ..config import AgentSpec, BuildConfig, MapConfig
+from ..config import AgentSpec, BuildConfig
 from ..scans.source import AgentStats, Scan, ScanSource, batched, prefetch
 from .occupancy import OccupancyMap, insert_batch
 

@@ -78,6 +78,11 @@ def parse_pose(text: str, what: str = "frame") -> np.ndarray:
     """``"x,y,z,roll,pitch,yaw"`` (metres, radians) as a 4x4 transform; ``ValueError`` naming
     ``what`` and the text otherwise (all six numbers are required: ``x,y,yaw`` and ``x,y,z``
     would be ambiguous)."""
+    return pose_matrix(*parse_pose_values(text, what))
+
+
+def parse_pose_values(text: str, what: str = "frame") -> list[float]:
+    """The six numbers of ``"x,y,z,roll,pitch,yaw"``, checked as :func:`parse_pose` does."""
     parts = [p.strip() for p in str(text).split(",")]
     try:
         vals = [float(p) for p in parts]
@@ -89,16 +94,22 @@ def parse_pose(text: str, what: str = "frame") -> np.ndarray:
                          f"radians), got {len(vals)}")
     if not all(math.isfinite(v) for v in vals):
         raise ValueError(f"{what} '{text}': values must be finite")
-    return pose_matrix(*vals)
+    return vals
 
 
 def parse_frame(spec: str) -> tuple[str, np.ndarray]:
     """``"NAME=x,y,z,roll,pitch,yaw"`` as ``(NAME, 4x4 transform)`` (NAME's frame into the
     common frame)."""
+    name, vals = parse_frame_values(spec)
+    return name, pose_matrix(*vals)
+
+
+def parse_frame_values(spec: str) -> tuple[str, list[float]]:
+    """``"NAME=x,y,z,roll,pitch,yaw"`` as ``(NAME, [x, y, z, roll, pitch, yaw])``."""
     name, sep, rest = str(spec).partition("=")
     if not sep or not name.strip():
         raise ValueError(f"frame '{spec}': expected NAME=x,y,z,roll,pitch,yaw")
-    return name.strip(), parse_pose(rest, f"frame '{name.strip()}'")
+    return name.strip(), parse_pose_values(rest, f"frame '{name.strip()}'")
 
 
 def common_resolution(resolutions: Sequence[float], resolution: float | None = None,
@@ -219,20 +230,22 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
     fused = ready[0]  # loaded or resampled here, so ours to change in place
     loss = InfoLossMap(res)
     prior = unknown == parse_unknown("prior")
+    known = fused.known_voxels  # finest voxels the fused map knows so far
     for m in ready[1:]:
-        c = np.asarray(m.class_counts(fused, 0.0)["confusion"])  # [fused class][m class]
-        both = int(c[:2, :2].sum())
-        only = int(c[:2].sum() + c[:, :2].sum()) - 2 * both
+        fused_before, copied_before = loss.voxels_fused, loss.voxels_copied
         fuse_into(fused, m, rule=rule, unknown=unknown, loss=loss)
-        stats.voxels_fused += both + (only if prior else 0)
-        stats.voxels_copied += 0 if prior else only
+        fused_now = loss.voxels_fused - fused_before
+        only_m = loss.voxels_copied - copied_before
+        if not prior:  # the voxels only the fused map knew are not visited: copied as well
+            loss.voxels_copied += known - fused_now
+        known = fused_now if prior else known + only_m
     # one convention: counts in finest voxels, loss averaged over fused voxels only
-    loss.voxels_fused, loss.voxels_copied = stats.voxels_fused, stats.voxels_copied
+    stats.voxels_fused, stats.voxels_copied = loss.voxels_fused, loss.voxels_copied
+    stats.loss_total = loss.loss_sum
     lv = loss.leaves()
     if len(lv.values):
         w = np.power(8.0, 16 - lv.depths.astype(np.float64))
         v = lv.values.astype(np.float64)
-        stats.loss_total = float(np.sum(w * v))
         if stats.voxels_fused:
             stats.loss_mean = stats.loss_total / stats.voxels_fused
             stats.loss_p95 = _fused_percentile(v, w, stats.voxels_fused, 95.0)

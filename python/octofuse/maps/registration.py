@@ -15,15 +15,21 @@ frame, so that ``B.transformed(result.matrix)`` lies on ``A``:
    rotation about z; the one with the higher fitness is kept.
 
 ``fitness`` is the fraction of B's points that have a point of A within ``max(voxel, 1.5 map
-resolutions)`` after alignment (open3d's fitness). The result is refused with
-``ValueError`` (one line saying why) when either map has too few occupied voxels, when too
-few correspondences support the transform, when the fitness is below ``min_fitness``, or
-when the matched surfaces all face about one way (one wall or a floor: the maps could slide
-along it): the overlap is then too small, or too ambiguous, to trust.
+resolutions)`` after alignment (open3d's fitness). ``conflict`` is what geometry alone does
+not see: the fraction of B's occupied voxels, moved into A and landing in space A knows, that
+land where A saw free space with no occupied voxel beside it (a wall of B in A's empty room).
+The result is refused with ``ValueError`` (one line saying why) when either map has too few
+occupied voxels, when too few correspondences support the transform, when the fitness is below
+``min_fitness``, when the matched surfaces all face about one way (one wall or a floor: the
+maps could slide along it), or when the conflict exceeds ``max_conflict``: the overlap is then
+too small, or too ambiguous, to trust. (In repetitive rooms registration finds transforms
+metres off that match 50-75% of the points; their conflict was 4.5-20%, that of correct
+transforms 1.3-1.8%.)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -40,6 +46,8 @@ FEATURE_POINTS = 15000
 #: smallest ratio of the least to the largest eigenvalue of the matched surfaces' normal matrix
 #: (sum n n^T): below it the overlap is one wall or floor, and slides along it
 MIN_SPREAD = 0.1
+#: most of B's occupied voxels, moved into A, that may land deep in A's free space
+MAX_CONFLICT = 0.03
 
 
 @dataclass(frozen=True)
@@ -53,6 +61,7 @@ class Registration:
     points_a: int  #: occupied points of A used (after thinning)
     points_b: int  #: occupied points of B used
     planar: bool  #: yaw-only mode (roll = pitch = 0)
+    conflict: float = 0.0  #: fraction of B's occupied voxels landing deep in A's free space
 
     @property
     def pose(self) -> dict[str, float]:
@@ -63,7 +72,8 @@ class Registration:
         """``x, y, z, roll, pitch, yaw, fitness`` (what ``octofuse align --json`` prints), with
         ``rmse``, ``inliers`` and ``planar``."""
         d = self.pose
-        d.update(fitness=self.fitness, rmse=self.rmse, inliers=self.inliers, planar=self.planar)
+        d.update(fitness=self.fitness, rmse=self.rmse, inliers=self.inliers, planar=self.planar,
+                 conflict=self.conflict)
         return d
 
 
@@ -84,8 +94,24 @@ def occupied_centers(m, occupied: float = 0.0) -> np.ndarray:
     return np.concatenate(out) if out else np.empty((0, 3))
 
 
+def free_space_conflict(a, b, T: np.ndarray) -> float:
+    """Of ``b``'s occupied finest voxels moved by ``T`` into ``a`` that land in space ``a``
+    knows, the fraction that land in a free voxel of ``a`` none of whose six face neighbours
+    is occupied (0 when none lands in known space)."""
+    pts = occupied_centers(b)
+    pts = pts @ T[:3, :3].T + T[:3, 3]
+    lv, res = a.leaves(), a.resolution
+    here = lv.values_at(pts, res)
+    known = ~np.isnan(here)
+    deep = known & (here <= 0)
+    for step in np.vstack([np.eye(3), -np.eye(3)]) * res:
+        deep &= ~(lv.values_at(pts + step, res) > 0)
+    return float(deep.sum() / known.sum()) if known.any() else 0.0
+
+
 def register(a, b, planar: bool = False, voxel: float | None = None,
-             min_fitness: float = 0.5, seed: int = 0) -> Registration:
+             min_fitness: float = 0.5, seed: int = 0,
+             max_conflict: float = MAX_CONFLICT) -> Registration:
     """The transform that takes a point of ``b``'s frame into ``a``'s frame (see the module
     documentation); ``ValueError`` if the maps overlap too little to trust it."""
     import open3d as o3d
@@ -94,8 +120,9 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     v = 2.0 * res if voxel is None else float(voxel)
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"voxel must be a positive number of metres, got {voxel!r}")
-    if not (0.0 <= min_fitness <= 1.0):
-        raise ValueError(f"min_fitness must lie in [0, 1], got {min_fitness!r}")
+    for name, value in (("min_fitness", min_fitness), ("max_conflict", max_conflict)):
+        if not (0.0 <= value <= 1.0):
+            raise ValueError(f"{name} must lie in [0, 1], got {value!r}")
     ca, cb = occupied_centers(a), occupied_centers(b)
     pa, pb = _cloud(ca, v), _cloud(cb, v)
     na, nb = len(pa.points), len(pb.points)
@@ -159,7 +186,13 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
         raise ValueError(f"cannot register: the overlapping surfaces leave a {axis} unconstrained "
                          f"(normal spread {ev_[0] / ev_[-1]:.3f}, at least {MIN_SPREAD} needed; "
                          "a single wall or floor?): the overlap is too small to trust a transform")
-    return out
+    conflict = free_space_conflict(a, b, T)
+    if conflict > max_conflict:
+        raise ValueError(f"cannot register: the best transform ({out.fitness:.0%} of B's occupied "
+                         f"points matched) puts {conflict:.1%} of B's occupied voxels in space A "
+                         f"saw free (at most {max_conflict:.1%}): it matches a similar place, not "
+                         "the same one")
+    return dataclasses.replace(out, conflict=conflict)
 
 
 # -- internals ------------------------------------------------------------------------------------

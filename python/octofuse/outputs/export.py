@@ -70,8 +70,9 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
 
     Parameters
     ----------
-    loss : InfoLossMap or Leaves
-        The loss map (or any leaves: their ``values`` are the scalar written).
+    loss : InfoLossMap, Leaves or MapVoxelLoss
+        The loss map (or any leaves: their ``values`` are the scalar written), or voxels of a
+        fused map with their loss (:func:`map_voxel_loss`; ``map`` is then not needed).
     path : path ending in ``.ply`` or ``.pcd``
         Both binary, written by Open3D (see the module notes for the exact layout).
     cmap : str or matplotlib Colormap
@@ -109,32 +110,27 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     p = _cloud_path(path)
     _check_field(field)
     _colormap(cmap)
-    lv = _as_leaves(loss)
-    kind = voxels if voxels is not None else ("occupied" if map is not None else "all")
+    given = isinstance(loss, MapVoxelLoss)  # voxels of a fused map already picked
+    lv = None if given else _as_leaves(loss)
+    kind = voxels if voxels is not None else ("occupied" if map is not None or given else "all")
     if kind not in ("occupied", "free", "all"):
         raise ValueError(f"voxels={kind!r}: expected 'occupied', 'free' or 'all'")
     extra: dict[str, np.ndarray] = {}
-    if map is None:
+    if given or map is not None:
+        mv = loss if given else map_voxel_loss(lv, map, kind)
+        centers, sizes, logodds, values = mv.centers, mv.sizes, mv.log_odds, mv.loss
+        extra = {"log_odds": logodds,
+                 "occupancy": (1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))).astype(np.float32)}
+    else:
         if kind != "all":
             raise ValueError(f"voxels={kind!r} needs the fused map (map=...) to tell occupied "
                              "from free voxels")
         values = np.asarray(lv.values, dtype=np.float32).reshape(-1)
         centers = np.asarray(lv.centers, dtype=np.float64).reshape(-1, 3)
         sizes = np.asarray(lv.sizes, dtype=np.float64).reshape(-1)
-    else:
-        ml = map.leaves()
-        logodds = np.asarray(ml.values, dtype=np.float32)
-        sel = (logodds > 0 if kind == "occupied" else logodds <= 0 if kind == "free"
-               else np.ones(len(logodds), bool))
-        centers, sizes, logodds = ml.centers[sel], ml.sizes[sel], logodds[sel]
-        values = _values_at(lv, map.resolution, centers)
-        known = np.isfinite(values)
-        centers, sizes, logodds, values = centers[known], sizes[known], logodds[known], values[known]
-        extra = {"log_odds": logodds,
-                 "occupancy": (1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))).astype(np.float32)}
     keep = np.ones(len(values), bool)
     why = "the information-loss map is empty" if len(values) == 0 else ""
-    if map is not None and len(values) == 0:
+    if (map is not None or given) and len(values) == 0:
         why = f"the map has no {kind} voxel the loss map covers" if kind != "all" else \
             "the loss map covers no voxel of the map"
     if crop is not None:
@@ -165,10 +161,39 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     return _write_cloud(p, centers, colors, {field: values, **extra, "voxel_size": sizes})
 
 
+class MapVoxelLoss(NamedTuple):
+    """Leaves of a fused map with the loss of the loss voxel at their centres."""
+
+    centers: np.ndarray  #: (N, 3) float64, metres
+    sizes: np.ndarray  #: (N,) float64 edge lengths, metres
+    log_odds: np.ndarray  #: (N,) float32 of the map
+    loss: np.ndarray  #: (N,) float32 information loss, nats
+
+
+def map_voxel_loss(loss: InfoLossMap | Leaves, map: OccupancyMap,
+                   voxels: str = "occupied") -> MapVoxelLoss:
+    """The leaves of ``map`` of the class ``voxels`` ("occupied": log-odds > 0, "free" or
+    "all") with the loss at their centres; leaves the loss map does not cover are left out.
+    What :func:`write_heatmap` writes with ``map=``."""
+    if voxels not in ("occupied", "free", "all"):
+        raise ValueError(f"voxels={voxels!r}: expected 'occupied', 'free' or 'all'")
+    lv = _as_leaves(loss)
+    ml = map.leaves()
+    logodds = np.asarray(ml.values, dtype=np.float32)
+    sel = (logodds > 0 if voxels == "occupied" else logodds <= 0 if voxels == "free"
+           else np.ones(len(logodds), bool))
+    centers, sizes, logodds = ml.centers[sel], ml.sizes[sel], logodds[sel]
+    values = lv.values_at(centers, map.resolution)
+    known = np.isfinite(values)
+    return MapVoxelLoss(centers[known], sizes[known], logodds[known], values[known])
+
+
 def shared_color_range(losses, vmin: float = 0.0, percentile: float = 99.0) -> tuple[float, float]:
     """One colour range for the heat maps of several rules: ``vmin`` and the ``percentile`` of
-    all their loss values together (the maximum if that is not above ``vmin``)."""
-    vals = [np.asarray(_as_leaves(x).values, dtype=np.float64).reshape(-1) for x in losses]
+    all their loss values together (the maximum if that is not above ``vmin``). ``losses``:
+    loss maps, leaves or :class:`MapVoxelLoss` (the voxels the heat maps show)."""
+    vals = [np.asarray(x.loss if isinstance(x, MapVoxelLoss) else _as_leaves(x).values,
+                       dtype=np.float64).reshape(-1) for x in losses]
     v = np.concatenate(vals) if vals else np.empty(0)
     v = v[np.isfinite(v)]
     if v.size == 0:
@@ -204,29 +229,6 @@ def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
         plt.close(fig)
         tmp.unlink(missing_ok=True)
     return p
-
-
-def _values_at(lv: Leaves, resolution: float, points: np.ndarray) -> np.ndarray:
-    """Value of the leaf of ``lv`` containing each point (NaN where no leaf does): leaves are
-    looked up depth by depth through their integer keys."""
-    out = np.full(len(points), np.nan, dtype=np.float32)
-    depths = np.asarray(lv.depths)
-    for d in np.unique(depths):
-        sel = depths == d
-        size = resolution * 2.0 ** (16 - int(d))
-        keys = _pack(np.floor(np.asarray(lv.centers)[sel] / size))
-        order = np.argsort(keys)
-        keys, vals = keys[order], np.asarray(lv.values)[sel][order]
-        q = _pack(np.floor(points / size))
-        i = np.clip(np.searchsorted(keys, q), 0, len(keys) - 1)
-        hit = keys[i] == q
-        out[hit] = vals[i[hit]]
-    return out
-
-
-def _pack(k: np.ndarray) -> np.ndarray:
-    k = k.astype(np.int64) + (1 << 20)
-    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
 
 
 def _crop_box(crop) -> tuple[np.ndarray, np.ndarray]:

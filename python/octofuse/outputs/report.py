@@ -11,7 +11,9 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..config import CHANNEL_FILTER, RunConfig, to_dict
+from ..fusion.agent_frames import frames_section
 from ..fusion.network import LOCAL, SimResult
+from ..maps.frames import matrix_pose
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [
@@ -229,32 +231,87 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
     return path
 
 
+#: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
+TOPVIEW_RULES = ("chernoff", "kld-weighted-chernoff", "min-info-loss",
+                 "entropy-weighted-chernoff", "bhattacharyya", "min-entropy")
+COLORBAR = "info_loss_colorbar.png"
+
+
+def topview_rules(rules: Sequence[str], n: int = 3) -> list[str]:
+    """Up to ``n`` WEP rules of the run for the top views, in the run's order."""
+    picked = [r for r in TOPVIEW_RULES if r in rules][:n]
+    return [r for r in rules if r in picked]
+
+
+def write_maps_and_heatmaps(res: SimResult, out: Path, cfg: RunConfig, agents: Sequence[str],
+                            heatmaps: bool = True) -> dict:
+    """Fused maps, heat maps (occupied voxels of each fused map, one colour range for the
+    run), the colour bar and the report's top views; what was written, for the summary."""
+    from .export import map_voxel_loss, shared_color_range, write_colorbar, write_heatmap
+    from .topview import write_topview
+
+    export = cfg.export
+    if export != "none":
+        if res.central is not None:
+            res.central.save(out / "centralized.ot")
+        for r in res.rules:
+            d = out / r
+            d.mkdir(exist_ok=True)
+            for a in agents:
+                res.fused[r][a].save(d / f"{a}.ot")
+    views = topview_rules(res.rules)
+    want = [(r, a) for r in res.rules for a in agents
+            if (export == "all" and heatmaps) or (r in views and a == agents[0])]
+    voxels = {(r, a): map_voxel_loss(res.loss[r][a], res.fused[r][a]) for r, a in want
+              if res.loss[r][a].num_leaves > 0}
+    voxels = {k: v for k, v in voxels.items() if len(v.loss)}
+    info: dict = {"export": export, "formats": list(cfg.formats), "heatmaps": [],
+                  "topviews": [], "range": None}
+    if not voxels:
+        return info
+    lo, hi = shared_color_range(voxels.values())
+    info["range"] = [lo, hi]
+    if export == "all" and heatmaps:
+        for (r, a), v in voxels.items():
+            for ext in cfg.formats:
+                info["heatmaps"].append(
+                    write_heatmap(v, out / r / f"{a}_info_loss.{ext}", vmin=lo, vmax=hi).name)
+        write_colorbar(out / COLORBAR, "inferno", lo, hi, label="information loss [nats]")
+        info["colorbar"] = COLORBAR
+    for r in views:
+        v = voxels.get((r, agents[0]))
+        if v is not None:
+            name = f"topview_{r}.png"
+            write_topview(v, res.fused[r][agents[0]].resolution, out / name, vmin=lo, vmax=hi,
+                          title=f"{agents[0]}, {r}: accumulated information loss of the occupied "
+                                "voxels (max over height)")
+            info["topviews"].append({"rule": r, "agent": agents[0], "file": name})
+    return info
+
+
 def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
                   export_agents: Optional[Sequence[str]] = None, heatmaps: bool = True,
-                  title: str = "octofuse run") -> dict[str, Path]:
-    """Write fused maps, heat maps (PLY + PCD), summary.json, plots and report.md."""
-    from .export import write_heatmap
+                  title: str = "octofuse run", event_bag=None) -> dict[str, Path]:
+    """Write fused maps and heat maps (as ``cfg.export`` and ``cfg.formats`` ask),
+    summary.json, plots, top views and report.md. ``event_bag``: the run's per-event bag
+    (:class:`~octofuse.outputs.event_bag.FusionEventBag`), named in the report."""
+    import time
+
+    from .event_loss import event_loss_summary, markdown_section as loss_section, messages_sentence
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    t_export = 0.0
-    import time
-
     t0 = time.perf_counter()
     agents = list(export_agents) if export_agents is not None else res.agents
-    if res.central is not None:
+    exported = write_maps_and_heatmaps(res, out, cfg, agents, heatmaps) if agents else \
+        {"export": cfg.export, "formats": list(cfg.formats), "heatmaps": [], "topviews": [],
+         "range": None}
+    if not agents and cfg.export != "none" and res.central is not None:
         res.central.save(out / "centralized.ot")
-    for r in res.rules:
-        d = out / r
-        d.mkdir(exist_ok=True)
-        for a in agents:
-            res.fused[r][a].save(d / f"{a}.ot")
-            loss = res.loss[r][a]
-            if heatmaps and loss.num_leaves > 0:
-                for ext in (".ply", ".pcd"):
-                    write_heatmap(loss, d / f"{a}_info_loss{ext}")
-    t_export = time.perf_counter() - t0
-    res.timings["export"] = res.timings.get("export", 0.0) + t_export
+    res.timings["export"] = res.timings.get("export", 0.0) + time.perf_counter() - t0
+    fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
+                     key=lambda e: e.time_s)
+    per_event = event_loss_summary(fusions, res.agents)
     paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
              "loss_hist": plot_loss_histograms(res, out / "info_loss_histogram.png")}
     means = mean_scores(res.scores) if res.scores else {}
@@ -273,12 +330,21 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "findings": findings(means, exact) if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
+        "exports": exported,
+        "loss_per_event": per_event,
+        "loss_per_event_finding": messages_sentence(per_event),
+        "fusion_events": [e.to_dict() for e in fusions],
     }
+    if event_bag is not None:
+        summary["event_bag"] = {"path": str(event_bag.path), "messages": event_bag.messages}
     if exact is not None:
         summary["exact"] = exact
     if res.memory:
         summary["memory_bytes"] = res.memory
         summary["lost_messages"] = {r: res.traffic[r].lost for r in res.rules}
+    if res.frames or res.alignment:
+        summary["agent_frames"] = {a: matrix_pose(T) for a, T in res.frames.items()}
+        summary["alignment"] = res.alignment
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1, default=float))
     os.replace(tmp, out / "summary.json")
@@ -311,9 +377,11 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         lines += markdown_section(res.robust)
     if summary["findings"]:
         lines += ["## Findings", ""] + [f"- {f}" for f in summary["findings"]] + [""]
+    lines += loss_section(per_event)
     for name, p in paths.items():
         if p is not None:
             lines += [f"![{name}]({p.name})", ""]
+    lines += exports_section(exported, event_bag)
     if res.scores:
         lines += ["## Per agent", ""]
         for r, per in res.scores.items():
@@ -321,10 +389,51 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
             lines += [f"### {r}", "", markdown_table(rows, first="agent"), ""]
     lines += ["## Time", "", "| part | seconds |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in res.timings.items()]
-    lines += ["", "Files: `centralized.ot`; per rule a folder with every exported agent's fused "
-              "map (`AGENT.ot`) and its information-loss heat map (`AGENT_info_loss.ply/.pcd`, "
-              "the scalar kept as the field `info_loss`); `summary.json` holds every number.", ""]
+    lines += ["", files_note(cfg), ""]
+    if res.frames or res.alignment:
+        lines += frames_section(res.frames, res.alignment)
     (out / "report.md").write_text("\n".join(lines))
     paths["report"] = out / "report.md"
     paths["summary"] = out / "summary.json"
     return paths
+
+
+def exports_section(exported: dict, event_bag=None) -> list[str]:
+    """The report's paragraph on the heat maps (what they hold, the colour range), the top
+    views and the per-event bag."""
+    lines: list[str] = []
+    rng = exported.get("range")
+    if exported.get("topviews") or exported.get("heatmaps"):
+        lines += ["## Information-loss heat maps", ""]
+        if exported.get("heatmaps"):
+            lines += [
+                f"Heat maps ({', '.join('.' + f for f in exported['formats'])}, one per rule and "
+                "exported agent): the occupied voxels (log-odds > 0) of the agent's fused map, "
+                "each with its accumulated information loss (field `info_loss`, nats) and its "
+                "`log_odds`, `occupancy` and `voxel_size`, coloured (inferno) over one range for "
+                f"every rule of the run: {rng[0]:.4g} to {rng[1]:.4g} nats (the 99th percentile "
+                "of the losses written; higher losses take the top colour). Colour bar: "
+                f"`{exported['colorbar']}`.", "", f"![colour bar]({exported['colorbar']})", ""]
+        if exported.get("topviews"):
+            first = exported["topviews"][0]["agent"]
+            lines += [f"Top views of {first}'s heat maps: every x-y cell shows the largest loss "
+                      "of the occupied voxels above it (floor left out), over the same range "
+                      f"({rng[0]:.4g} to {rng[1]:.4g} nats).", ""]
+            lines += [f"![{v['rule']}]({v['file']})" for v in exported["topviews"]] + [""]
+    if event_bag is not None:
+        lines += [f"Replay: `{event_bag.path}` holds {event_bag.messages} map messages "
+                  "(`/octofuse/RULE/AGENT/octomap` and `.../occupied_cells`), one per exported "
+                  "agent and rule at every instant it fused a message.", ""]
+    return lines
+
+
+def files_note(cfg: RunConfig) -> str:
+    """What the output folder holds, for the export mode of ``cfg``."""
+    what = {"all": "with every exported agent's fused map (`AGENT.ot`) and its information-loss "
+                   f"heat map (`AGENT_info_loss.{{{','.join(cfg.formats)}}}`)",
+            "fused": "with every exported agent's fused map (`AGENT.ot`)",
+            "none": None}[cfg.export]
+    maps = (f"`centralized.ot`; per rule a folder {what}; " if what else
+            "no maps (`--export none`); ")
+    return (f"Files: {maps}`summary.json` holds every number, with every fusion event "
+            "(`fusion_events`); plots and top views as PNG.")

@@ -94,20 +94,6 @@ def write_map_bag(path: str | os.PathLike, maps: Mapping[str, object] | Iterable
     ``topic``/``cloud_topic`` are formatted with ``name`` (``cloud_topic=None``: no clouds);
     voxels with log-odds above ``occupied`` go into the cloud. Returns the path written.
     """
-    from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin
-    from rosbags.rosbag2 import Writer as Writer2
-
-    out = Path(path)
-    kind = bag_kind(out) if kind is None else kind
-    if kind not in KINDS:
-        raise ValueError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
-    if kind == "ros1" and out.suffix != ".bag":
-        raise ValueError(f"'{out}': a ROS 1 bag needs a .bag file name")
-    if out.exists():
-        raise FileExistsError(f"'{out}' exists; not overwriting it")
-    if not frame_id:
-        raise ValueError("frame_id must not be empty")
     if isinstance(maps, Mapping):
         events = [MapEvent(str(k), int(stamp_ns), m) for k, m in maps.items()]
     else:
@@ -117,46 +103,127 @@ def write_map_bag(path: str | os.PathLike, maps: Mapping[str, object] | Iterable
     for e in events:
         if not isinstance(e, MapEvent):
             raise TypeError(f"expected MapEvent items or a {{name: map}} mapping, got {type(e).__name__}")
-        if int(e.stamp_ns) < 0:
-            raise ValueError(f"map '{e.name}': negative time stamp {e.stamp_ns}")
+        _check_stamp(e)
     events.sort(key=lambda e: e.stamp_ns)
+    with MapBagWriter(path, kind=kind, frame_id=frame_id, topic=topic, cloud_topic=cloud_topic,
+                      occupied=occupied) as writer:
+        for e in events:
+            writer.write(e)
+    return writer.path
 
-    ros1 = kind == "ros1"
-    ts = typestore(ros1)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        if ros1:
-            staged = tmp / out.name
-            writer = Writer1(staged)
+
+class MapBagWriter:
+    """Map messages streamed into a bag: :meth:`write` one :class:`MapEvent` at a time (nothing
+    is kept in memory), :meth:`close` puts the finished bag at ``path``.
+
+    Arguments as for :func:`write_map_bag`. The path is checked when the writer is made (an
+    existing path, a bad ``kind`` or frame raise then), the messages go to a temporary folder
+    beside it, and only :meth:`close` renames the complete bag into place; :meth:`abort` (or
+    leaving the ``with`` block by an exception) removes everything written.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, kind: str | None = None,
+                 frame_id: str = "map", topic: str = "/{name}/octomap",
+                 cloud_topic: str | None = "/{name}/occupied_cells", occupied: float = 0.0):
+        from rosbags.rosbag1 import Writer as Writer1
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+
+        out = Path(path)
+        kind = bag_kind(out) if kind is None else kind
+        if kind not in KINDS:
+            raise ValueError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
+        if kind == "ros1" and out.suffix != ".bag":
+            raise ValueError(f"'{out}': a ROS 1 bag needs a .bag file name")
+        if out.exists() or out.is_symlink():
+            raise FileExistsError(f"'{out}' exists; not overwriting it")
+        if not frame_id:
+            raise ValueError("frame_id must not be empty")
+        self.path, self.kind, self.count = out, kind, 0
+        self._frame, self._topic, self._cloud_topic = frame_id, topic, cloud_topic
+        self._occupied = occupied
+        self._ros1 = kind == "ros1"
+        self._ts = typestore(self._ros1)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        try:
+            if self._ros1:
+                self._staged = self._tmp / out.name
+                self._writer = Writer1(self._staged)
+            else:
+                self._staged = self._tmp / "bag"
+                self._writer = Writer2(self._staged, version=9,
+                                       storage_plugin=StoragePlugin.MCAP)
+            self._writer.open()
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+        self._conns: dict[tuple[str, str], object] = {}
+        self._open = True
+
+    def write(self, e: MapEvent) -> None:
+        """Write one map (and its occupied voxels) stamped ``e.stamp_ns``."""
+        if not self._open:
+            raise ValueError(f"'{self.path}': the bag is closed")
+        _check_stamp(e)
+        hdr = _header(self._ts, e.stamp_ns, self._frame)
+        self._put(self._topic.format(name=e.name), OCTOMAP,
+                  octomap_message(self._ts, e.map, hdr), e.stamp_ns)
+        if self._cloud_topic is not None:
+            self._put(self._cloud_topic.format(name=e.name), POINTCLOUD2,
+                      occupied_cloud(self._ts, e.map, hdr, self._occupied), e.stamp_ns)
+        self.count += 1
+
+    def close(self) -> Path:
+        """Finish the bag and rename it to ``path``; returns ``path``."""
+        if not self._open:
+            return self.path
+        self._open = False
+        try:
+            self._writer.close()
+            staged = self._staged
+            if self.kind == "mcap":
+                staged = next(p for p in staged.iterdir() if p.suffix == ".mcap")
+            if self.path.exists() or self.path.is_symlink():
+                raise FileExistsError(f"'{self.path}' appeared while writing; not overwriting it")
+            os.rename(staged, self.path)
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop everything written; ``path`` is left as it was."""
+        if not self._open:
+            return
+        self._open = False
+        try:
+            self._writer.close()
+        except Exception:  # noqa: BLE001 - the partial bag is deleted anyway
+            pass
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> "MapBagWriter":
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
         else:
-            staged = tmp / "bag"
-            writer = Writer2(staged, version=9, storage_plugin=StoragePlugin.MCAP)
-        conns: dict[tuple[str, str], object] = {}
+            self.abort()
 
-        def conn(name: str, msgtype: str):
-            key = (name, msgtype)
-            if key not in conns:
-                conns[key] = writer.add_connection(name, msgtype, typestore=ts)
-            return conns[key]
+    def _put(self, topic: str, msgtype: str, msg, log_ns: int) -> None:
+        key = (topic, msgtype)
+        if key not in self._conns:
+            self._conns[key] = self._writer.add_connection(topic, msgtype, typestore=self._ts)
+        ts = self._ts
+        raw = ts.serialize_ros1(msg, msgtype) if self._ros1 else ts.serialize_cdr(msg, msgtype)
+        self._writer.write(self._conns[key], log_ns, raw)
 
-        def put(t: str, msgtype: str, msg, log_ns: int) -> None:
-            raw = ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype)
-            writer.write(conn(t, msgtype), log_ns, raw)
 
-        with writer:
-            for e in events:
-                hdr = _header(ts, e.stamp_ns, frame_id)
-                put(topic.format(name=e.name), OCTOMAP, octomap_message(ts, e.map, hdr), e.stamp_ns)
-                if cloud_topic is not None:
-                    put(cloud_topic.format(name=e.name), POINTCLOUD2,
-                        occupied_cloud(ts, e.map, hdr, occupied), e.stamp_ns)
-        if kind == "mcap":
-            staged = next(p for p in staged.iterdir() if p.suffix == ".mcap")
-        os.rename(staged, out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out
+def _check_stamp(e: MapEvent) -> None:
+    if int(e.stamp_ns) < 0:
+        raise ValueError(f"map '{e.name}': negative time stamp {e.stamp_ns}")
 
 
 def octomap_message(ts, m, header):

@@ -76,7 +76,7 @@ def cell_key(cfg: RunConfig, cell: Cell) -> str:
     configuration (less threads and outputs), the cell and the bags' names and sizes."""
     d = to_dict(cell_config(cfg, cell))
     d["build"].pop("threads", None)
-    for k in ("out", "samples", "export_agents"):
+    for k in ("out", "samples", "export_agents", "export", "formats"):
         d.pop(k, None)
     bags = []
     for b in cell.bags:

@@ -1,0 +1,212 @@
+"""The agents' own map frames in a run, and the alignment of a link on first contact.
+
+Every agent maps in its own frame: ``frames[NAME]`` is the rigid transform taking a point of
+NAME's map frame into the common frame (agents not listed are in the common frame). A message
+from ``s`` to ``d`` is moved by ``T_d^-1 @ T_s`` into the receiver's frame and resampled to the
+receiver's resolution before it is fused (:func:`moved`: point sampling, so that maps moved
+back and forth at every exchange do not thicken); between agents of one frame it is fused as
+it is.
+
+With ``align`` (``planar`` or ``full``) a link's transform is estimated instead: at the first
+message on a link the receiver registers the message map against its own map
+(:func:`octofuse.maps.registration.register`). When registration refuses (too little overlap
+yet) the message is not fused (it still counts as sent) and the link tries again at its next
+message; once aligned, the link keeps its transform. A link aligns once for all rules (on the
+first rule's maps), so every rule fuses the same messages. The known frames, if any, then serve
+as the reference the estimate's error is measured against.
+
+The centralized map and the scores are in the common frame: an agent's scans reach the
+centralized map moved by its frame, and its maps are moved into the common frame to be scored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from ..config import ALIGN_MODES
+from ..maps.frames import invert, matrix_pose, pose_matrix
+
+
+@dataclass
+class LinkAlignment:
+    """The alignment of one directed link (messages from ``sender`` fused by ``receiver``)."""
+
+    sender: str
+    receiver: str
+    matrix: Optional[np.ndarray] = None  #: sender's frame -> receiver's frame; None: not aligned
+    time_s: Optional[float] = None  #: time of the message it aligned on
+    attempts: int = 0  #: registrations tried (the last one succeeded if aligned)
+    fitness: float = 0.0
+    refusal: str = ""  #: why the last refused registration refused
+    reference: Optional[np.ndarray] = None  #: the transform the agent frames give, if any
+
+    def as_dict(self) -> dict:
+        d = {"sender": self.sender, "receiver": self.receiver, "aligned": self.matrix is not None,
+             "time_s": self.time_s, "attempts": self.attempts, "fitness": self.fitness}
+        if self.matrix is None:
+            d["refusal"] = self.refusal
+            return d
+        d["estimate"] = matrix_pose(self.matrix)
+        if self.reference is not None:
+            d["error_m"], d["error_deg"] = transform_error(self.matrix, self.reference)
+        return d
+
+
+def moved(m, T: Optional[np.ndarray], resolution: Optional[float] = None):
+    """``m`` moved by ``T`` (None: not moved) onto a grid of ``resolution`` (default: its own);
+    ``m`` itself when nothing changes. Point sampling (``resampling="nearest"``): maps moved
+    between frames at every exchange keep their surfaces' thickness and known extent."""
+    res = m.resolution if resolution is None else resolution
+    if T is None and abs(m.resolution - res) <= 1e-9 * res:
+        return m
+    return m.transformed(np.eye(4) if T is None else T, res, resampling="nearest")
+
+
+def transform_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """Translation (metres) and rotation angle (degrees) of ``reference^-1 @ estimate``."""
+    E = invert(reference) @ estimate
+    cos = max(-1.0, min(1.0, (float(np.trace(E[:3, :3])) - 1.0) / 2.0))
+    return float(np.linalg.norm(E[:3, 3])), math.degrees(math.acos(cos))
+
+
+class AgentFrames:
+    """The frames of a run's agents and the per-link alignment state."""
+
+    def __init__(self, agents: Sequence[str], frames: Mapping[str, np.ndarray] | None = None,
+                 align: str = "off"):
+        self.agents = list(agents)
+        frames = dict(frames or {})
+        unknown = [n for n in frames if n not in self.agents]
+        if unknown:
+            raise ValueError(f"fuse.agent_frames: unknown agent '{unknown[0]}' (agents: "
+                             f"{', '.join(self.agents)})")
+        if align not in ALIGN_MODES:
+            raise ValueError(f"fuse.align = {align!r}: expected one of {', '.join(ALIGN_MODES)}")
+        #: agent -> its frame into the common frame; identity frames are left out
+        self.frames = {a: np.asarray(T, dtype=float) for a, T in frames.items()
+                       if not np.array_equal(T, np.eye(4))}
+        self.align = align
+        self.links: dict[tuple[str, str], LinkAlignment] = {}
+
+    @classmethod
+    def from_config(cls, agents: Sequence[str], fuse_cfg) -> "AgentFrames":
+        return cls(agents, {f.name: pose_matrix(*f.pose) for f in fuse_cfg.agent_frames},
+                   fuse_cfg.align)
+
+    @property
+    def active(self) -> bool:
+        """Whether any message or score needs a transform."""
+        return bool(self.frames) or self.align != "off"
+
+    def plain(self, s: str, d: str) -> bool:
+        """A message from ``s`` is fused by ``d`` as it is (no transform, no alignment)."""
+        return self.align == "off" and self.reference(s, d) is None
+
+    def reference(self, s: str, d: str) -> Optional[np.ndarray]:
+        """``T_d^-1 @ T_s`` from the agent frames; None when the two share a frame."""
+        Ts, Td = self.frames.get(s), self.frames.get(d)
+        if Ts is None and Td is None or (Ts is not None and Td is not None
+                                         and np.array_equal(Ts, Td)):
+            return None
+        eye = np.eye(4)
+        return invert(eye if Td is None else Td) @ (eye if Ts is None else Ts)
+
+    def aligned(self, s: str, d: str) -> bool:
+        """Messages on the link may be fused (alignment off, or the link has aligned)."""
+        if self.align == "off":
+            return True
+        link = self.links.get((s, d))
+        return link is not None and link.matrix is not None
+
+    def to_receiver(self, s: str, d: str, m, resolution: float):
+        """The message map ``m`` of ``s`` in ``d``'s frame at ``d``'s ``resolution`` (``m``
+        itself when nothing changes)."""
+        if self.align == "off":
+            T = self.reference(s, d)
+        else:
+            T = self.links[(s, d)].matrix
+        return moved(m, T, resolution)
+
+    def to_common(self, agent: str, m):
+        """``agent``'s map ``m`` moved into the common frame (``m`` itself in that frame)."""
+        return moved(m, self.frames.get(agent))
+
+    def align_links(self, events: Sequence[tuple[str, str, bool, float]], maps: Mapping) -> None:
+        """Register the links of ``events`` ``(sender, receiver, lost, time_s)`` that carry
+        a delivered message and have not aligned yet: the receiver's map in ``maps`` against
+        the sender's (both as they are when the messages are sent)."""
+        if self.align == "off":
+            return
+        from ..maps.registration import register
+
+        for s, d, lost, t in events:
+            link = self.links.get((s, d))
+            if link is None:
+                ref = self.reference(s, d)
+                link = self.links[(s, d)] = LinkAlignment(
+                    s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None)
+            if lost or link.matrix is not None:
+                continue
+            link.attempts += 1
+            try:
+                reg = register(maps[d], maps[s], planar=self.align == "planar")
+            except ValueError as e:
+                link.refusal = str(e)
+                continue
+            link.matrix, link.time_s, link.fitness, link.refusal = reg.matrix, t, reg.fitness, ""
+
+    def report(self) -> list[dict]:
+        """Per link (sorted): whether and when it aligned, its estimate and error."""
+        return [self.links[k].as_dict() for k in sorted(self.links)]
+
+    def scan_targets(self, scans: Sequence, targets: Sequence[list], central) -> tuple[list, list]:
+        """Scans and their target maps with the centralized map added: a scan of an agent
+        in the common frame also goes into ``central``; one of an agent with its own frame
+        is followed by a copy moved by that frame (points and origin) for ``central``."""
+        out_scans, out_targets = [], []
+        for scan, tgt in zip(scans, targets):
+            T = self.frames.get(self.agents[scan.agent])
+            if T is None:
+                out_scans.append(scan)
+                out_targets.append([*tgt, central])
+            else:
+                out_scans += [scan, dataclasses.replace(scan, pose=T @ scan.pose)]
+                out_targets += [list(tgt), [central]]
+        return out_scans, out_targets
+
+
+def frames_section(frames: Mapping[str, np.ndarray], alignment: Sequence[dict]) -> list[str]:
+    """The report's lines on the agents' frames and the links' alignment."""
+    lines = ["## Agent frames", ""]
+    for a, T in frames.items():
+        p = matrix_pose(T)
+        lines.append(f"- `{a}` -> common frame: x {p['x']:.3f} m, y {p['y']:.3f} m, z "
+                     f"{p['z']:.3f} m, roll {math.degrees(p['roll']):.2f}, pitch "
+                     f"{math.degrees(p['pitch']):.2f}, yaw {math.degrees(p['yaw']):.2f} deg")
+    if frames:
+        lines += ["", "Every other agent maps in the common frame; messages are moved into the "
+                  "receiver's frame, scores are taken in the common frame.", ""]
+    if alignment:
+        with_error = any("error_m" in d for d in alignment)
+        head = "| link | aligned at | tries | fitness | x m | y m | z m | yaw deg |"
+        lines += ["Alignment on first contact (messages on a link are fused once it aligned):",
+                  "", head + (" error m | error deg |" if with_error else ""),
+                  "|" + "---|" * (8 + 2 * with_error)]
+        for d in alignment:
+            link = f"`{d['sender']}` -> `{d['receiver']}`"
+            if not d["aligned"]:
+                lines.append(f"| {link} | never | {d['attempts']} |" + " |" * (5 + 2 * with_error))
+                continue
+            e = d["estimate"]
+            row = (f"| {link} | {d['time_s']:g} | {d['attempts']} | {d['fitness']:.2f} | "
+                   f"{e['x']:.3f} | {e['y']:.3f} | {e['z']:.3f} | {math.degrees(e['yaw']):.2f} |")
+            if with_error:
+                row += f" {d['error_m']:.3f} | {d['error_deg']:.2f} |"
+            lines.append(row)
+        lines.append("")
+    return lines

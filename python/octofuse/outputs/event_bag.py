@@ -1,0 +1,66 @@
+"""A run replayable in time: after every group of exchanges, each exported agent's map of
+every rule it fused a message into is streamed into a bag as ``octomap_msgs/msg/Octomap``
+(and PointCloud2 of its occupied voxels) on ``/octofuse/RULE/AGENT/octomap`` (and
+``.../occupied_cells``), stamped at bag start + exchange time.
+
+Messages received at one instant are fused together, so an agent that received several at
+the same time gets one message holding the map after all of them. Maps are written as they
+are made (nothing is kept); the bag is put in place only complete (:class:`MapBagWriter`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+from ..config import CHANNEL_FILTER
+from .rosbag_export import MapBagWriter, MapEvent
+
+TOPIC = "/octofuse/{name}/octomap"
+CLOUD_TOPIC = "/octofuse/{name}/occupied_cells"
+
+
+class FusionEventBag:
+    """The observer of :func:`octofuse.fusion.simulate.simulate` that writes the bag.
+
+    ``select(agents)`` names the agents whose maps are written (default: all). Set
+    ``start_ns`` (the bags' start) before the run. ``close()`` finishes the bag, ``abort()``
+    drops it.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, frame_id: str = "map",
+                 select: Optional[Callable[[list[str]], Sequence[str]]] = None):
+        self.writer = MapBagWriter(path, frame_id=frame_id, topic=TOPIC, cloud_topic=CLOUD_TOPIC)
+        self.path = Path(path)
+        self.start_ns = 0
+        self._select = select
+        self._agents: Optional[set[str]] = None
+        self._seen: dict[str, int] = {}  # rule -> fusion records handled
+
+    @property
+    def messages(self) -> int:
+        """Map messages written so far."""
+        return self.writer.count
+
+    def __call__(self, t: float, group, net, scans) -> None:
+        if self._agents is None:
+            self._agents = set(self._select(list(net.agents)) if self._select else net.agents)
+        stamp = self.start_ns + round(t * 1e9)
+        for rule in net.rules:
+            records = net.traffic[rule].fusions
+            new = records[self._seen.get(rule, 0):]
+            self._seen[rule] = len(records)
+            for agent in dict.fromkeys(e.receiver for e in new if e.receiver in self._agents):
+                m = net.fused[rule][agent]
+                if rule == CHANNEL_FILTER:  # kept unclamped while fusing; written clamped
+                    from ..fusion.channel_filter import clamped
+
+                    m = clamped(m)
+                self.writer.write(MapEvent(f"{rule}/{agent}", stamp, m))
+
+    def close(self) -> Path:
+        return self.writer.close()
+
+    def abort(self) -> None:
+        self.writer.abort()
