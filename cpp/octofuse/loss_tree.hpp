@@ -129,13 +129,20 @@ class LossAdder {
     }
   }
 
+  // Every voxel under n gets v: existing leaves add it, voxels without a value yet (children
+  // no fusion reached before) start from it.
   void add_all(Node* n, float v) {
     if (!ops_->nodeHasChildren(n)) {
       n->setValue(n->getValue() + v);
       return;
     }
-    for (unsigned i = 0; i < 8; ++i)
-      if (ops_->nodeChildExists(n, i)) add_all(ops_->getNodeChild(n, i), v);
+    for (unsigned i = 0; i < 8; ++i) {
+      if (ops_->nodeChildExists(n, i)) {
+        add_all(ops_->getNodeChild(n, i), v);
+      } else {
+        ops_->createNodeChild(n, i)->setValue(v);
+      }
+    }
     LossCursor c;
     c.node = n;
     finish(c);
