@@ -7,11 +7,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-#: an accumulated loss "mostly reflects the number of messages" when, across agents, it
-#: correlates with the messages received at least this strongly ...
-MIN_CORRELATION = 0.9
-#: ... while the loss of one event varies at most this much (coefficient of variation)
-MAX_EVENT_CV = 0.5
+#: an accumulated loss "mostly reflects the number of messages" when the messages an agent
+#: fused explain at least this share of the spread of accumulated loss across agents (r^2)
+MIN_EXPLAINED = 0.5
 
 
 def event_loss_summary(fusions: Sequence, agents: Sequence[str]) -> dict[str, dict]:
@@ -55,10 +53,8 @@ def _correlation(x, y) -> Optional[float]:
 def counts_messages(row: dict) -> Optional[bool]:
     """Whether a rule's accumulated loss mostly reflects the number of messages (None: cannot
     tell, the messages or losses do not vary across agents)."""
-    r, cv = row["correlation"], row["event_loss_cv"]
-    if r is None or cv is None:
-        return None
-    return r >= MIN_CORRELATION and cv <= MAX_EVENT_CV
+    r = row["correlation"]
+    return None if r is None else r > 0 and r * r >= MIN_EXPLAINED
 
 
 def messages_sentence(summary: dict[str, dict]) -> Optional[str]:
@@ -71,22 +67,21 @@ def messages_sentence(summary: dict[str, dict]) -> Optional[str]:
     no = [r for r, row in rows.items() if counts_messages(row) is False]
     unknown = [r for r, row in rows.items() if counts_messages(row) is None]
 
-    def detail(r):
-        row = summary[r]
-        return f"`{r}` r = {row['correlation']:.2f}, CV {row['event_loss_cv']:.2f}"
+    def explained(names):
+        return ", ".join(f"`{r}` {max(0.0, summary[r]['correlation']) ** 2:.0%}" for r in names)
 
     parts = []
     if yes:
         parts.append(
-            "The accumulated loss mostly reflects the number of messages an agent fused for "
-            + ", ".join(detail(r) for r in yes)
-            + f": across agents it follows the messages received (correlation r >= "
-            f"{MIN_CORRELATION}) while the loss of one event varies little (coefficient of "
-            f"variation <= {MAX_EVENT_CV}), so compare these rules by their loss per event.")
+            "The accumulated loss mostly reflects the number of messages an agent fused: that "
+            "number explains this share of the spread of accumulated loss across agents (r^2): "
+            + explained(yes) + ". Compare agents and rules by the loss per event or per fused "
+            "voxel instead.")
     if no:
-        parts.append(("Not" if yes else "The accumulated loss does not mostly reflect the "
-                      "number of messages") + " for " + ", ".join(detail(r) for r in no)
-                     + " (weaker correlation or a loss per event that varies more).")
+        parts.append(("The number of messages explains less of it for " if yes else
+                      "The accumulated loss does not mostly reflect the number of messages: "
+                      "that number explains less than half of its spread across agents for ")
+                     + explained(no) + ".")
     if unknown:
         parts.append("For " + ", ".join(f"`{r}`" for r in unknown) + " it cannot be told: "
                      "the messages fused or the accumulated losses are the same for every agent "
