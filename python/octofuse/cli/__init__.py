@@ -1,0 +1,77 @@
+"""The ``octofuse`` command line: flags -> one configuration -> one call -> a table.
+
+- :mod:`.options`: the command group, shared option sets, flags + ``--config`` -> configuration;
+- :mod:`.map_commands`: build, fuse-maps, align, export, info;
+- :mod:`.network_commands`: run, demo, fuse, bench;
+- :mod:`.belief_commands`: search, track.
+
+:func:`main` runs it: usage errors exit 2, bad input 1 with one line, an interruption 130.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Optional
+
+import click
+
+from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
+from .options import CliError, cli, run_config
+
+__all__ = ["cli", "main", "run_config", "CliError"]
+
+
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    """Run the CLI: usage errors exit 2 with click's message, bad input 1 with one line,
+    an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug)."""
+    try:
+        args = sys.argv[1:] if argv is None else list(argv)
+        with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below
+            cli.invoke(ctx)
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.ClickException as e:
+        e.show()
+        return e.exit_code
+    except click.Abort:
+        _error("interrupted")
+        return 130
+    except KeyboardInterrupt:
+        _error("interrupted")
+        return 130
+    except (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError) as e:
+        _error(_message(e))
+        return 1
+    except Exception as e:  # a bug in octofuse, not bad input
+        if _bad_input(e):
+            _error(_message(e))
+            return 1
+        if os.environ.get("OCTOFUSE_DEBUG"):
+            raise
+        _error(f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
+               "for the traceback")
+        return 70
+    return 0
+
+
+def _bad_input(e: BaseException) -> bool:
+    """A bag or transform error (bad input); their modules are imported only if they ran."""
+    for module, name in (("octofuse.scans.bags", "BagError"), ("octofuse.scans.tf", "TransformError")):
+        cls = getattr(sys.modules.get(module), name, None)
+        if cls is not None and isinstance(e, cls):
+            return True
+    return False
+
+
+def _message(e: BaseException) -> str:
+    if isinstance(e, MemoryError):
+        return "out of memory: " + (str(e) or "the input asks for more memory than the machine has")
+    text = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
+    return " ".join(str(text).split()) or type(e).__name__
+
+
+def _error(text: str) -> None:
+    click.echo(f"error: {text}", err=True)

@@ -1,0 +1,233 @@
+"""Commands that fuse maps over a network: ``run`` (in time), ``demo``, ``fuse`` (finished
+maps, in rounds) and ``bench`` (rules x topologies)."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from pathlib import Path
+from typing import Optional
+
+import click
+
+from ..config import RunConfig
+from .options import (_DEFAULT, CliError, Progress, bag_arguments, build_options, cli,
+                      config_options, console, dump_config, exchange_options, export_options,
+                      frame_options, need_bags, need_out, out_option, rule_option, run_config,
+                      say, topology_option)
+
+
+def _run_and_report(cfg: RunConfig, title: str, command: str,
+                    export_bag: Optional[Path] = None) -> None:
+    from ..fusion.simulate import simulate
+    from ..maps.truth import Scene
+    from ..outputs.report import write_outputs
+    from ..outputs.staging import check_replaceable, staged_folder
+    from ..outputs.tables import scores_table
+
+    out = check_replaceable(cfg.out)
+    truth = Scene.find(cfg.truth, cfg.build.bags)
+    bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
+    try:
+        with contextlib.ExitStack() as stack:
+            bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
+            src = None
+            if bag is not None:  # stamped in bag time: the bags' start is needed first
+                from ..scans.source import ScanSource
+
+                src = stack.enter_context(ScanSource(cfg.build))
+                bag.start_ns = src.bags.start_ns or 0
+            res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar,
+                           source=src, observer=bag)
+        with staged_folder(out, command) as stage:
+            write_outputs(res, stage, cfg, export_agents=_export_agents(cfg.export_agents, res.agents),
+                          title=title, event_bag=bag)
+            if bag is not None:
+                bag.close()
+    finally:
+        if bag is not None:
+            bag.abort()  # nothing once closed
+    console().print(scores_table(res, title))
+    if bag is not None:
+        say(f"bag: {bag.path} ({bag.messages} map messages)")
+    say(f"report: {out / 'report.md'}")
+
+
+def _event_bag(path: Path, cfg: RunConfig, out: Path):
+    """The per-event bag of ``--export-bag``, checked and opened before the run."""
+    from ..outputs.event_bag import FusionEventBag
+
+    if cfg.export_agents == "none":
+        raise CliError("--export-bag: no agent is exported (--export-agents none)")
+    if path.absolute() == out.absolute() or out.absolute() in path.absolute().parents:
+        raise CliError(f"--export-bag '{path}' is inside --out '{out}', which is replaced "
+                       "whole; give a path outside it")
+    return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"),
+                          select=lambda agents: _export_agents(cfg.export_agents, agents))
+
+
+def _export_agents(spec: str, agents: list[str]) -> list[str]:
+    if spec in ("all", "none", "first"):
+        return {"all": agents, "none": [], "first": agents[:1]}[spec]
+    names = [x.strip() for x in spec.split(",") if x.strip()]
+    bad = [n for n in names if n not in agents]
+    if bad:
+        raise CliError(f"--export-agents: unknown agent(s) {', '.join(bad)}; agents: {', '.join(agents)}")
+    return names
+
+
+@cli.command()
+@bag_arguments
+@rule_option
+@topology_option
+@exchange_options
+@frame_options
+@build_options
+@click.option("--samples", type=click.IntRange(0, 10_000), help="points in time at which KL is recorded",
+              show_default=str(_DEFAULT.samples))
+@click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
+              "or names", show_default=_DEFAULT.export_agents)
+@export_options
+@click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
+              help="also write every exported agent's map after each fusion it received, per "
+                   "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
+                   "folder) to replay the run in RViz or Foxglove")
+@click.option("--robust/--no-robust", default=None, show_default="off",
+              help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
+                   "its time and parameters: fuse.robust in --config)")
+@config_options
+@out_option
+def run(bags, export_bag, **p):
+    """The whole job in time order: build, exchange, fuse, score, export, report."""
+    cfg = run_config(p, bags=bags)
+    if p["dump_config"]:
+        return dump_config(cfg)
+    need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
+    need_out(cfg, p["out"])
+    _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag)
+
+
+def bundled_dataset() -> Path:
+    """The bundled simulated dataset (installed with the package, or in the checkout)."""
+    here = Path(__file__).resolve().parents[1]  # the package
+    for cand in (here / "data" / "lab8.bag", here.parents[1] / "data" / "lab8.bag"):
+        if cand.is_file():
+            return cand
+    raise CliError("the bundled dataset lab8.bag was not found (reinstall octofuse, or run "
+                   "`octofuse run data/lab8.bag ...` from the source checkout)")
+
+
+@cli.command()
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("octofuse-demo"),
+              help="output folder")
+@click.option("--rule", "--rules", "rule", multiple=True, help="rules, comma separated",
+              show_default="all,channel-filter")
+@click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
+@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@export_options
+def demo(**p):
+    """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
+    bag = bundled_dataset()
+    cfg = run_config(p, bags=[bag], defaults={
+        "fuse": {"rules": ["all", "channel-filter"], "topology": "max-robust:3",
+                 "schedule": "aperiodic:20"},
+        "samples": 8, "export_agents": "first"})
+    say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
+        "aperiodic exchanges, every rule")
+    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo")
+
+
+@cli.command("fuse")
+@click.argument("maps_dir", type=click.Path(path_type=Path))
+@rule_option
+@topology_option
+@click.option("--rounds", type=click.IntRange(1, 10_000), help="synchronous rounds of exchanges",
+              show_default="3")
+@click.option("--directions", type=click.Choice(["both", "one"]), help="messages on a link",
+              show_default="both")
+@click.option("--unknown", type=click.Choice(["copy", "prior"]), help="voxels known to one map only",
+              show_default="copy")
+@click.option("--seed", type=int, help="seed of random topologies", show_default="0")
+@click.option("--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON")
+@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@frame_options
+@export_options
+@config_options
+@out_option
+def fuse_cmd(maps_dir, rounds, **p):
+    """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
+    from ..fusion.rounds import fuse_finished
+    from ..maps.occupancy import OccupancyMap
+    from ..maps.truth import Scene
+    from ..outputs.report import write_outputs
+    from ..outputs.staging import check_replaceable, staged_folder
+
+    cfg = run_config({**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
+                     bags=[maps_dir], defaults={"fuse": {"schedule": "rounds:3"}})
+    if p["dump_config"]:
+        return dump_config(cfg)
+    out = check_replaceable(need_out(cfg, p["out"]))
+    if not maps_dir.is_dir():
+        raise CliError(f"maps folder '{maps_dir}' does not exist")
+    files = sorted(f for f in maps_dir.glob("*.ot") if f.stem != "centralized")
+    if len(files) < 2:
+        raise CliError(f"'{maps_dir}' holds {len(files)} agent map(s) (*.ot besides centralized.ot); "
+                       "fusion needs at least 2")
+    maps = {f.stem: OccupancyMap.load(f) for f in files}
+    central_path = maps_dir / "centralized.ot"
+    central = OccupancyMap.load(central_path) if central_path.is_file() else None
+    res = fuse_finished(maps, central, cfg.fuse, truth=Scene.find(cfg.truth, []),
+                        threads=cfg.build.threads)
+    title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
+    with staged_folder(out, "fuse") as stage:
+        write_outputs(res, stage, cfg, title=title)
+    say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
+        f"({len(res.events)} messages); report: {out / 'report.md'}")
+
+
+@cli.command()
+@bag_arguments
+@rule_option
+@click.option("--topologies", default="ring,max-robust:3", help="comma separated topologies")
+@click.option("--schedules", help="comma separated schedules, a study axis", show_default="--schedule")
+@click.option("--seeds", help="comma separated seeds, a study axis (mean and spread in the tables)",
+              show_default="--seed")
+@click.option("--executor", type=click.Choice(["auto", "serial", "ray"]), default="auto",
+              help="where the cells run (auto: a local Ray when Ray is installed)")
+@click.option("--ray-address", help="join this Ray cluster instead of starting a local Ray")
+@click.option("--resume", is_flag=True, help="reuse the finished cells of --out and of an "
+              "interrupted run")
+@exchange_options
+@build_options
+@config_options
+@out_option
+def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p):
+    """Compare rules x topologies against the centralized map: CSV, markdown and plots."""
+    from ..maps.truth import Scene
+    from ..outputs.staging import check_replaceable, staged_folder
+    from ..outputs.study import run_study
+
+    cfg = run_config(p, bags=bags, defaults={"fuse": {"rules": ["all"]}})
+    if p["dump_config"]:
+        return dump_config(cfg)
+    need_bags(cfg, "octofuse bench BAG... --out DIR")
+    out = check_replaceable(need_out(cfg, p["out"]))
+    topo = [t.strip() for t in topologies.split(",") if t.strip()]
+    if not topo:
+        raise click.BadParameter("give at least one topology", param_hint="--topologies")
+    try:
+        seed_list = [int(x) for x in seeds.split(",") if x.strip()] if seeds else None
+    except ValueError:
+        raise click.BadParameter(f"{seeds!r}: expected whole numbers", param_hint="--seeds") from None
+    # cells finished so far, kept beside --out so that an interrupted study can be resumed
+    journal = out.parent / f".{out.name}.cells"
+    if not resume:
+        shutil.rmtree(journal, ignore_errors=True)
+    with staged_folder(out, "bench") as stage:
+        run_study(cfg, topo, stage, truth=Scene.find(cfg.truth, cfg.build.bags),
+                  progress=Progress, log=say, seeds=seed_list,
+                  schedules=[x.strip() for x in schedules.split(",") if x.strip()] if schedules else None,
+                  executor=executor, ray_address=ray_address,
+                  resume_from=[out, journal] if resume else [], journal=journal)
+    shutil.rmtree(journal, ignore_errors=True)
+    say(f"wrote {out / 'bench.csv'}, {out / 'bench.md'} and plots")
