@@ -32,11 +32,17 @@ from .se3 import (
     invert_transform,
     matrix_to_quaternion,
     normalize_quaternions,
-    quaternion_to_matrix,
-    rotate_vectors,
-    slerp_arcs,
-    slerp_at,
     transform_matrix,
+)
+
+from .tf_link import (
+    ConnectivityError,
+    ExtrapolationError,
+    TransformError,
+    Link,
+    UnknownFrameError,
+    fmt_ns,
+    sample_problem,
 )
 
 if TYPE_CHECKING:
@@ -59,201 +65,6 @@ _POSE_TYPES = (
     "geometry_msgs/msg/TransformStamped",
 )
 _TF_TYPE = "tf2_msgs/msg/TFMessage"
-
-#: translations beyond this (metres) are refused: no map reaches that far and float64 poses
-#: lose sub-millimetre precision there
-MAX_TRANSLATION_M = 1e12
-
-
-def _sample_problem(t: Any, q: Any) -> str | None:
-    """Why a transform sample (translation, quaternion) cannot be used, or ``None``."""
-    t = np.asarray(t, dtype=np.float64)
-    q = np.asarray(q, dtype=np.float64)
-    if not np.all(np.isfinite(t)):
-        return "non-finite translation"
-    if not np.all(np.isfinite(q)):
-        return "non-finite rotation quaternion"
-    if np.linalg.norm(q) < 1e-12:
-        return "zero rotation quaternion"
-    if np.max(np.abs(t)) > MAX_TRANSLATION_M:
-        return f"translation beyond {MAX_TRANSLATION_M:g} m"
-    return None
-
-
-class TransformError(Exception):
-    """Base class of the errors raised by :class:`TransformBuffer`."""
-
-
-class UnknownFrameError(TransformError):
-    """A frame that no link of the buffer mentions (the message lists the known frames)."""
-
-
-class ConnectivityError(TransformError):
-    """Both frames are known but lie in different, unconnected trees."""
-
-
-class ExtrapolationError(TransformError):
-    """The stamp lies outside the sampled time range of a dynamic link on the chain.
-
-    Attributes
-    ----------
-    parent, child : str
-        The link that cannot be evaluated.
-    stamp_ns : int
-        The requested stamp.
-    first_ns, last_ns : int
-        Stamps of the first and last sample of the link.
-    """
-
-    def __init__(
-        self, message: str, parent: str, child: str, stamp_ns: int, first_ns: int, last_ns: int
-    ) -> None:
-        super().__init__(message)
-        self.parent = parent
-        self.child = child
-        self.stamp_ns = stamp_ns
-        self.first_ns = first_ns
-        self.last_ns = last_ns
-
-
-#: multiplies a quaternion (x, y, z, w) into its conjugate (the inverse rotation)
-_CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])
-
-
-def _fmt_ns(ns: int) -> str:
-    return f"{ns} ns ({ns / 1e9:.6f} s)"
-
-
-# -- links ----------------------------------------------------------------------------------
-
-
-class _Link:
-    """One parent -> child link; dynamic samples are kept sorted in numpy arrays."""
-
-    def __init__(self, parent: str, child: str, static: bool) -> None:
-        self.parent = parent
-        self.child = child
-        self.static = static
-        self.static_matrix = np.eye(4)
-        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self.stamps = np.empty(0, dtype=np.int64)
-        self.trans = np.empty((0, 3), dtype=np.float64)
-        self.quats = np.empty((0, 4), dtype=np.float64)
-        self._arcs_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-
-    def add(self, stamps: np.ndarray, trans: np.ndarray, quats: np.ndarray) -> None:
-        self._pending.append((stamps, trans, quats))
-
-    def _finalize(self) -> None:
-        if not self._pending:
-            return
-        stamps = np.concatenate([self.stamps] + [p[0] for p in self._pending])
-        trans = np.concatenate([self.trans] + [p[1] for p in self._pending])
-        quats = np.concatenate([self.quats] + [p[2] for p in self._pending])
-        self._pending.clear()
-        order = np.argsort(stamps, kind="stable")
-        stamps = stamps[order]
-        # Several samples at one stamp: the one added last wins.
-        keep = np.ones(stamps.size, dtype=bool)
-        keep[:-1] = stamps[1:] != stamps[:-1]
-        order = order[keep]
-        self.stamps = stamps[keep]
-        self.trans = trans[order]
-        self.quats = quats[order]
-        self._arcs_cache = None
-
-    def _arcs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`slerp_arcs` of every pair of consecutive samples (computed once)."""
-        if self._arcs_cache is None:
-            self._arcs_cache = slerp_arcs(self.quats[:-1], self.quats[1:])
-        return self._arcs_cache
-
-    def _extrapolation(self, stamps: np.ndarray, bad: np.ndarray, what: str) -> ExtrapolationError:
-        s = self.stamps
-        first, last = int(s[0]), int(s[-1])
-        t = int(stamps[np.argmax(bad)])
-        side = (
-            f"{(first - t) / 1e9:.6f} s before the first sample"
-            if t < first
-            else f"{(t - last) / 1e9:.6f} s after the last sample"
-        )
-        extra = (
-            f" ({int(bad.sum())} of {stamps.size} stamps are outside)" if stamps.size > 1 else ""
-        )
-        return ExtrapolationError(
-            f"{what} at {_fmt_ns(t)}: link {self.parent!r} -> {self.child!r} has "
-            f"{s.size} sample(s) from {_fmt_ns(first)} to {_fmt_ns(last)}; the stamp is "
-            f"{side}{extra}",
-            self.parent,
-            self.child,
-            t,
-            first,
-            last,
-        )
-
-    def matrix_at(self, stamp: int, tolerance_ns: int, what: str) -> np.ndarray:
-        """T_parent_child at one stamp, shape (4, 4)."""
-        if self.static:
-            return self.static_matrix
-        return self.matrices(np.array([stamp], dtype=np.int64), tolerance_ns, what)[0]
-
-    def matrices(self, stamps: np.ndarray, tolerance_ns: int, what: str) -> np.ndarray:
-        """Transforms T_parent_child at the stamps (K,), shape (K, 4, 4)."""
-        if self.static:
-            return np.broadcast_to(self.static_matrix, (stamps.size, 4, 4))
-        trans, quats = self.interpolate(stamps, tolerance_ns, what)
-        m = np.zeros((stamps.size, 4, 4), dtype=np.float64)
-        m[:, :3, :3] = quaternion_to_matrix(quats)
-        m[:, :3, 3] = trans
-        m[:, 3, 3] = 1.0
-        return m
-
-    def to_parent(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
-                  what: str) -> np.ndarray:
-        """Points (K, 3) of the child frame, each at its stamp (K,), in the parent frame."""
-        if self.static:
-            return points @ self.static_matrix[:3, :3].T + self.static_matrix[:3, 3]
-        trans, quats = self.interpolate(stamps, tolerance_ns, what)
-        return rotate_vectors(quats, points) + trans
-
-    def to_child(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
-                 what: str) -> np.ndarray:
-        """Points (K, 3) of the parent frame, each at its stamp (K,), in the child frame."""
-        if self.static:
-            return (points - self.static_matrix[:3, 3]) @ self.static_matrix[:3, :3]
-        trans, quats = self.interpolate(stamps, tolerance_ns, what)
-        return rotate_vectors(quats * _CONJUGATE, points - trans)
-
-    def interpolate(self, stamps: np.ndarray, tolerance_ns: int,
-                    what: str) -> tuple[np.ndarray, np.ndarray]:
-        """Translations (K, 3) and unit quaternions (K, 4) of a dynamic link at the stamps (K,)."""
-        self._finalize()
-        s = self.stamps
-        first, last = int(s[0]), int(s[-1])
-        bad = (stamps < first - tolerance_ns) | (stamps > last + tolerance_ns)
-        if bad.any():
-            raise self._extrapolation(stamps, bad, what)
-        t = np.clip(stamps, first, last)
-        n = s.size
-        if n == 1:
-            trans = np.broadcast_to(self.trans[0], (t.size, 3))
-            quats = np.broadcast_to(self.quats[0], (t.size, 4))
-        else:
-            i1 = np.clip(np.searchsorted(s, t, side="left"), 1, n - 1)
-            i0 = i1 - 1
-            s0, s1 = s[i0], s[i1]
-            a = (t - s0).astype(np.float64) / (s1 - s0).astype(np.float64)
-            q0, q1 = self.quats[i0], self.quats[i1]
-            t0, t1 = self.trans[i0], self.trans[i1]
-            trans = t0 + a[:, None] * (t1 - t0)
-            q1_near, theta, sin_t = self._arcs()
-            quats = slerp_at(q0, q1_near[i0], theta[i0], sin_t[i0], a)
-            # Exact at the samples.
-            at0, at1 = (a == 0.0)[:, None], (a == 1.0)[:, None]
-            if at0.any() or at1.any():
-                trans = np.where(at0, t0, np.where(at1, t1, trans))
-                quats = np.where(at0, q0, np.where(at1, q1, quats))
-        return trans, quats
 
 
 def _norm_frame(frame: str) -> str:
@@ -305,9 +116,9 @@ class TransformBuffer:
         if tolerance_ns < 0:
             raise ValueError("tolerance_ns must be >= 0")
         self.tolerance_ns = int(tolerance_ns)
-        self._links: dict[str, _Link] = {}  # child -> link to its parent
+        self._links: dict[str, Link] = {}  # child -> link to its parent
         self._frames: set[str] = set()
-        self._paths: dict[tuple[str, str], tuple[list[_Link], list[_Link]]] = {}
+        self._paths: dict[tuple[str, str], tuple[list[Link], list[Link]]] = {}
         #: samples skipped while loading: (topic, parent, child, reason) -> (count, first stamp)
         self.skipped: dict[tuple[str, str, str, str], tuple[int, int]] = {}
 
@@ -319,11 +130,11 @@ class TransformBuffer:
     def skipped_notes(self) -> list[str]:
         """One line per topic, link and reason for the transform samples that were skipped."""
         return [f"{topic}: skipped {n} transform sample(s) {parent!r} -> {child!r} "
-                f"(first stamped {_fmt_ns(first)}): {reason}"
+                f"(first stamped {fmt_ns(first)}): {reason}"
                 for (topic, parent, child, reason), (n, first) in sorted(self.skipped.items())]
 
     # -- building ---------------------------------------------------------------------------
-    def _link(self, parent: str, child: str, static: bool) -> _Link:
+    def _link(self, parent: str, child: str, static: bool) -> Link:
         parent, child = _norm_frame(parent), _norm_frame(child)
         if parent == child:
             raise TransformError(f"link {parent!r} -> {child!r} connects a frame to itself")
@@ -348,7 +159,7 @@ class TransformBuffer:
                 raise TransformError(f"link {parent!r} -> {child!r} would close a loop in the tree")
         if frame == child:
             raise TransformError(f"link {parent!r} -> {child!r} would close a loop in the tree")
-        link = _Link(parent, child, static)
+        link = Link(parent, child, static)
         self._links[child] = link
         self._frames.update((parent, child))
         self._paths.clear()
@@ -440,7 +251,7 @@ class TransformBuffer:
             q = (float(rot.x), float(rot.y), float(rot.z), float(rot.w))
             if topic is not None:
                 parent, child = str(ts.header.frame_id), str(ts.child_frame_id)
-                why = _sample_problem(t, q)
+                why = sample_problem(t, q)
                 if why is None and not (parent.lstrip("/") and child.lstrip("/")):
                     why = "empty frame name"
                 if why is not None:
@@ -495,7 +306,7 @@ class TransformBuffer:
             raise ValueError("parent_frame is required: the message has an empty header.frame_id")
         t = np.array([tr.x, tr.y, tr.z], dtype=np.float64)
         q = np.array([rot.x, rot.y, rot.z, rot.w], dtype=np.float64)
-        why = _sample_problem(t, q) if topic is not None else None
+        why = sample_problem(t, q) if topic is not None else None
         if why is not None:  # skipped and counted (see add_tf_message)
             self._skip(topic, parent, child, stamp_to_ns(msg.header), why)
             return
@@ -538,12 +349,12 @@ class TransformBuffer:
             raise UnknownFrameError(f"unknown frame {frame!r}; known frames: {known}")
         return name
 
-    def _path(self, target: str, source: str) -> tuple[list[_Link], list[_Link]]:
+    def _path(self, target: str, source: str) -> tuple[list[Link], list[Link]]:
         key = (target, source)
         path = self._paths.get(key)
         if path is not None:
             return path
-        up_s: list[_Link] = []
+        up_s: list[Link] = []
         chain_s = [source]
         frame = source
         while frame in self._links:
@@ -552,7 +363,7 @@ class TransformBuffer:
             frame = link.parent
             chain_s.append(frame)
         index_s = {f: i for i, f in enumerate(chain_s)}
-        up_t: list[_Link] = []
+        up_t: list[Link] = []
         frame = target
         while frame not in index_s:
             link = self._links.get(frame)
