@@ -249,7 +249,7 @@ def main(argv=None) -> int:
     if bad:
         ap.error(f"--parts: unknown part(s) {', '.join(bad)}; parts: {', '.join(PARTS)}")
     scale = 1.0
-    ingest_every, robots, demo_every, demo_rules = 1, (4, 8, 16, 32), 1, None
+    ingest_every, robots, demo_every, demo_rules = 1, (4, 8, 16, 32, 64), 1, None
     if args.quick:
         args.repeats, args.pairs, scale = 1, 200_000, 0.25
         args.ingest_repeats, args.network_repeats, args.network_duration = 1, 1, 10.0
