@@ -349,3 +349,19 @@ def test_occupied_accuracy_within_half_a_voxel_diagonal_and_noise():
     assert UNIT.occupied_accuracy(centers, RES) == pytest.approx(3 / 5)
     assert UNIT.occupied_accuracy(centers, RES, noise=0.0) == pytest.approx(1 / 5)
     assert math.isnan(UNIT.occupied_accuracy(np.empty((0, 3)), RES))
+
+
+def test_near_surface_is_the_signed_distance_test():
+    """The box-by-box test equals |signed distance| <= tol on random points around
+    overlapping and separate boxes (corners, edges, faces, inside and far away)."""
+    rng = np.random.default_rng(5)
+    lo = rng.uniform(-2, 2, (6, 3))
+    boxes = np.stack([lo, lo + rng.uniform(0.05, 1.5, (6, 3))], axis=1)
+    scene = Scene(boxes, [""] * 6, [""] * 6)
+    on_faces = boxes[:, 0] + rng.uniform(0, 1, (6, 3)) * (boxes[:, 1] - boxes[:, 0])
+    on_faces[:, 0] = boxes[:, 1, 0]  # on each box's +x face
+    pts = np.concatenate([rng.uniform(-3, 4, (20_000, 3)), on_faces, boxes[:, 0], boxes[:, 1]])
+    for tol in (0.0, 0.05, 0.3):
+        want = np.abs(scene.signed_distance(pts)) <= tol
+        np.testing.assert_array_equal(scene.near_surface(pts, tol), want)
+        assert 0 < want.sum() < len(pts)
