@@ -259,14 +259,16 @@ def write_maps_and_heatmaps(res: SimResult, out: Path, cfg: RunConfig, agents: S
             d.mkdir(exist_ok=True)
             for a in agents:
                 res.fused[r][a].save(d / f"{a}.ot")
+    info: dict = {"export": export, "formats": list(cfg.formats), "heatmaps": [],
+                  "topviews": [], "range": None}
+    if not agents:
+        return info
     views = topview_rules(res.rules)
     want = [(r, a) for r in res.rules for a in agents
             if (export == "all" and heatmaps) or (r in views and a == agents[0])]
     voxels = {(r, a): map_voxel_loss(res.loss[r][a], res.fused[r][a]) for r, a in want
               if res.loss[r][a].num_leaves > 0}
     voxels = {k: v for k, v in voxels.items() if len(v.loss)}
-    info: dict = {"export": export, "formats": list(cfg.formats), "heatmaps": [],
-                  "topviews": [], "range": None}
     if not voxels:
         return info
     lo, hi = shared_color_range(voxels.values())
@@ -303,11 +305,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     agents = list(export_agents) if export_agents is not None else res.agents
-    exported = write_maps_and_heatmaps(res, out, cfg, agents, heatmaps) if agents else \
-        {"export": cfg.export, "formats": list(cfg.formats), "heatmaps": [], "topviews": [],
-         "range": None}
-    if not agents and cfg.export != "none" and res.central is not None:
-        res.central.save(out / "centralized.ot")
+    exported = write_maps_and_heatmaps(res, out, cfg, agents, heatmaps)
     res.timings["export"] = res.timings.get("export", 0.0) + time.perf_counter() - t0
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
