@@ -427,8 +427,9 @@ def exports_section(exported: dict, event_bag=None) -> list[str]:
 
 def files_note(cfg: RunConfig) -> str:
     """What the output folder holds, for the export mode of ``cfg``."""
+    ext = cfg.formats[0] if len(cfg.formats) == 1 else "{" + ",".join(cfg.formats) + "}"
     what = {"all": "with every exported agent's fused map (`AGENT.ot`) and its information-loss "
-                   f"heat map (`AGENT_info_loss.{{{','.join(cfg.formats)}}}`)",
+                   f"heat map (`AGENT_info_loss.{ext}`)",
             "fused": "with every exported agent's fused map (`AGENT.ot`)",
             "none": None}[cfg.export]
     maps = (f"`centralized.ot`; per rule a folder {what}; " if what else
