@@ -281,10 +281,15 @@ def test_demo_on_every_400th_scan(tmp_path, capsys):
     if not (REPO / "data" / "lab8.bag").is_file():
         pytest.skip("the bundled dataset data/lab8.bag is not present")
     out = tmp_path / "demo"
+    replay = tmp_path / "demo.mcap"
     code, text, err = run_cli(capsys, "demo", "--every", "400", "--rules",
-                              "naive-bayes,min-info-loss", "--out", out)
+                              "naive-bayes,min-info-loss", "--export-bag", replay, "--out", out)
     assert code == 0, err
     assert "octofuse demo: lab8.bag" in text
+    from octofuse.outputs.rosbag_export import read_map_bag
+
+    topics = {topic for topic, _, _ in read_map_bag(replay)}  # only the exported robot1
+    assert topics == {f"/octofuse/{r}/robot1/octomap" for r in ("naive-bayes", "min-info-loss")}
     s = json.loads((out / "summary.json").read_text())
     assert s["agents"] == [f"robot{i}" for i in range(1, 9)]
     assert s["config"]["fuse"]["topology"] == "max-robust:3" and len(s["graph"]["edges"]) == 12

@@ -17,6 +17,13 @@ from .options import (_DEFAULT, CliError, Progress, bag_arguments, build_options
                       say, topology_option)
 
 
+export_bag_option = click.option(
+    "--export-bag", type=click.Path(dir_okay=False, path_type=Path),
+    help="also write every exported agent's map after each fusion it received, per rule, as "
+         "octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag folder) to replay the "
+         "run in RViz or Foxglove")
+
+
 def _run_and_report(cfg: RunConfig, title: str, command: str,
                     export_bag: Optional[Path] = None) -> None:
     from ..fusion.simulate import simulate
@@ -88,10 +95,7 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
 @click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
               "or names", show_default=_DEFAULT.export_agents)
 @export_options
-@click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
-              help="also write every exported agent's map after each fusion it received, per "
-                   "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
-                   "folder) to replay the run in RViz or Foxglove")
+@export_bag_option
 @click.option("--robust/--no-robust", default=None, show_default="off",
               help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
                    "its time and parameters: fuse.robust in --config)")
@@ -125,7 +129,8 @@ def bundled_dataset() -> Path:
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @export_options
-def demo(**p):
+@export_bag_option
+def demo(export_bag, **p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
     cfg = run_config(p, bags=[bag], defaults={
@@ -134,7 +139,7 @@ def demo(**p):
         "samples": 8, "export_agents": "first"})
     say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
         "aperiodic exchanges, every rule")
-    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo")
+    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo", export_bag=export_bag)
 
 
 @cli.command("fuse")
