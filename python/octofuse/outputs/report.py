@@ -203,21 +203,23 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
         return None
     fig, ax = plt.subplots(figsize=(7, 4))
     vmax = 0.0
-    data = {}
+    data = {}  # rule -> the losses (float32) and depths (uint8) of its leaves: 5 bytes a leaf
     for r in rules:
-        vals, weights = [], []
+        vals, depths = [], []
         for a in res.agents:
             lv = res.loss[r][a].leaves()
-            vals.append(lv.values.astype(float))
-            weights.append(np.power(8.0, 16 - lv.depths.astype(float)))
-        v, w = np.concatenate(vals), np.concatenate(weights)
-        data[r] = (v, w)
+            vals.append(np.asarray(lv.values, dtype=np.float32))
+            depths.append(np.asarray(lv.depths, dtype=np.uint8))
+        v, d = np.concatenate(vals), np.concatenate(depths)
+        data[r] = (v, d)
         if len(v):
-            vmax = max(vmax, float(np.percentile(v, 99.5)))
+            vmax = max(vmax, float(np.percentile(v.astype(float), 99.5)))
     bins = np.linspace(0, vmax or 1.0, 60)
-    for r, (v, w) in data.items():
+    for r, (v, d) in data.items():
         if len(v):
-            ax.hist(v, bins=bins, weights=w / w.sum(), histtype="step", lw=1.3, label=r)
+            w = np.power(8.0, 16 - d.astype(float))  # finest voxels a leaf stands for
+            ax.hist(v.astype(float), bins=bins, weights=w / w.sum(), histtype="step", lw=1.3,
+                    label=r)
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")
