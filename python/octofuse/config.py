@@ -238,6 +238,11 @@ class FuseConfig:
         self.spanning_tree = tree
         self._validate_frames(where)
 
+    @property
+    def own_frames(self) -> list[str]:
+        """Agents whose map frame is not the common frame (a pose other than all zeros)."""
+        return [f.name for f in self.agent_frames if any(v != 0 for v in f.pose)]
+
     def _validate_frames(self, where: str) -> None:
         seen: set[str] = set()
         for i, f in enumerate(self.agent_frames):
@@ -248,7 +253,7 @@ class FuseConfig:
         if self.align not in ALIGN_MODES:
             raise ValueError(f"{where}.align = {self.align!r}: expected one of "
                              f"{', '.join(ALIGN_MODES)}")
-        moved = [f.name for f in self.agent_frames if any(v != 0 for v in f.pose)]
+        moved = self.own_frames
         if not moved and self.align == "off":
             return
         why = (f"agent '{moved[0]}' has a frame of its own" if moved

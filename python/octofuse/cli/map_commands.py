@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from ..maps.registration import MAX_CONFLICT, MIN_FITNESS
 from .options import (Progress, bag_arguments, build_options, cli, config_options, console,
                       dump_config, need_bags, need_out, out_option, run_config, say)
 
@@ -100,9 +101,9 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
 @click.argument("a", type=click.Path(path_type=Path))
 @click.argument("b", type=click.Path(path_type=Path))
 @click.option("--planar", is_flag=True, help="ground robots: estimate x, y, z and yaw only")
-@click.option("--min-fitness", type=click.FloatRange(0.0, 1.0), default=0.5,
+@click.option("--min-fitness", type=click.FloatRange(0.0, 1.0), default=MIN_FITNESS,
               help="refuse an alignment with fewer matching voxels than this fraction")
-@click.option("--max-conflict", type=click.FloatRange(0.0, 1.0), default=0.03,
+@click.option("--max-conflict", type=click.FloatRange(0.0, 1.0), default=MAX_CONFLICT,
               help="refuse an alignment that puts more of B's occupied voxels than this fraction "
                    "where A saw free space")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")

@@ -278,7 +278,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
         raise ValueError("channel filters and message loss are not available in a swarm; use "
                          "simulate")
-    if any(any(v != 0 for v in f.pose) for f in fuse_cfg.agent_frames) or fuse_cfg.align != "off":
+    if fuse_cfg.own_frames or fuse_cfg.align != "off":
         raise ValueError("agent frames and alignment (fuse.agent_frames, fuse.align) are not "
                          "available in a swarm (its agents share the common frame); use simulate")
     spec = parse_schedule(fuse_cfg.schedule)

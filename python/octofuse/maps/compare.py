@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .infoloss import InfoLossMap
+from .infoloss import InfoLossMap, voxels_per_leaf
 from .occupancy import OccupancyMap
 
 
@@ -48,7 +48,7 @@ def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
     lv = loss.leaves()
     if len(lv.values) == 0:
         return 0.0, 0.0
-    w = np.power(8.0, 16 - lv.depths.astype(np.float64))
+    w = voxels_per_leaf(lv.depths)
     v = lv.values.astype(np.float64)
     return float(np.sum(w * v) / np.sum(w)), weighted_percentile(v, w, 95.0)
 

@@ -201,7 +201,7 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
     :class:`FuseStats` (mean loss over fused voxels only; copied voxels counted separately).
     """
     from ..rules import parse_rule, parse_unknown
-    from .infoloss import InfoLossMap
+    from .infoloss import InfoLossMap, voxels_per_leaf
     from .occupancy import OccupancyMap, fuse_into
 
     paths = [Path(p) for p in paths]
@@ -244,7 +244,7 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
     stats.loss_total = loss.loss_sum
     lv = loss.leaves()
     if len(lv.values):
-        w = np.power(8.0, 16 - lv.depths.astype(np.float64))
+        w = voxels_per_leaf(lv.depths)
         v = lv.values.astype(np.float64)
         if stats.voxels_fused:
             stats.loss_mean = stats.loss_total / stats.voxels_fused
@@ -256,6 +256,8 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
 def _fused_percentile(v: np.ndarray, w: np.ndarray, n_fused: int, q: float) -> float:
     """The q-th percentile of the loss over the ``n_fused`` fused voxels: the loss tree also
     holds the copied voxels at zero loss, so that many zeros are taken out first."""
+    from .compare import weighted_percentile
+
     order = np.argsort(v)
     v, w = v[order], w[order].copy()
     extra = float(w.sum()) - n_fused  # copied voxels (zero loss) among the leaves
@@ -265,7 +267,4 @@ def _fused_percentile(v: np.ndarray, w: np.ndarray, n_fused: int, q: float) -> f
         w[i] -= take
         extra -= take
         i += 1
-    cw = np.cumsum(w)
-    if cw[-1] <= 0:
-        return 0.0
-    return float(v[min(np.searchsorted(cw, q / 100.0 * cw[-1]), len(v) - 1)])
+    return weighted_percentile(v, w, q) if w.sum() > 0 else 0.0

@@ -42,6 +42,11 @@ class Leaves(NamedTuple):
         return out
 
 
+def voxels_per_leaf(depths: np.ndarray) -> np.ndarray:
+    """Finest voxels each leaf stands for (a leaf at depth d: 8^(16-d)), as float64."""
+    return np.power(8.0, 16 - np.asarray(depths).astype(np.float64))
+
+
 def _pack_keys(k: np.ndarray) -> np.ndarray:
     k = k.astype(np.int64) + (1 << 20)
     return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]

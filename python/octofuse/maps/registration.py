@@ -46,6 +46,8 @@ FEATURE_POINTS = 15000
 #: smallest ratio of the least to the largest eigenvalue of the matched surfaces' normal matrix
 #: (sum n n^T): below it the overlap is one wall or floor, and slides along it
 MIN_SPREAD = 0.1
+#: fewest of B's occupied points that must have a point of A nearby after alignment
+MIN_FITNESS = 0.5
 #: most of B's occupied voxels, moved into A, that may land deep in A's free space
 MAX_CONFLICT = 0.03
 
@@ -110,7 +112,7 @@ def free_space_conflict(a, b, T: np.ndarray) -> float:
 
 
 def register(a, b, planar: bool = False, voxel: float | None = None,
-             min_fitness: float = 0.5, seed: int = 0,
+             min_fitness: float = MIN_FITNESS, seed: int = 0,
              max_conflict: float = MAX_CONFLICT) -> Registration:
     """The transform that takes a point of ``b``'s frame into ``a``'s frame (see the module
     documentation); ``ValueError`` if the maps overlap too little to trust it."""

@@ -14,6 +14,7 @@ from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
 from ..fusion.network import LOCAL, SimResult
 from ..maps.frames import matrix_pose
+from ..maps.infoloss import voxels_per_leaf
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [
@@ -217,7 +218,7 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
     bins = np.linspace(0, vmax or 1.0, 60)
     for r, (v, d) in data.items():
         if len(v):
-            w = np.power(8.0, 16 - d.astype(float))  # finest voxels a leaf stands for
+            w = voxels_per_leaf(d)
             ax.hist(v.astype(float), bins=bins, weights=w / w.sum(), histtype="step", lw=1.3,
                     label=r)
     ax.set_xlabel("accumulated information loss per voxel [nats]")
