@@ -30,6 +30,10 @@
 // every method allocates from the same warm heap (no page faults, no deferred consolidation
 // work from the previous run's frees).
 //
+// Trees: octofuse's maps keep their nodes in its node pool (octofuse/node_pool.hpp); the
+// updateNode merge runs on plain octomap::OcTree copies of the same maps (glibc's heap), as
+// map mergers hold them.
+//
 // Throughput unit ("voxels"): the leaf pairs of the two trees walked together, i.e. the
 // leaves of the union of both maps at the finer of the two trees' resolutions at each place
 // (a coarse leaf of one map facing finer leaves of the other counts once per finer leaf).
@@ -90,7 +94,7 @@ constexpr unsigned kCentre = 32768;
 
 /// Log-odds after `hits` hits and `misses` misses, accumulated in float with clamping after
 /// every update as OctoMap does (hits first, then misses).
-float sensor_value(const octomap::OcTree& t, unsigned hits, unsigned misses) {
+float sensor_value(const OccupancyTree& t, unsigned hits, unsigned misses) {
   const float lh = t.getProbHitLog(), lm = t.getProbMissLog();
   const float lo = t.getClampingThresMinLog(), hi = t.getClampingThresMaxLog();
   float v = 0.0f;
@@ -106,7 +110,7 @@ float sensor_value(const octomap::OcTree& t, unsigned hits, unsigned misses) {
 /// (0-1 hits, 1-8 misses).
 std::unique_ptr<OccupancyMap> make_map(const Box& box, bool continuous) {
   auto m = std::make_unique<OccupancyMap>(MapParams{});
-  octomap::OcTree& t = m->tree();
+  OccupancyTree& t = m->tree();
   Rng rng{box.seed};
   const float sat_free = t.getClampingThresMinLog(), sat_occ = t.getClampingThresMaxLog();
   auto fine = [&](unsigned x, unsigned y, unsigned z) {
@@ -157,7 +161,8 @@ std::unique_ptr<OccupancyMap> make_map(const Box& box, bool continuous) {
 
 using Voxels = std::vector<std::pair<std::uint64_t, float>>;
 
-[[maybe_unused]] Voxels expand(const octomap::OcTree& t) {
+template <class Tree>
+[[maybe_unused]] Voxels expand(const Tree& t) {
   Voxels out;
   for (auto it = t.begin_leafs(), end = t.end_leafs(); it != end; ++it) {
     const unsigned span = 1u << (16 - it.getDepth());
@@ -175,8 +180,9 @@ using Voxels = std::vector<std::pair<std::uint64_t, float>>;
 
 /// Walks two trees together (a leaf stands for the voxels below it): counts the leaf pairs
 /// (`pairs`) and those whose values differ or that only one tree knows (returned).
-std::size_t walk_differences(const detail::WalkNode<octomap::OcTree>& x,
-                             const detail::WalkNode<octomap::OcTree>& y, std::size_t& pairs) {
+template <class TreeX, class TreeY>
+std::size_t walk_differences(const detail::WalkNode<TreeX>& x, const detail::WalkNode<TreeY>& y,
+                             std::size_t& pairs) {
   if (!x.present() && !y.present()) return 0;
   if ((x.leaf || !x.present()) && (y.leaf || !y.present())) {
     ++pairs;
@@ -188,8 +194,8 @@ std::size_t walk_differences(const detail::WalkNode<octomap::OcTree>& x,
 }
 
 /// Leaf pairs of two trees walked together (`pairs`) and those known to both (returned).
-std::size_t walk_pairs(const detail::WalkNode<octomap::OcTree>& x,
-                       const detail::WalkNode<octomap::OcTree>& y, std::size_t& pairs) {
+std::size_t walk_pairs(const detail::WalkNode<OccupancyTree>& x,
+                       const detail::WalkNode<OccupancyTree>& y, std::size_t& pairs) {
   if (!x.present() && !y.present()) return 0;
   if ((x.leaf || !x.present()) && (y.leaf || !y.present())) {
     ++pairs;
@@ -201,11 +207,11 @@ std::size_t walk_pairs(const detail::WalkNode<octomap::OcTree>& x,
 }
 
 /// Leaf pairs of two trees that differ (every voxel compared, without expanding the trees).
-std::size_t tree_differences(const octomap::OcTree& x, const octomap::OcTree& y,
-                             std::size_t* pairs = nullptr) {
+template <class TreeX, class TreeY>
+std::size_t tree_differences(const TreeX& x, const TreeY& y, std::size_t* pairs = nullptr) {
   std::size_t n = 0;
-  const std::size_t d = walk_differences(detail::WalkNode<octomap::OcTree>::root(x),
-                                         detail::WalkNode<octomap::OcTree>::root(y), n);
+  const std::size_t d = walk_differences(detail::WalkNode<TreeX>::root(x),
+                                         detail::WalkNode<TreeY>::root(y), n);
   if (pairs) *pairs = n;
   return d;
 }
@@ -226,7 +232,7 @@ std::size_t tree_differences(const octomap::OcTree& x, const octomap::OcTree& y,
   return diff + (x.size() - i) + (y.size() - j);
 }
 
-std::size_t finest_leaves(const octomap::OcTree& t) {
+std::size_t finest_leaves(const OccupancyTree& t) {
   std::size_t n = 0;
   for (auto it = t.begin_leafs(), end = t.end_leafs(); it != end; ++it) n += it.getDepth() == 16;
   return n;
@@ -258,6 +264,20 @@ double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   const std::size_t n = v.size();
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/// `t` as a plain octomap::OcTree (OctoMap's own nodes, as map mergers hold their maps),
+/// through OctoMap's full stream: nodes in depth-first order, as read from a map file.
+std::unique_ptr<octomap::OcTree> plain_copy(const OccupancyTree& t) {
+  std::stringstream s;
+  t.writeData(s);
+  auto out = std::make_unique<octomap::OcTree>(t.getResolution());
+  out->setProbHit(t.getProbHit());
+  out->setProbMiss(t.getProbMiss());
+  out->setClampingThresMin(t.getClampingThresMin());
+  out->setClampingThresMax(t.getClampingThresMax());
+  out->readData(s);
+  return out;
 }
 
 /// The updateNode merge of OctoMap map mergers, timed in its three steps.
@@ -403,6 +423,9 @@ int main(int argc, char** argv) {
               with_commas(leaves_b).c_str(), 100.0 * fine_b / leaves_b,
               with_commas(b->num_nodes()).c_str());
 
+  // the merge runs on OctoMap's own trees, as map mergers hold them
+  const std::unique_ptr<octomap::OcTree> plain_a = plain_copy(a->tree()), plain_b = plain_copy(b->tree());
+
   // --- timing: rounds over all methods (every method once per round, so that a change in
   // the machine's other load during the run affects all methods alike); round -1 is a
   // warm-up and is not timed.
@@ -416,13 +439,13 @@ int main(int argc, char** argv) {
   std::vector<IntoRun> into_runs;
   for (Rule r : {Rule::NaiveBayes, Rule::MinInfoLoss})
     for (unsigned t : {1u, threads}) {
-      if (t == 1 || t != 1) into_runs.push_back({r, t, {}});
+      into_runs.push_back({r, t, {}, {}});
       if (threads == 1) break;
     }
   std::vector<MergeTimes> eager_runs, lazy_runs;
   std::size_t pairs = 0;
-  const std::size_t pairs_both = walk_pairs(detail::WalkNode<octomap::OcTree>::root(a->tree()),
-                                            detail::WalkNode<octomap::OcTree>::root(b->tree()), pairs);
+  const std::size_t pairs_both = walk_pairs(detail::WalkNode<OccupancyTree>::root(a->tree()),
+                                            detail::WalkNode<OccupancyTree>::root(b->tree()), pairs);
   for (int k = -1; k < repeats; ++k) {
     for (int r = 0; r < kNumRules; ++r) {
       settle_heap();
@@ -452,13 +475,14 @@ int main(int argc, char** argv) {
         run.cpu.push_back(cpu_seconds() - c0);
       }
     }
-    const MergeTimes eager = updatenode_merge(a->tree(), b->tree(), false, nullptr);
-    const MergeTimes lazy = updatenode_merge(a->tree(), b->tree(), true, nullptr);
+    const MergeTimes eager = updatenode_merge(*plain_a, *plain_b, false, nullptr);
+    const MergeTimes lazy = updatenode_merge(*plain_a, *plain_b, true, nullptr);
     if (k >= 0) {
       eager_runs.push_back(eager);
       lazy_runs.push_back(lazy);
     }
-    std::printf("  %s %d of %d done\n", k < 0 ? "warm-up round" : "round", k + 1, repeats);
+    std::printf("  %s %d of %d done (node pool: %.0f MB)\n", k < 0 ? "warm-up round" : "round",
+                k + 1, repeats, detail::NodePool::stats().slab_bytes / 1e6);
     std::fflush(stdout);
   }
   std::vector<double> rule_median(kNumRules);
@@ -482,8 +506,8 @@ int main(int argc, char** argv) {
   const FusionResult nb_res = fuse_maps(*a, *b, Rule::NaiveBayes, UnknownPolicy::Copy);
   const std::size_t result_leaves_nb = nb_res.map->num_leaves();
   std::unique_ptr<octomap::OcTree> merged_eager, merged_lazy;
-  updatenode_merge(a->tree(), b->tree(), false, &merged_eager);
-  updatenode_merge(a->tree(), b->tree(), true, &merged_lazy);
+  updatenode_merge(*plain_a, *plain_b, false, &merged_eager);
+  updatenode_merge(*plain_a, *plain_b, true, &merged_lazy);
   std::size_t result_pairs = 0;
   tree_differences(nb_res.map->tree(), nb_res.map->tree(), &result_pairs);
   // in place on every thread count = the new tree of the same rule, node for node in count
@@ -500,11 +524,12 @@ int main(int argc, char** argv) {
   }
   // The floor of any method that builds a new OctoMap tree of the result's size: OctoMap's own
   // deep copy of the result (one heap allocation per node, as every OcTree has).
+  const std::unique_ptr<octomap::OcTree> plain_result = plain_copy(nb_res.map->tree());
   std::vector<double> copy_times;
   for (int k = -1; k < repeats; ++k) {
     settle_heap();
     t0 = Clock::now();
-    octomap::OcTree copy(nb_res.map->tree());
+    octomap::OcTree copy(*plain_result);
     const double dt = seconds_since(t0);
     if (k >= 0) copy_times.push_back(dt);
   }

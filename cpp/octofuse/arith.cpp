@@ -44,7 +44,7 @@ std::size_t assign_values(OccupancyMap& map, OccupancyMap& channel, const Occupa
   const unsigned depth = src.getTreeDepth();
   std::size_t n = 0;
   auto one = [&](const octomap::OcTreeKey& k, float v) {
-    const octomap::OcTreeNode* c = tc.search(k);
+    const OccupancyNode* c = tc.search(k);
     const float old = c != nullptr ? c->getLogOdds() : 0.0f;
     tm.updateNode(k, v - old, true);
     tc.setNodeValue(k, v, true);

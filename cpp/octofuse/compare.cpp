@@ -12,7 +12,7 @@ namespace octofuse {
 
 namespace {
 
-using W = detail::WalkNode<octomap::OcTree>;
+using W = detail::WalkNode<OccupancyTree>;
 
 struct Comparer {
   double tol, thr;
@@ -78,7 +78,7 @@ struct Differ {
 };
 
 // Sets inner nodes to the max of their children and prunes, bottom up.
-void finish_inner(octomap::OcTree& t, octomap::OcTreeNode* n) {
+void finish_inner(OccupancyTree& t, OccupancyNode* n) {
   if (!t.nodeHasChildren(n)) return;
   for (unsigned i = 0; i < 8; ++i)
     if (t.nodeChildExists(n, i)) finish_inner(t, t.getNodeChild(n, i));
@@ -86,11 +86,11 @@ void finish_inner(octomap::OcTree& t, octomap::OcTreeNode* n) {
 }
 
 // Builds a tree from disjoint leaves given by lower-corner key and depth.
-void build_from_leaves(octomap::OcTree& t, const std::vector<LeafRec>& leaves) {
+void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
   if (leaves.empty()) return;
-  octomap::OcTreeNode* root = detail::TreeAccess<octomap::OcTree>::ensure_root(t);
+  OccupancyNode* root = detail::TreeAccess<OccupancyTree>::ensure_root(t);
   for (const LeafRec& l : leaves) {
-    octomap::OcTreeNode* n = root;
+    OccupancyNode* n = root;
     for (unsigned d = 0; d < l.depth; ++d) {
       const unsigned bit = 15 - d;
       const unsigned i = ((l.k[0] >> bit) & 1u) | (((l.k[1] >> bit) & 1u) << 1) |
@@ -100,7 +100,7 @@ void build_from_leaves(octomap::OcTree& t, const std::vector<LeafRec>& leaves) {
     n->setLogOdds(l.value);
   }
   finish_inner(t, root);
-  detail::TreeAccess<octomap::OcTree>::mark_changed(t);
+  detail::TreeAccess<OccupancyTree>::mark_changed(t);
 }
 
 }  // namespace

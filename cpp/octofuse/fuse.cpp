@@ -12,8 +12,7 @@ namespace octofuse {
 
 namespace {
 
-using OcNode = octomap::OcTreeNode;
-using ScalarNode = octomap::OcTreeDataNode<float>;
+using OcNode = OccupancyNode;
 
 /// A node of an output tree that is only allocated once it is known to stay (lazily).
 /// The walk builds each subtree bottom-up: a subtree whose voxels turn out to be 8 equal
@@ -74,10 +73,10 @@ void set_scalar(ScalarNode* n, float v) { n->setValue(v); }
 /// The simultaneous walk; the per-voxel policy (rule, unknown voxels) is fixed at compile time.
 template <class Fusion>
 struct Walker {
-  const octomap::OcTree& ta;
-  const octomap::OcTree& tb;
+  const OccupancyTree& ta;
+  const OccupancyTree& tb;
   Fusion& fusion;
-  octomap::OcTree& out;
+  OccupancyTree& out;
   ScalarTree& loss;
   FusionCounts counts;
 
@@ -94,7 +93,7 @@ struct Walker {
 
   /// Child i of an input node of tree t as seen by the walk: a leaf stands for all its
   /// children, unknown stays unknown (null).
-  static const OcNode* child(const octomap::OcTree& t, const OcNode* n, bool leaf, unsigned i,
+  static const OcNode* child(const OccupancyTree& t, const OcNode* n, bool leaf, unsigned i,
                              bool& child_leaf) {
     if (n == nullptr || leaf) {
       child_leaf = true;
@@ -112,7 +111,7 @@ struct Walker {
   /// Walks the node pair (a, b) at `depth`, not both leaves or unknown. Returns for each
   /// output tree whether the subtree collapsed to one leaf, whose value is then in vm / vl.
   void walk(const OcNode* a, bool a_leaf, const OcNode* b, bool b_leaf, unsigned depth,
-            Lazy<octomap::OcTree>& om, Lazy<ScalarTree>& ol, bool& leaf_m, float& vm,
+            Lazy<OccupancyTree>& om, Lazy<ScalarTree>& ol, bool& leaf_m, float& vm,
             bool& leaf_l, float& vl) {
     Kids km, kl;
     for (unsigned i = 0; i < 8; ++i) {
@@ -126,7 +125,7 @@ struct Walker {
         leaf(ca, cb, depth + 1, km.value[i], kl.value[i]);
         continue;
       }
-      Lazy<octomap::OcTree> cm{&om, i, nullptr};
+      Lazy<OccupancyTree> cm{&om, i, nullptr};
       Lazy<ScalarTree> cl{&ol, i, nullptr};
       bool lm, ll;
       walk(ca, ca_leaf, cb, cb_leaf, depth + 1, cm, cl, lm, km.value[i], ll, kl.value[i]);
@@ -144,7 +143,7 @@ struct Walker {
     const OcNode* rb = tb.getRoot();
     const bool a_leaf = ra == nullptr || !ta.nodeHasChildren(ra);
     const bool b_leaf = rb == nullptr || !tb.nodeHasChildren(rb);
-    Lazy<octomap::OcTree> om{nullptr, 0, nullptr};
+    Lazy<OccupancyTree> om{nullptr, 0, nullptr};
     Lazy<ScalarTree> ol{nullptr, 0, nullptr};
     float vm, vl;
     if (a_leaf && b_leaf) {

@@ -16,8 +16,8 @@ namespace octofuse {
 
 namespace {
 
-using OcNode = octomap::OcTreeNode;
-using MsgNode = detail::WalkNode<octomap::OcTree>;
+using OcNode = OccupancyNode;
+using MsgNode = detail::WalkNode<OccupancyTree>;
 using ScalarWalk = detail::WalkNode<ScalarTree>;
 using detail::LossCursor;
 
@@ -28,7 +28,7 @@ template <class Fusion>
 struct IntoWalker {
   static constexpr bool kPrior = Fusion::kUnknown == UnknownPolicy::Prior;
   Fusion& fusion;
-  octomap::OcTree& dst;
+  OccupancyTree& dst;
   detail::LossAdder loss;
   FuseIntoStats st;
   void finish_occ(OcNode* n) {
@@ -96,7 +96,7 @@ struct IntoWalker {
     loss.finish(lc);
   }
 
-  void run(const octomap::OcTree& msg) {
+  void run(const OccupancyTree& msg) {
     const MsgNode m = MsgNode::root(msg);
     OcNode* root = dst.getRoot();
     if (!m.present() && !(kPrior && root != nullptr)) return;
@@ -104,7 +104,7 @@ struct IntoWalker {
     if (!m.present()) {
       if constexpr (kPrior) prior_only(root, lc, 0);  // dst meets an empty message
     } else if (root == nullptr) {
-      msg_only(m, detail::TreeAccess<octomap::OcTree>::ensure_root(dst), lc, 0);
+      msg_only(m, detail::TreeAccess<OccupancyTree>::ensure_root(dst), lc, 0);
     } else {
       walk(root, m, lc, 0);
     }
@@ -129,7 +129,7 @@ struct ParallelInto {
     unsigned depth;
   };
 
-  octomap::OcTree& dst;
+  OccupancyTree& dst;
   ScalarTree* loss_tree;
   float clamp_min, clamp_max;
   unsigned threads;
@@ -143,7 +143,7 @@ struct ParallelInto {
     return &cursors.back();
   }
 
-  FuseIntoStats run(const octomap::OcTree& msg) {
+  FuseIntoStats run(const OccupancyTree& msg) {
     detail::LossAdder top(loss_tree);
     std::vector<Part> level{{Kind::Walk, dst.getRoot(), MsgNode::root(msg), keep(top.root()), 0}};
     const std::size_t target = 16 * std::size_t{threads};
@@ -191,18 +191,18 @@ struct ParallelInto {
     std::vector<std::size_t> sizes(threads, 0), loss_sizes(threads, 0);
     const double res = dst.getResolution();
     detail::run_on_workers(threads, [&](std::size_t worker) {
-      octomap::OcTree scratch(res);
+      OccupancyTree scratch(res);
       std::unique_ptr<ScalarTree> scratch_loss;
       if (loss_tree != nullptr) scratch_loss = std::make_unique<ScalarTree>(res);
       Fusion fusion(clamp_min, clamp_max);
       IntoWalker<Fusion> w{fusion, scratch, detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}};
       struct Settle {  // the scratch trees' counts go to the real trees, also on an exception
         std::size_t &n, &nl;
-        octomap::OcTree& t;
+        OccupancyTree& t;
         ScalarTree* l;
         ~Settle() {
-          n = detail::TreeAccess<octomap::OcTree>::size_of(t);
-          detail::TreeAccess<octomap::OcTree>::size_of(t) = 0;  // its nodes are not its own
+          n = detail::TreeAccess<OccupancyTree>::size_of(t);
+          detail::TreeAccess<OccupancyTree>::size_of(t) = 0;  // its nodes are not its own
           if (l != nullptr) {
             nl = detail::TreeAccess<ScalarTree>::size_of(*l);
             detail::TreeAccess<ScalarTree>::size_of(*l) = 0;
@@ -223,7 +223,7 @@ struct ParallelInto {
     FuseIntoStats st;
     for (std::size_t k = 0; k < threads; ++k) {
       st += stats[k];
-      detail::TreeAccess<octomap::OcTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
+      detail::TreeAccess<OccupancyTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
       if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
     }
     Fusion unused(clamp_min, clamp_max);
@@ -245,7 +245,7 @@ struct MutualWalker {
   IntoWalker<Fusion>& b;  // dst = map b
 
   void walk(OcNode* da, OcNode* db, const LossCursor& la, const LossCursor& lb, unsigned depth) {
-    octomap::OcTree &ta = a.dst, &tb = b.dst;
+    OccupancyTree &ta = a.dst, &tb = b.dst;
     const bool a_leaf = !ta.nodeHasChildren(da), b_leaf = !tb.nodeHasChildren(db);
     if (a_leaf && b_leaf) {
       const float va = da->getLogOdds(), vb = db->getLogOdds();
@@ -319,7 +319,7 @@ FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
                       w.run(msg.tree());
                       st = w.st;
                     });
-  detail::TreeAccess<octomap::OcTree>::mark_changed(dst.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(dst.tree());
   return st;
 }
 
@@ -344,8 +344,8 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
                       MutualWalker<Fusion>{wa, wb}.run(ra, rb);
                       st = {wa.st, wb.st};
                     });
-  detail::TreeAccess<octomap::OcTree>::mark_changed(a.tree());
-  detail::TreeAccess<octomap::OcTree>::mark_changed(b.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(a.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(b.tree());
   return st;
 }
 

@@ -28,7 +28,7 @@ using detail::unmorton;
 // The update of one scan as items in ascending code order (free and occupied merged;
 // occupied wins over free), with computeUpdate()'s semantics. Every ray is checked first
 // (std::invalid_argument prefixed by `where`).
-std::vector<std::uint64_t> compute_items(const octomap::OcTree& grid, const float* xyz,
+std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float* xyz,
                                          std::size_t n, const float origin[3],
                                          double max_range, const std::string& where) {
   const octomap::point3d o(origin[0], origin[1], origin[2]);
@@ -81,7 +81,7 @@ std::vector<std::uint64_t> compute_items(const octomap::OcTree& grid, const floa
 // twice (search + update) per key from the root.
 class BatchApplier {
  public:
-  explicit BatchApplier(octomap::OcTree& tree)
+  explicit BatchApplier(OccupancyTree& tree)
       : t_(tree),
         hit_(tree.getProbHitLog()),
         miss_(tree.getProbMissLog()),
@@ -91,10 +91,10 @@ class BatchApplier {
 
   void apply(const std::uint64_t* b, const std::uint64_t* e) {
     if (b == e) return;
-    octomap::OcTreeNode* root = t_.getRoot();
+    OccupancyNode* root = t_.getRoot();
     bool created = false;
     if (root == nullptr) {
-      root = detail::TreeAccess<octomap::OcTree>::ensure_root(t_);
+      root = detail::TreeAccess<OccupancyTree>::ensure_root(t_);
       created = true;
     }
     visit(root, created, 0, b, e);
@@ -107,7 +107,7 @@ class BatchApplier {
   }
 
   // Returns whether any item below `node` was applied.
-  bool visit(octomap::OcTreeNode* node, bool just_created, unsigned depth,
+  bool visit(OccupancyNode* node, bool just_created, unsigned depth,
              const std::uint64_t* b, const std::uint64_t* e) {
     std::vector<std::uint64_t> kept;
     if (!just_created && !t_.nodeHasChildren(node)) {
@@ -154,20 +154,20 @@ class BatchApplier {
     return any;
   }
 
-  octomap::OcTree& t_;
+  OccupancyTree& t_;
   const float hit_, miss_, cmin_, cmax_;
   const unsigned depth_;
 };
 
 // Applies items with OctoMap's per-key updateNode() (change detection needs it).
-void apply_each(octomap::OcTree& tree, const std::vector<std::uint64_t>& items) {
+void apply_each(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
   for (std::uint64_t m : items)
     if (!(m & kHit)) tree.updateNode(unmorton(m), false, /*lazy_eval=*/false);
   for (std::uint64_t m : items)
     if (m & kHit) tree.updateNode(unmorton(m & kCode), true, /*lazy_eval=*/false);
 }
 
-void apply_items(octomap::OcTree& tree, const std::vector<std::uint64_t>& items) {
+void apply_items(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
   if (tree.isChangeDetectionEnabled()) {
     apply_each(tree, items);
   } else {

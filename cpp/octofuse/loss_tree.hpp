@@ -16,7 +16,7 @@ namespace octofuse::detail {
 /// leaf that stands for all voxels below it. Children keep a pointer to their parent cursor,
 /// which lives in the caller's frame for the whole visit.
 struct LossCursor {
-  mutable octomap::OcTreeDataNode<float>* node = nullptr;
+  mutable ScalarNode* node = nullptr;
   mutable bool fresh = false;
   const LossCursor* parent = nullptr;
   unsigned idx = 0;
@@ -32,7 +32,7 @@ struct LossCursor {
 /// nodes under the cursors of the serial top of the walk (`shared`) are created under `lock`.
 class LossAdder {
  public:
-  using Node = octomap::OcTreeDataNode<float>;
+  using Node = ScalarNode;
 
   explicit LossAdder(ScalarTree* tree, ScalarTree* ops = nullptr, std::mutex* lock = nullptr)
       : t_(tree), ops_(ops != nullptr ? ops : tree), lock_(lock) {}

@@ -24,7 +24,7 @@ namespace {
 
 using detail::printable;
 using detail::shortest;
-using OcTreeAccess = detail::TreeAccess<octomap::OcTree>;
+using OcTreeAccess = detail::TreeAccess<OccupancyTree>;
 
 const char* const kOtHeader = "# Octomap OcTree file";
 const char* const kBtHeader = "# Octomap OcTree binary file";
@@ -66,7 +66,7 @@ struct Counts {
 // Full format: value (float) + children mask (1 byte) per node, depth first. With kBuild false
 // the data is only checked and counted (tree and node are null).
 template <bool kBuild>
-void read_ot_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, unsigned depth,
+void read_ot_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth,
                   Counts& c) {
   const float value = r.get<float>();
   if (!std::isfinite(value)) {
@@ -81,7 +81,7 @@ void read_ot_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, u
   ++c.inner;
   for (unsigned i = 0; i < 8; ++i) {
     if (!(mask & (1u << i))) continue;
-    octomap::OcTreeNode* child = nullptr;
+    OccupancyNode* child = nullptr;
     if constexpr (kBuild) child = tree->createNodeChild(node, i);
     read_ot_node<kBuild>(r, tree, child, depth + 1, c);
   }
@@ -90,7 +90,7 @@ void read_ot_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, u
 // Binary format: 2 bits per child: 01 free leaf, 10 occupied leaf, 11 inner, 00 unknown
 // (bit 2i set = "free" flag, bit 2i+1 = "occupied" flag, as OctoMap writes them).
 template <bool kBuild>
-void read_bt_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, unsigned depth,
+void read_bt_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth,
                   Counts& c) {
   const auto lo = r.get<std::uint8_t>();
   const auto hi = r.get<std::uint8_t>();
@@ -107,7 +107,7 @@ void read_bt_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, u
     inner[i] = b0 && b1;
     n_inner += inner[i];
     if constexpr (kBuild) {
-      octomap::OcTreeNode* child = tree->createNodeChild(node, i);
+      OccupancyNode* child = tree->createNodeChild(node, i);
       if (!inner[i]) {
         child->setLogOdds(b0 ? tree->getClampingThresMinLog() : tree->getClampingThresMaxLog());
       }
@@ -117,7 +117,7 @@ void read_bt_node(Reader& r, octomap::OcTree* tree, octomap::OcTreeNode* node, u
   if (n_inner * kBtRecordBytes > r.left()) fail(r.path, "is truncated: the tree data ends early");
   for (unsigned i = 0; i < 8; ++i) {
     if (!inner[i]) continue;
-    octomap::OcTreeNode* child = nullptr;
+    OccupancyNode* child = nullptr;
     if constexpr (kBuild) child = tree->getNodeChild(node, i);
     read_bt_node<kBuild>(r, tree, child, depth + 1, c);
     if constexpr (kBuild) child->setLogOdds(child->getMaxChildLogOdds());
@@ -230,7 +230,7 @@ std::size_t physical_memory() {
 // Refuses a tree that would need more than half of the machine's memory (node and child
 // array sizes as glibc's allocator rounds them).
 void check_memory(const std::string& path, const Counts& c) {
-  const double node = 32.0, children = 8.0 * sizeof(void*) + 16.0;
+  const double node = detail::NodePool::kBlock, children = 8.0 * sizeof(void*) + 16.0;
   const double need = node * static_cast<double>(c.nodes) + children * static_cast<double>(c.inner);
   const double have = static_cast<double>(physical_memory());
   if (need > 0.5 * have) {
@@ -283,7 +283,7 @@ std::string read_file(const std::string& path, bool& binary) {
   return buf;
 }
 
-std::string header_text(const char* first_line, const octomap::OcTree& tree, const MapParams& p) {
+std::string header_text(const char* first_line, const OccupancyTree& tree, const MapParams& p) {
   std::ostringstream s;
   s << first_line << "\n# (feel free to add / change comments, but leave the first line as it is!)\n"
     << "# octofuse prob_hit " << shortest(p.prob_hit) << " prob_miss " << shortest(p.prob_miss)
@@ -333,8 +333,8 @@ std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::stri
     }
   }
   check_memory(path, counts);
-  octomap::OcTree& tree = map->tree();
-  octomap::OcTreeNode* root = OcTreeAccess::ensure_root(tree);
+  OccupancyTree& tree = map->tree();
+  OccupancyNode* root = OcTreeAccess::ensure_root(tree);
   Counts built;
   Reader b = start;
   if (binary) {

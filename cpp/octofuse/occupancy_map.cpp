@@ -1,4 +1,4 @@
-// octofuse: OccupancyMap, the adapter around octomap::OcTree.
+// octofuse: OccupancyMap, the adapter around OccupancyTree.
 #include "octofuse/occupancy_map.hpp"
 
 #include "octofuse/detail/text.hpp"
@@ -35,7 +35,7 @@ LeafArrays collect_leaves(const Tree& tree) {
   return out;
 }
 
-void insert_cloud(octomap::OcTree& tree, const octomap::Pointcloud& cloud,
+void insert_cloud(OccupancyTree& tree, const octomap::Pointcloud& cloud,
                   const octomap::point3d& origin, double max_range) {
   const ScanCheck check(tree, origin, max_range);
   for (std::size_t i = 0; i < cloud.size(); ++i) check.check(i, cloud[i]);
@@ -61,7 +61,7 @@ void MapParams::validate() const {
 
 OccupancyMap::OccupancyMap(const MapParams& params) : params_(params) {
   params_.validate();
-  tree_ = std::make_unique<octomap::OcTree>(params_.resolution);
+  tree_ = std::make_unique<OccupancyTree>(params_.resolution);
   tree_->setProbHit(params_.prob_hit);
   tree_->setProbMiss(params_.prob_miss);
   tree_->setClampingThresMin(params_.clamp_min);
@@ -69,7 +69,7 @@ OccupancyMap::OccupancyMap(const MapParams& params) : params_(params) {
 }
 
 OccupancyMap::OccupancyMap(const OccupancyMap& other)
-    : params_(other.params_), tree_(std::make_unique<octomap::OcTree>(*other.tree_)) {
+    : params_(other.params_), tree_(std::make_unique<OccupancyTree>(*other.tree_)) {
   tree_->setProbHit(params_.prob_hit);
   tree_->setProbMiss(params_.prob_miss);
   tree_->setClampingThresMin(params_.clamp_min);

@@ -1,8 +1,7 @@
-// octofuse: the one adapter around octomap::OcTree (parameters, insertion, leaf export).
+// octofuse: the one adapter around the occupancy tree (parameters, insertion, leaf export).
 #pragma once
 
-#include <octomap/OcTree.h>
-#include <octomap/OcTreeBase.h>
+#include "octofuse/tree.hpp"
 
 #include <cstddef>
 #include <cstdint>
@@ -45,7 +44,7 @@ struct LeafArrays {
   std::vector<std::uint8_t> depths;  ///< n, tree depth of the leaf (16 = finest)
 };
 
-/// An OctoMap occupancy tree with octofuse's parameters; owns its octomap::OcTree.
+/// An OctoMap occupancy tree with octofuse's parameters; owns its OccupancyTree.
 class OccupancyMap {
  public:
   explicit OccupancyMap(const MapParams& params);
@@ -54,7 +53,7 @@ class OccupancyMap {
   OccupancyMap(const OccupancyMap& other);
   OccupancyMap& operator=(const OccupancyMap&) = delete;
 
-  /// Inserts one scan with OctoMap's ray casting update (octomap::OcTree::insertPointCloud).
+  /// Inserts one scan with OctoMap's ray casting update (OctoMap's insertPointCloud).
   /// `xyz` holds n points (x y z interleaved) in the map frame; rays longer than max_range
   /// (if >= 0) clear free space up to max_range only. Inner nodes are updated. The scan is
   /// checked first (check_scan()) and inserted only if every ray can be traced: throws
@@ -83,8 +82,8 @@ class OccupancyMap {
   std::uint64_t known_voxels() const;
   std::size_t num_nodes() const { return tree_->size(); }
   std::size_t memory_bytes() const { return tree_->memoryUsage(); }
-  octomap::OcTree& tree() { return *tree_; }
-  const octomap::OcTree& tree() const { return *tree_; }
+  OccupancyTree& tree() { return *tree_; }
+  const OccupancyTree& tree() const { return *tree_; }
 
   /// Clamping thresholds as the float log-odds OctoMap stores.
   float clamp_min_logodds() const { return tree_->getClampingThresMinLog(); }
@@ -92,11 +91,8 @@ class OccupancyMap {
 
  private:
   MapParams params_;
-  std::unique_ptr<octomap::OcTree> tree_;
+  std::unique_ptr<OccupancyTree> tree_;
 };
-
-/// Per-voxel scalar tree (e.g. the information loss of a fusion), same key grid as the maps.
-using ScalarTree = octomap::OcTreeBase<octomap::OcTreeDataNode<float>>;
 
 /// Leaves of a scalar tree.
 LeafArrays scalar_leaves(const ScalarTree& tree);

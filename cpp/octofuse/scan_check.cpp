@@ -28,7 +28,7 @@ std::size_t max_ray_voxels() {
   return n;
 }
 
-ScanCheck::ScanCheck(const octomap::OcTree& grid, const octomap::point3d& origin,
+ScanCheck::ScanCheck(const OccupancyTree& grid, const octomap::point3d& origin,
                      double max_range, std::string where)
     : grid_(grid),
       origin_(origin),

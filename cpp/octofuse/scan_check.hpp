@@ -5,7 +5,7 @@
 // undefined beyond the tree's extent. Every ray is checked here before OctoMap sees it.
 #pragma once
 
-#include <octomap/OcTree.h>
+#include "octofuse/tree.hpp"
 
 #include <cstddef>
 #include <string>
@@ -22,7 +22,7 @@ class ScanCheck {
  public:
   /// `where` prefixes messages (e.g. "scan 3: "). Throws std::invalid_argument if the origin
   /// is not finite or lies outside the tree's extent.
-  ScanCheck(const octomap::OcTree& grid, const octomap::point3d& origin, double max_range,
+  ScanCheck(const OccupancyTree& grid, const octomap::point3d& origin, double max_range,
             std::string where = {});
 
   /// Throws std::invalid_argument naming the row if the point is not finite, lies outside the
@@ -34,7 +34,7 @@ class ScanCheck {
   bool key_of(float coord, long& key) const;
   std::string extent_text() const;
 
-  const octomap::OcTree& grid_;
+  const OccupancyTree& grid_;
   octomap::point3d origin_;
   long origin_key_[3];
   double max_range_;

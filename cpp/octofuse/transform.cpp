@@ -177,7 +177,7 @@ struct Voxel {
 /// Builds the subtree of `node` (at `depth`) from the voxels [lo, hi) sorted by Morton code;
 /// inner nodes get the largest child value (OctoMap's rule) and eight equal leaf children are
 /// pruned. Returns true if the node ended as a leaf.
-bool build(octomap::OcTree& tree, octomap::OcTreeNode* node, unsigned depth, const Voxel* lo,
+bool build(OccupancyTree& tree, OccupancyNode* node, unsigned depth, const Voxel* lo,
            const Voxel* hi) {
   if (depth == 16) {
     node->setLogOdds(lo->value);
@@ -209,8 +209,8 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
   params.resolution = resolution;
   params.validate();
   auto out = std::make_unique<OccupancyMap>(params);
-  octomap::OcTree& dst = out->tree();
-  const octomap::OcTree& tree = src.tree();
+  OccupancyTree& dst = out->tree();
+  const OccupancyTree& tree = src.tree();
   TransformStats st;
   st.source_leaves = tree.getNumLeafNodes();
   if (st.source_leaves == 0) {
@@ -306,9 +306,9 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
   std::sort(voxels.begin(), voxels.end(),
             [](const Voxel& a, const Voxel& b) { return a.code < b.code; });
   st.target_voxels = voxels.size();
-  octomap::OcTreeNode* root = detail::TreeAccess<octomap::OcTree>::ensure_root(dst);
+  OccupancyNode* root = detail::TreeAccess<OccupancyTree>::ensure_root(dst);
   build(dst, root, 0, voxels.data(), voxels.data() + voxels.size());
-  detail::TreeAccess<octomap::OcTree>::mark_changed(dst);
+  detail::TreeAccess<OccupancyTree>::mark_changed(dst);
   if (stats) *stats = st;
   return out;
 }

@@ -5,6 +5,7 @@
 #include "test_trees.hpp"
 
 #include <gtest/gtest.h>
+#include <octomap/OcTree.h>
 
 #include <cstdio>
 #include <fstream>
@@ -87,7 +88,7 @@ TEST(Fuse, InnerNodesHoldTheMaxOfTheirChildren) {
 TEST(Fuse, NaiveBayesEqualsOctomapUpdateNodeMerge) {
   const OccupancyMap a = random_map(7, 0.9), b = random_map(8, 0.9);
   OccupancyMap merged(a);
-  octomap::OcTree bb(b.tree());
+  OccupancyTree bb(b.tree());
   bb.expand();
   for (auto it = bb.begin_leafs(); it != bb.end_leafs(); ++it)
     merged.tree().updateNode(it.getKey(), it->getLogOdds());

@@ -1,0 +1,75 @@
+// octofuse: the tree types of octofuse's maps: OctoMap's occupancy and scalar trees with
+// their nodes in NodePool. Same nodes, same algorithms, same .ot/.bt streams as
+// octomap::OcTree; only where the nodes live differs.
+#pragma once
+
+#include "octofuse/node_pool.hpp"
+
+#include <octomap/OcTreeBase.h>
+#include <octomap/OcTreeDataNode.h>
+#include <octomap/OcTreeNode.h>
+#include <octomap/OccupancyOcTreeBase.h>
+
+#include <string>
+
+namespace octofuse {
+
+/// octomap::OcTreeNode (log-odds and children) in NodePool.
+class OccupancyNode : public octomap::OcTreeNode, public detail::PooledNode<OccupancyNode> {
+ public:
+  using detail::PooledNode<OccupancyNode>::operator new;
+  using detail::PooledNode<OccupancyNode>::operator delete;
+
+  OccupancyNode() = default;
+  /// Deep copy; the children are pooled nodes too (OctoMap's copy would make plain ones).
+  OccupancyNode(const OccupancyNode& rhs) : octomap::OcTreeNode() {
+    value = rhs.value;
+    copy_children(rhs);
+  }
+
+ private:
+  void copy_children(const OccupancyNode& rhs) {
+    if (rhs.children == nullptr) return;
+    children = new octomap::AbstractOcTreeNode*[8];
+    for (unsigned i = 0; i < 8; ++i) {
+      children[i] = rhs.children[i] == nullptr
+                        ? nullptr
+                        : new OccupancyNode(*static_cast<const OccupancyNode*>(rhs.children[i]));
+    }
+  }
+};
+
+/// octomap::OcTreeDataNode<float> in NodePool: one float per voxel (e.g. information loss).
+class ScalarNode : public octomap::OcTreeDataNode<float>, public detail::PooledNode<ScalarNode> {
+ public:
+  using detail::PooledNode<ScalarNode>::operator new;
+  using detail::PooledNode<ScalarNode>::operator delete;
+
+  ScalarNode() = default;
+  ScalarNode(const ScalarNode& rhs) : octomap::OcTreeDataNode<float>() {
+    value = rhs.value;
+    if (rhs.children == nullptr) return;
+    children = new octomap::AbstractOcTreeNode*[8];
+    for (unsigned i = 0; i < 8; ++i) {
+      children[i] = rhs.children[i] == nullptr
+                        ? nullptr
+                        : new ScalarNode(*static_cast<const ScalarNode*>(rhs.children[i]));
+    }
+  }
+};
+
+/// An occupancy tree as octomap::OcTree, with pooled nodes; it calls itself "OcTree" in
+/// file headers, which OctoMap's tools read as theirs.
+class OccupancyTree : public octomap::OccupancyOcTreeBase<OccupancyNode> {
+ public:
+  explicit OccupancyTree(double resolution)
+      : octomap::OccupancyOcTreeBase<OccupancyNode>(resolution) {}
+  OccupancyTree(const OccupancyTree&) = default;
+  OccupancyTree* create() const override { return new OccupancyTree(resolution); }
+  std::string getTreeType() const override { return "OcTree"; }
+};
+
+/// Per-voxel scalar tree (e.g. the information loss of a fusion), same key grid as the maps.
+using ScalarTree = octomap::OcTreeBase<ScalarNode>;
+
+}  // namespace octofuse

@@ -1,0 +1,82 @@
+// The pooled tree types: same trees and files as OctoMap's own, nodes safe across threads.
+#include "octofuse/node_pool.hpp"
+#include "octofuse/occupancy_map.hpp"
+#include "test_trees.hpp"
+
+#include <gtest/gtest.h>
+#include <octomap/OcTree.h>
+
+#include <cstdio>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+using namespace octofuse;
+using octofuse_test::expand;
+using octofuse_test::random_map;
+
+TEST(NodePool, NodesAreSixteenBytes) {
+  EXPECT_EQ(sizeof(OccupancyNode), 16u);
+  EXPECT_EQ(sizeof(ScalarNode), 16u);
+  EXPECT_EQ(sizeof(OccupancyNode), sizeof(octomap::OcTreeNode));
+}
+
+TEST(NodePool, SameStreamsAndValuesAsOctomapsOwnTree) {
+  const OccupancyMap m = random_map(3, 0.5);
+  // the pooled tree written with OctoMap's writer, read back by plain OctoMap
+  std::stringstream full, binary;
+  m.tree().writeData(full);
+  m.tree().writeBinaryData(binary);
+  octomap::OcTree plain(m.params().resolution);
+  plain.readData(full);
+  EXPECT_EQ(expand(plain), expand(m.tree()));
+  EXPECT_EQ(plain.size(), m.num_nodes());
+  // and plain OctoMap's streams read into the pooled tree, node for node
+  std::stringstream again;
+  plain.writeData(again);
+  OccupancyTree back(m.params().resolution);
+  back.readData(again);
+  EXPECT_EQ(expand(back), expand(m.tree()));
+  // byte for byte the same streams
+  std::stringstream plain_full, plain_binary;
+  plain.writeData(plain_full);
+  plain.writeBinaryData(plain_binary);
+  EXPECT_EQ(plain_full.str(), full.str());
+  EXPECT_EQ(plain_binary.str(), binary.str());
+}
+
+TEST(NodePool, DeepCopyIsIndependentAndPooled) {
+  const OccupancyMap m = random_map(5, 0.3);
+  auto want = expand(m.tree());
+  {
+    OccupancyMap c(m);
+    EXPECT_EQ(expand(c.tree()), want);
+    EXPECT_EQ(c.num_nodes(), c.tree().calcNumNodes());
+    for (auto it = c.tree().begin_leafs(); it != c.tree().end_leafs(); ++it) it->setLogOdds(1.0f);
+  }  // the copy's nodes go back to the pool; the original is untouched
+  EXPECT_EQ(expand(m.tree()), want);
+}
+
+TEST(NodePool, TreesBuiltOnOneThreadFreedOnAnother) {
+  // nodes change threads: built by workers, freed by the main thread, reused by new workers
+  for (int round = 0; round < 3; ++round) {
+    std::vector<std::unique_ptr<OccupancyMap>> maps(4);
+    std::vector<std::thread> workers;
+    for (unsigned w = 0; w < maps.size(); ++w)
+      workers.emplace_back([&maps, w, round] {
+        maps[w] = std::make_unique<OccupancyMap>(random_map(100 * round + w, 0.2));
+      });
+    for (auto& t : workers) t.join();
+    for (unsigned w = 0; w < maps.size(); ++w) {
+      EXPECT_EQ(expand(maps[w]->tree()), expand(random_map(100 * round + w, 0.2).tree()));
+    }
+    maps.clear();
+  }
+  // what the workers freed was handed back: the pool did not grow for later rounds' trees
+  const std::size_t before = detail::NodePool::stats().slab_bytes;
+  for (int k = 0; k < 20; ++k) {
+    std::thread([] { OccupancyMap m = random_map(7, 0.2); }).join();
+  }
+  EXPECT_EQ(detail::NodePool::stats().slab_bytes, before);
+}
