@@ -2,6 +2,7 @@
 #include "common.hpp"
 
 #include "octofuse/fuse_into.hpp"
+#include "octofuse/leaf_lookup.hpp"
 #include "octofuse/occupancy_map.hpp"
 
 #include <cmath>
@@ -51,6 +52,14 @@ void insert_impl(OccupancyMap& self, py::array_t<Real, py::array::c_style> point
 void define_maps(py::module_& m) {
   py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
 
+  m.def("_node_pool_bytes", [] {
+    return detail::NodePool::stats().slab_bytes + detail::ChildrenPool::stats().slab_bytes;
+  }, "Bytes the pools of tree nodes and child arrays hold (in use or free).");
+  m.def("_trim_node_pools", [] {
+    py::gil_scoped_release release;
+    return detail::NodePool::trim() + detail::ChildrenPool::trim();
+  }, "Gives the pools' empty slabs back to the system; returns the bytes given back.");
+
   py::class_<ScalarTree>(m, "_ScalarTree")
       .def(py::init([](double res) {
              MapParams p;
@@ -69,6 +78,19 @@ void define_maps(py::module_& m) {
           l = scalar_leaves(t);
         }
         return leaves_to_dict(std::move(l));
+      })
+      .def("values_depths", [](const ScalarTree& t) {
+        std::vector<float> values;
+        std::vector<std::uint8_t> depths;
+        {
+          py::gil_scoped_release release;
+          scalar_values_and_depths(t, values, depths);
+        }
+        const auto n = static_cast<py::ssize_t>(values.size());
+        py::dict d;
+        d["values"] = to_numpy(std::move(values), {n});
+        d["depths"] = to_numpy(std::move(depths), {n});
+        return d;
       })
       .def("accumulate", [](ScalarTree& self, const ScalarTree& other) {
         if (std::fabs(self.getResolution() - other.getResolution()) > 1e-9 * self.getResolution()) {
@@ -107,6 +129,23 @@ void define_maps(py::module_& m) {
         }
         return leaves_to_dict(std::move(l));
       })
+      .def("leaves_with", [](const OccupancyMap& self, const ScalarTree& scalar, const std::string& voxels) {
+        const LeafClass which = voxels == "occupied" ? LeafClass::Occupied
+                                : voxels == "free"   ? LeafClass::Free
+                                : voxels == "all"    ? LeafClass::All
+                                                     : throw py::value_error(
+                                                           "voxels: expected 'occupied', 'free' or 'all'");
+        LeafArrays l;
+        std::vector<float> values;
+        {
+          py::gil_scoped_release release;
+          l = leaves_with_values(self, scalar, which, values);
+        }
+        const auto n = static_cast<py::ssize_t>(values.size());
+        py::dict d = leaves_to_dict(std::move(l));
+        d["scalar"] = to_numpy(std::move(values), {n});
+        return d;
+      }, py::arg("scalar"), py::arg("voxels"))
       .def("copy", [](const OccupancyMap& self) {
         py::gil_scoped_release release;
         return std::make_unique<OccupancyMap>(self);

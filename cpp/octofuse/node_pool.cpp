@@ -1,104 +1,167 @@
-// octofuse: NodePool, the shared side (slabs and batches of free blocks).
+// octofuse: BlockPool, the shared side (slabs with free-block bitmaps).
 #include "octofuse/node_pool.hpp"
 
+#include <cstdint>
 #include <cstdlib>
 #include <mutex>
 #include <new>
-#include <utility>
 #include <vector>
 
 namespace octofuse::detail {
 
 namespace {
 
-constexpr std::size_t kSlabBytes = std::size_t(1) << 20;
+constexpr std::size_t kSlabBytes = std::size_t(1) << 20;  // slabs are aligned to their size
 
-struct Shared {
-  std::mutex mutex;
-  std::vector<std::pair<void*, std::size_t>> batches;  // (list head, blocks)
-  std::size_t free_blocks = 0;
-  char* slab = nullptr;  // the slab being carved
-  char* slab_end = nullptr;
-  std::size_t slab_bytes = 0;
+// The start of every slab: its free blocks (bit set = free) and where to look first. The
+// header occupies the slab's first blocks, which are never free.
+template <std::size_t kSize>
+struct SlabHeader {
+  static constexpr std::size_t kBlocks = kSlabBytes / kSize;
+  static constexpr std::size_t kWords = kBlocks / 64;
+  std::size_t index;       // in Shared::slabs
+  std::size_t free;        // free blocks
+  std::size_t first_word;  // no free block before this bitmap word
+  std::uint64_t bits[kWords];
+
+  static constexpr std::size_t kHeaderBlocks = (sizeof(std::size_t) * 3 + 8 * kWords + kSize - 1) / kSize;
+  static constexpr std::size_t kUsable = kBlocks - kHeaderBlocks;
+
+  static SlabHeader* of(const void* p) {
+    return reinterpret_cast<SlabHeader*>(reinterpret_cast<std::uintptr_t>(p) & ~(kSlabBytes - 1));
+  }
 };
 
-// Never destroyed: threads return their caches at exit, the main thread's after static
+template <std::size_t kSize>
+struct Shared {
+  std::mutex mutex;
+  std::vector<SlabHeader<kSize>*> slabs;
+  std::size_t cursor = 0;  // no free block in slabs before this one
+  std::size_t free_blocks = 0;
+};
+
+// Never destroyed: threads return their lists at exit, the main thread's after static
 // destructors may have run.
-Shared& shared() {
-  static Shared* s = new Shared;
+template <std::size_t kSize>
+Shared<kSize>& shared() {
+  static Shared<kSize>* s = new Shared<kSize>;
   return *s;
+}
+
+template <std::size_t kSize>
+void new_slab(Shared<kSize>& s) {
+  using H = SlabHeader<kSize>;
+  s.slabs.reserve(s.slabs.size() + 1);  // may throw before anything changes
+  void* mem = std::aligned_alloc(kSlabBytes, kSlabBytes);
+  if (mem == nullptr) throw std::bad_alloc();
+  auto* h = static_cast<H*>(mem);
+  h->index = s.slabs.size();
+  h->free = H::kUsable;
+  h->first_word = 0;
+  for (std::size_t w = 0; w < H::kWords; ++w) h->bits[w] = ~std::uint64_t{0};
+  for (std::size_t b = 0; b < H::kHeaderBlocks; ++b)
+    h->bits[b / 64] &= ~(std::uint64_t{1} << (b % 64));
+  s.slabs.push_back(h);
+  s.free_blocks += H::kUsable;
 }
 
 }  // namespace
 
-void NodePool::Cache::refill() {
-  Shared& s = shared();
+template <std::size_t kSize>
+void BlockPool<kSize>::Cache::refill() {
+  using H = SlabHeader<kSize>;
+  Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  if (!s.batches.empty()) {
-    auto [list, n] = s.batches.back();
-    s.batches.pop_back();
-    s.free_blocks -= n;
-    head = static_cast<Free*>(list);
-    count = n;
-    return;
+  // the lowest free blocks, lowest address first, linked in that order
+  Free* first = nullptr;
+  Free** tail = &first;
+  std::size_t got = 0;
+  while (got < kBatch) {
+    while (s.cursor < s.slabs.size() && s.slabs[s.cursor]->free == 0) ++s.cursor;
+    if (s.cursor == s.slabs.size()) {
+      if (got > 0) break;
+      new_slab(s);
+      continue;
+    }
+    H* h = s.slabs[s.cursor];
+    char* base = reinterpret_cast<char*>(h);
+    std::size_t w = h->first_word;
+    for (; w < H::kWords && got < kBatch; ++w) {
+      std::uint64_t bits = h->bits[w];
+      while (bits != 0 && got < kBatch) {
+        const unsigned b = static_cast<unsigned>(__builtin_ctzll(bits));
+        bits &= bits - 1;
+        Free* f = reinterpret_cast<Free*>(base + (w * 64 + b) * kSize);
+        *tail = f;
+        tail = &f->next;
+        ++got;
+        --h->free;
+      }
+      h->bits[w] = bits;
+      if (bits != 0) break;
+    }
+    h->first_word = w;
   }
-  const std::size_t want = kBatch * kBlock;
-  if (static_cast<std::size_t>(s.slab_end - s.slab) < want) {
-    void* slab = std::aligned_alloc(kBlock, kSlabBytes);
-    if (slab == nullptr) throw std::bad_alloc();
-    s.slab = static_cast<char*>(slab);
-    s.slab_end = s.slab + kSlabBytes;
-    s.slab_bytes += kSlabBytes;
-  }
-  bump = s.slab;
-  bump_end = s.slab + want;
-  s.slab += want;
+  *tail = nullptr;
+  s.free_blocks -= got;
+  head = first;
+  count = got;
 }
 
-void NodePool::Cache::spill() noexcept {
-  // the first kBatch blocks of the list go to the shared list as one batch
-  Free* first = head;
-  Free* last = head;
-  for (std::size_t i = 1; i < kBatch; ++i) last = last->next;
-  head = last->next;
-  last->next = nullptr;
-  count -= kBatch;
-  Shared& s = shared();
+template <std::size_t kSize>
+void BlockPool<kSize>::Cache::spill(std::size_t n) noexcept {
+  using H = SlabHeader<kSize>;
+  Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  try {
-    s.batches.emplace_back(first, kBatch);
-    s.free_blocks += kBatch;
-  } catch (...) {  // no room to record the batch: keep it in this thread
-    last->next = head;
-    head = first;
-    count += kBatch;
+  for (std::size_t i = 0; i < n && head != nullptr; ++i) {
+    Free* f = head;
+    head = f->next;
+    --count;
+    H* h = H::of(f);
+    const std::size_t b =
+        static_cast<std::size_t>(reinterpret_cast<char*>(f) - reinterpret_cast<char*>(h)) / kSize;
+    h->bits[b / 64] |= std::uint64_t{1} << (b % 64);
+    if (b / 64 < h->first_word) h->first_word = b / 64;
+    ++h->free;
+    if (h->index < s.cursor) s.cursor = h->index;
+    ++s.free_blocks;
   }
 }
 
-NodePool::Cache::~Cache() {
-  while (bump != bump_end) {  // unused blocks join the free list
-    Free* b = reinterpret_cast<Free*>(bump);
-    b->next = head;
-    head = b;
-    ++count;
-    bump += kBlock;
-  }
-  if (head == nullptr) return;
-  Shared& s = shared();
-  std::lock_guard<std::mutex> lock(s.mutex);
-  try {
-    s.batches.emplace_back(head, count);
-    s.free_blocks += count;
-  } catch (...) {  // lost to the pool, not to the process
-  }
-  head = nullptr;
-  count = 0;
+template <std::size_t kSize>
+BlockPool<kSize>::Cache::~Cache() {
+  spill(count);
 }
 
-NodePool::Stats NodePool::stats() {
-  Shared& s = shared();
+template <std::size_t kSize>
+typename BlockPool<kSize>::Stats BlockPool<kSize>::stats() {
+  Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  return {s.slab_bytes, s.free_blocks};
+  return {s.slabs.size() * kSlabBytes, s.free_blocks};
 }
+
+template <std::size_t kSize>
+std::size_t BlockPool<kSize>::trim() {
+  using H = SlabHeader<kSize>;
+  Shared<kSize>& s = shared<kSize>();
+  std::lock_guard<std::mutex> lock(s.mutex);
+  std::size_t freed = 0, kept = 0;
+  for (H* h : s.slabs) {
+    if (h->free == H::kUsable) {
+      s.free_blocks -= H::kUsable;
+      std::free(h);
+      freed += kSlabBytes;
+    } else {
+      h->index = kept;
+      s.slabs[kept++] = h;
+    }
+  }
+  s.slabs.resize(kept);
+  s.cursor = 0;
+  return freed;
+}
+
+template class BlockPool<16>;
+template class BlockPool<64>;
 
 }  // namespace octofuse::detail

@@ -1,32 +1,29 @@
-// octofuse: the allocator of tree nodes (16-byte blocks from slabs, thread-local free lists).
+// octofuse: the allocator of tree nodes and their child arrays (fixed-size blocks from slabs,
+// thread-local free lists).
 #pragma once
 
 #include <cstddef>
 
 namespace octofuse::detail {
 
-/// 16-byte blocks for the nodes of octofuse's trees. An OctoMap node is 16 bytes, which glibc
-/// stores in a 32-byte chunk and frees one by one with coalescing; here blocks are carved from
-/// 1 MiB slabs and freed onto a free list, so a node costs 16 bytes and freeing a tree is a
-/// walk that pushes its nodes. Each thread allocates from and frees to its own list and trades
-/// batches with a shared one, so a node may be freed on any thread. Freed blocks are reused by
-/// later trees; the slabs are not given back to the system.
-class NodePool {
+/// Blocks of `kSize` bytes for octofuse's trees: nodes (16 bytes, which glibc stores in 32
+/// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
+/// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
+/// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
+/// side by side, however scattered the blocks freed before were), and frees onto a list of
+/// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
+/// trim() gives empty slabs back to the system.
+template <std::size_t kSize>
+class BlockPool {
  public:
-  static constexpr std::size_t kBlock = 16;
+  static constexpr std::size_t kBlock = kSize;
 
   static void* allocate() {
     Cache& c = cache();
-    if (c.head != nullptr) {
-      Free* b = c.head;
-      c.head = b->next;
-      --c.count;
-      return b;
-    }
-    if (c.bump == c.bump_end) c.refill();
-    if (c.head != nullptr) return allocate();
-    void* b = c.bump;
-    c.bump += kBlock;
+    if (c.head == nullptr) c.refill();
+    Free* b = c.head;
+    c.head = b->next;
+    --c.count;
     return b;
   }
 
@@ -35,14 +32,17 @@ class NodePool {
     Free* b = static_cast<Free*>(p);
     b->next = c.head;
     c.head = b;
-    if (++c.count >= 2 * kBatch) c.spill();
+    if (++c.count >= 2 * kBatch) c.spill(kBatch);
   }
 
   struct Stats {
     std::size_t slab_bytes;  ///< bytes taken from the system
-    std::size_t shared_free_blocks;  ///< free blocks on the shared list (not in thread caches)
+    std::size_t free_blocks;  ///< free blocks in the slabs (not counting threads' lists)
   };
   static Stats stats();
+
+  /// Gives the slabs with no block in use back to the system; returns the bytes freed.
+  static std::size_t trim();
 
  private:
   struct Free {
@@ -52,10 +52,8 @@ class NodePool {
   struct Cache {
     Free* head = nullptr;
     std::size_t count = 0;
-    char* bump = nullptr;  ///< blocks never used, carved in order
-    char* bump_end = nullptr;
     void refill();
-    void spill() noexcept;
+    void spill(std::size_t n) noexcept;
     ~Cache();
   };
   static Cache& cache() {
@@ -63,6 +61,12 @@ class NodePool {
     return c;
   }
 };
+
+using NodePool = BlockPool<16>;      ///< tree nodes
+using ChildrenPool = BlockPool<64>;  ///< arrays of 8 child pointers
+
+extern template class BlockPool<16>;
+extern template class BlockPool<64>;
 
 /// Node types derive from this to live in the pool (the type must be 16 bytes).
 template <class Derived>

@@ -1,6 +1,6 @@
 // octofuse: the tree types of octofuse's maps: OctoMap's occupancy and scalar trees with
-// their nodes in NodePool. Same nodes, same algorithms, same .ot/.bt streams as
-// octomap::OcTree; only where the nodes live differs.
+// their nodes and child arrays in octofuse's pools (node_pool.hpp). Same nodes, same
+// algorithms, same .ot/.bt streams as octomap::OcTree; only where the nodes live differs.
 #pragma once
 
 #include "octofuse/node_pool.hpp"
@@ -30,7 +30,7 @@ class OccupancyNode : public octomap::OcTreeNode, public detail::PooledNode<Occu
  private:
   void copy_children(const OccupancyNode& rhs) {
     if (rhs.children == nullptr) return;
-    children = new octomap::AbstractOcTreeNode*[8];
+    children = static_cast<octomap::AbstractOcTreeNode**>(detail::ChildrenPool::allocate());
     for (unsigned i = 0; i < 8; ++i) {
       children[i] = rhs.children[i] == nullptr
                         ? nullptr
@@ -49,7 +49,7 @@ class ScalarNode : public octomap::OcTreeDataNode<float>, public detail::PooledN
   ScalarNode(const ScalarNode& rhs) : octomap::OcTreeDataNode<float>() {
     value = rhs.value;
     if (rhs.children == nullptr) return;
-    children = new octomap::AbstractOcTreeNode*[8];
+    children = static_cast<octomap::AbstractOcTreeNode**>(detail::ChildrenPool::allocate());
     for (unsigned i = 0; i < 8; ++i) {
       children[i] = rhs.children[i] == nullptr
                         ? nullptr
@@ -57,6 +57,43 @@ class ScalarNode : public octomap::OcTreeDataNode<float>, public detail::PooledN
     }
   }
 };
+
+}  // namespace octofuse
+
+// The three places OctoMap allocates and frees the arrays of child pointers, for octofuse's
+// trees: the same code with the arrays in ChildrenPool.
+#define OCTOFUSE_POOLED_CHILDREN(NODE, BASE)                                              \
+  template <>                                                                            \
+  inline void octomap::OcTreeBaseImpl<NODE, BASE>::allocNodeChildren(NODE* node) {       \
+    node->children =                                                                     \
+        static_cast<AbstractOcTreeNode**>(octofuse::detail::ChildrenPool::allocate());   \
+    for (unsigned i = 0; i < 8; ++i) node->children[i] = nullptr;                        \
+  }                                                                                      \
+  template <>                                                                            \
+  inline bool octomap::OcTreeBaseImpl<NODE, BASE>::pruneNode(NODE* node) {               \
+    if (!isNodeCollapsible(node)) return false;                                          \
+    node->copyData(*(getNodeChild(node, 0)));                                            \
+    for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);                           \
+    octofuse::detail::ChildrenPool::release(node->children);                             \
+    node->children = nullptr;                                                            \
+    return true;                                                                         \
+  }                                                                                      \
+  template <>                                                                            \
+  inline void octomap::OcTreeBaseImpl<NODE, BASE>::deleteNodeRecurs(NODE* node) {        \
+    if (node->children != nullptr) {                                                     \
+      for (unsigned i = 0; i < 8; ++i)                                                   \
+        if (node->children[i] != nullptr) deleteNodeRecurs(static_cast<NODE*>(node->children[i])); \
+      octofuse::detail::ChildrenPool::release(node->children);                           \
+      node->children = nullptr;                                                          \
+    }                                                                                    \
+    delete node;                                                                         \
+  }
+
+OCTOFUSE_POOLED_CHILDREN(octofuse::OccupancyNode, octomap::AbstractOccupancyOcTree)
+OCTOFUSE_POOLED_CHILDREN(octofuse::ScalarNode, octomap::AbstractOcTree)
+#undef OCTOFUSE_POOLED_CHILDREN
+
+namespace octofuse {
 
 /// An occupancy tree as octomap::OcTree, with pooled nodes; it calls itself "OcTree" in
 /// file headers, which OctoMap's tools read as theirs.

@@ -80,3 +80,40 @@ TEST(NodePool, TreesBuiltOnOneThreadFreedOnAnother) {
   }
   EXPECT_EQ(detail::NodePool::stats().slab_bytes, before);
 }
+
+// A map of n^3 finest voxels with distinct values (no pruning): about 1.15 n^3 nodes.
+OccupancyMap dense_map(unsigned n) {
+  OccupancyMap m(MapParams{});
+  for (unsigned x = 0; x < n; ++x)
+    for (unsigned y = 0; y < n; ++y)
+      for (unsigned z = 0; z < n; ++z)
+        m.tree().setNodeValue(octomap::OcTreeKey(32768 + x, 32768 + y, 32768 + z),
+                              0.01f * static_cast<float>((x * 7 + y * 13 + z) % 300) - 1.5f, true);
+  return m;
+}
+
+TEST(NodePool, FreedTreesAreReusedAndEmptySlabsTrimmed) {
+  // a tree freed and built again reuses the freed blocks: the pool does not grow
+  auto pool_bytes = [] {
+    return detail::NodePool::stats().slab_bytes + detail::ChildrenPool::stats().slab_bytes;
+  };
+  std::size_t one_tree = 0;
+  std::thread([&] {
+    const std::size_t before = pool_bytes();
+    { OccupancyMap m = dense_map(64); }
+    one_tree = pool_bytes() - before;
+    for (int k = 0; k < 5; ++k) {
+      OccupancyMap again = dense_map(64);
+      OccupancyMap copy(again);
+      EXPECT_EQ(copy.num_nodes(), again.num_nodes());
+    }
+    EXPECT_LE(pool_bytes(), before + 2 * one_tree + (std::size_t(4) << 20));
+  }).join();  // the thread's lists go back to the slabs
+  // with every tree of that thread gone, trim() gives empty slabs back to the system
+  const std::size_t before = pool_bytes();
+  const std::size_t freed = detail::NodePool::trim() + detail::ChildrenPool::trim();
+  EXPECT_EQ(pool_bytes(), before - freed);
+  EXPECT_GT(freed, 0u);
+  OccupancyMap after = random_map(12, 0.2);  // and the pool still works
+  EXPECT_EQ(expand(after.tree()), expand(random_map(12, 0.2).tree()));
+}

@@ -66,3 +66,27 @@ def test_bad_filters_are_refused(fused, tmp_path):
     with pytest.raises(ValueError, match="voxels="):
         write_heatmap(loss, tmp_path / "x.ply", map=m, voxels="walls")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("voxels", ["occupied", "free", "all"])
+def test_core_lookup_equals_the_leaf_lookup(fused, voxels):
+    """The heat map's voxels from the loss map (one walk in the core) equal those found by
+    looking the map's leaf centres up in the loss map's leaves (Leaves.values_at), value for
+    value: every rule, every class, and a loss map coarser and finer than the map in places."""
+    from octofuse.outputs.export import map_voxel_loss
+
+    for rule, (m, loss) in fused.items():
+        fast = map_voxel_loss(loss, m, voxels)
+        slow = map_voxel_loss(loss.leaves(), m, voxels)
+        assert len(fast.loss) > 0 or rule == "naive-bayes"
+        for field in fast._fields:
+            x, y = getattr(fast, field), getattr(slow, field)
+            assert x.dtype == y.dtype and np.array_equal(x, y), (rule, field)
+    # the other way round: the map of one rule against the loss of another (other pruning)
+    m, _ = fused["naive-bayes"]
+    _, loss = fused["min-info-loss"]
+    fast, slow = map_voxel_loss(loss, m, voxels), map_voxel_loss(loss.leaves(), m, voxels)
+    assert all(np.array_equal(getattr(fast, f), getattr(slow, f)) for f in fast._fields)
+    values, depths = loss.values_depths()
+    lv = loss.leaves()
+    assert np.array_equal(values, lv.values) and np.array_equal(depths, lv.depths)

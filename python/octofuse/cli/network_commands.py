@@ -4,7 +4,9 @@ maps, in rounds) and ``bench`` (rules x topologies)."""
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -64,9 +66,12 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 def return_freed_memory() -> None:
     """Give the pages the run freed (copies, messages, scratch trees) back to the system before
     the outputs are written, so that writing adds to what the run holds, not to its peak
-    (glibc's ``malloc_trim``; nothing elsewhere)."""
+    (the tree pools' empty slabs, and glibc's ``malloc_trim``)."""
     import ctypes
 
+    from .. import _core
+
+    _core._trim_node_pools()
     try:
         ctypes.CDLL(None).malloc_trim(0)
     except (OSError, AttributeError):
@@ -174,8 +179,10 @@ def demo(export_bag, **p):
 @out_option
 def fuse_cmd(maps_dir, rounds, **p):
     """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
-    from ..fusion.rounds import fuse_finished
+    from ..fusion.network import merge_rule_results
+    from ..fusion.rounds import fuse_finished, fuse_finished_by_rule
     from ..maps.occupancy import OccupancyMap
+    from ..outputs.map_exports import MapExports
     from ..maps.truth import Scene
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
@@ -194,12 +201,25 @@ def fuse_cmd(maps_dir, rounds, **p):
     maps = {f.stem: OccupancyMap.load(f) for f in files}
     central_path = maps_dir / "centralized.ot"
     central = OccupancyMap.load(central_path) if central_path.is_file() else None
-    res = fuse_finished(maps, central, cfg.fuse, truth=Scene.find(cfg.truth, []),
-                        threads=cfg.build.threads)
-    return_freed_memory()
+    truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     with staged_folder(out, "fuse") as stage:
-        write_outputs(res, stage, cfg, title=title)
+        if cfg.fuse.align == "off":  # a rule per thread at a time: maps written, then freed
+            written = MapExports(stage, cfg, cfg.fuse.rules, list(maps),
+                                 threads=cfg.build.threads or os.cpu_count() or 1)
+            parts = []
+            for part in fuse_finished_by_rule(maps, central, cfg.fuse, truth=truth,
+                                              threads=cfg.build.threads):
+                written.add(part)
+                parts.append(replace(part, fused={}, loss={}, unclamped={}))
+                del part  # the next rules' maps reuse its memory
+            return_freed_memory()
+            res = merge_rule_results(parts)
+        else:  # links align on the first rule's maps: every rule at once
+            written = None
+            res = fuse_finished(maps, central, cfg.fuse, truth=truth, threads=cfg.build.threads)
+            return_freed_memory()
+        write_outputs(res, stage, cfg, title=title, maps=written)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 from ..config import CHANNEL_FILTER, FuseConfig
@@ -185,7 +185,10 @@ class Network:
             loss = self.loss[r][agent] = InfoLossMap(resolution)
         return loss
 
-    def _count(self, r: str, s: str, d: str, m: OccupancyMap, lost: bool = False) -> None:
+    def _count(self, r: str, s: str, d: str, m: OccupancyMap, lost: bool = False,
+               leaves: Optional[dict] = None) -> None:
+        """Counts a message ``m`` from ``s`` to ``d``. ``leaves``: leaf counts of the maps
+        sent so far in the group (a sender's unchanged map sent again is not counted again)."""
         tr = self.traffic[r]
         nbytes = message_bytes(m)
         tr.sent[s] += nbytes
@@ -193,7 +196,14 @@ class Network:
             tr.lost += 1
         else:
             tr.received[d] += nbytes
-        tr.sent_32b[s] += 32 * m.num_leaves
+        if leaves is None:
+            n = m.num_leaves
+        else:  # keyed by identity, the map kept alive so that its id is not reused
+            n = leaves.get(id(m), (None, None))[1]
+            if n is None:
+                n = m.num_leaves
+                leaves[id(m)] = (m, n)
+        tr.sent_32b[s] += 32 * n
         tr.messages += 1
 
     def _exchange_cf(self, group: Sequence[Exchange]) -> None:
@@ -230,6 +240,7 @@ class Network:
             sends_left[s] += 1
         start: dict[str, OccupancyMap] = {}  # start-of-group copies of modified senders
         modified: set[str] = set()
+        leaves: dict = {}  # leaf counts of the maps sent, while they are unchanged
 
         def before_modifying(x: str) -> None:
             if sends_left[x] > 0 and x not in start and x not in modified:
@@ -245,8 +256,8 @@ class Network:
             if two_way:
                 sends_left[s] -= 1
                 sends_left[d] -= 1
-                self._count(r, s, d, maps[s])
-                self._count(r, d, s, maps[d])
+                self._count(r, s, d, maps[s], leaves=leaves)
+                self._count(r, d, s, maps[d], leaves=leaves)
                 before_modifying(s)
                 before_modifying(d)
                 t1 = time.perf_counter()
@@ -266,7 +277,7 @@ class Network:
             m = state
             if not self.frames.aligned(s, d):  # sent, but no transform to fuse it with yet
                 sends_left[s] -= 1
-                self._count(r, s, d, m, lost=group[k].lost)
+                self._count(r, s, d, m, lost=group[k].lost, leaves=leaves)
                 self.timings["exchange"] += time.perf_counter() - t0
                 k += 1
                 continue
@@ -286,7 +297,7 @@ class Network:
                     ack = self._applied[(r, d, s)]
             sends_left[s] -= 1
             if group[k].lost:
-                self._count(r, s, d, m, lost=True)
+                self._count(r, s, d, m, lost=True, leaves=None if cfg.delta else leaves)
                 self.timings["exchange"] += time.perf_counter() - t0
                 k += 1
                 continue
@@ -298,7 +309,7 @@ class Network:
                     for q in [q for q in pend if q <= ack]:
                         del pend[q]
             before_modifying(d)
-            self._count(r, s, d, m)
+            self._count(r, s, d, m, leaves=None if cfg.delta else leaves)
             m = self.frames.to_receiver(s, d, m, maps[d].resolution)
             t1 = time.perf_counter()
             self.timings["exchange"] += t1 - t0
@@ -327,9 +338,12 @@ def _loss_totals(loss: InfoLossMap) -> tuple[int, float]:
     return loss.voxels_fused, float(loss.loss_sum)
 
 
-def score_result(res: SimResult, tol: float, truth=None, threads: int = 1) -> dict[str, dict[str, Score]]:
-    """Scores of every agent for every rule, and of the local-only maps (the floor)."""
-    jobs = [(LOCAL, a) for a in res.agents] + [(r, a) for r in res.rules for a in res.agents]
+def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
+                 local: bool = True) -> dict[str, dict[str, Score]]:
+    """Scores of every agent for every rule, and (``local``) of the local-only maps (the
+    floor)."""
+    jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
+        [(r, a) for r in res.rules for a in res.agents]
 
     def one(job):
         r, a = job
@@ -352,3 +366,23 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1) -> di
     for (r, a), s in zip(jobs, results):
         out.setdefault(r, {})[a] = s
     return out
+
+
+def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
+    """One result from the results of the same run with different rules (e.g.
+    :func:`octofuse.fusion.rounds.fuse_finished_by_rule`), without the rules' maps (``fused``,
+    ``loss`` and ``unclamped`` are left empty: written and freed by the caller). Times add up."""
+    first = parts[0]
+    timings: dict[str, float] = defaultdict(float)
+    for p in parts:
+        for k, v in p.timings.items():
+            timings[k] += v
+    scores: dict[str, dict[str, Score]] = {}
+    for p in parts:
+        scores.update(p.scores)
+    tree = next((p.tree for p in parts if p.tree is not None), None)
+    return replace(
+        first, rules=[r for p in parts for r in p.rules], fused={}, loss={},
+        traffic={r: p.traffic[r] for p in parts for r in p.rules},
+        timeline=[s for p in parts for s in p.timeline], timings=timings, scores=scores,
+        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree, unclamped={})

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
-from typing import Optional
+from typing import Iterator, Optional
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
@@ -15,7 +16,8 @@ from .schedule import drop_messages, parse_schedule, rounds as make_rounds
 
 
 def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
-                  fuse_cfg: FuseConfig, *, truth=None, threads: int = 0) -> SimResult:
+                  fuse_cfg: FuseConfig, *, truth=None, threads: int = 0,
+                  score_local: bool = True) -> SimResult:
     """Fuse finished maps over the graph for the rounds of ``fuse_cfg.schedule``
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
     start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
@@ -24,7 +26,8 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
 
     Each map is in its agent's frame (``fuse_cfg.agent_frames``; messages are moved into the
     receiver's, or the links aligned on first contact with ``fuse_cfg.align``) and ``central``
-    in the common frame: the agents' maps are moved into it to be scored."""
+    in the common frame: the agents' maps are moved into it to be scored. ``score_local``:
+    score the agents' own maps too (the floor)."""
     fuse_cfg.validate("fuse")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
@@ -65,7 +68,27 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
                     unclamped=unclamped, frames=frames.frames, alignment=frames.report())
     if central is not None:
         t0 = time.perf_counter()
-        res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, threads)
+        res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, threads,
+                                  local=score_local)
         res.timings["scoring"] += time.perf_counter() - t0
     res.timings["total"] = time.perf_counter() - t_all
     return res
+
+
+def fuse_finished_by_rule(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
+                          fuse_cfg: FuseConfig, *, truth=None,
+                          threads: int = 0) -> Iterator[SimResult]:
+    """:func:`fuse_finished` a few rules at a time (one per thread, side by side), so that a
+    caller can write those rules' maps and free them before the next ones run: the rules' maps
+    never meet, so every rule's result is the one of the run with all rules. The agents' own
+    maps are scored with the first rules. Not with alignment on first contact
+    (``fuse_cfg.align``): a link first used after round 1 aligns on the first rule's maps when
+    the rules run together."""
+    if fuse_cfg.align != "off":
+        raise ValueError("rules a few at a time: not with alignment on first contact (align = "
+                         f"{fuse_cfg.align!r}); fuse all rules together")
+    threads = threads or os.cpu_count() or 1
+    rules = list(fuse_cfg.rules)
+    for k in range(0, len(rules), threads):
+        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=rules[k:k + threads]),
+                            truth=truth, threads=threads, score_local=k == 0)

@@ -92,6 +92,12 @@ class InfoLossMap:
         """Leaf centres, sizes, loss values (nats) and depths."""
         return leaves_from_core(self._t.leaves())
 
+    def values_depths(self) -> tuple[np.ndarray, np.ndarray]:
+        """The loss values (float32, nats) and depths (uint8) of the leaves, in the order of
+        :meth:`leaves`, without their geometry."""
+        raw = self._t.values_depths()
+        return raw["values"], raw["depths"]
+
     def accumulate(self, other: "InfoLossMap") -> None:
         """Add ``other`` into this map voxel by voxel (in place)."""
         self._t.accumulate(other._t)

@@ -177,6 +177,9 @@ def map_voxel_loss(loss: InfoLossMap | Leaves, map: OccupancyMap,
     What :func:`write_heatmap` writes with ``map=``."""
     if voxels not in ("occupied", "free", "all"):
         raise ValueError(f"voxels={voxels!r}: expected 'occupied', 'free' or 'all'")
+    if isinstance(loss, InfoLossMap):  # one walk in the core, the same lookup as values_at
+        raw = map._m.leaves_with(loss._t, voxels)
+        return MapVoxelLoss(raw["centers"], raw["sizes"], raw["values"], raw["scalar"])
     lv = _as_leaves(loss)
     ml = map.leaves()
     logodds = np.asarray(ml.values, dtype=np.float32)

@@ -15,6 +15,7 @@ from ..fusion.agent_frames import frames_section
 from ..fusion.network import LOCAL, SimResult
 from ..maps.frames import matrix_pose
 from ..maps.infoloss import voxels_per_leaf
+from .map_exports import MapExports
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [
@@ -193,34 +194,31 @@ def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
     return path
 
 
-def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
+def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
+                         path: Path) -> Optional[Path]:
+    """The loss histogram of every rule: ``data`` maps a rule to the loss values and depths
+    of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`)."""
+    if not data:
+        return None
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rules = [r for r in res.rules if r not in ("naive-bayes", CHANNEL_FILTER)]
-    if not rules:
-        return None
     fig, ax = plt.subplots(figsize=(7, 4))
     vmax = 0.0
-    data = {}  # rule -> the losses (float32) and depths (uint8) of its leaves: 5 bytes a leaf
-    for r in rules:
-        vals, depths = [], []
-        for a in res.agents:
-            lv = res.loss[r][a].leaves()
-            vals.append(np.asarray(lv.values, dtype=np.float32))
-            depths.append(np.asarray(lv.depths, dtype=np.uint8))
-        v, d = np.concatenate(vals), np.concatenate(depths)
-        data[r] = (v, d)
+    for v, _ in data.values():
         if len(v):
-            vmax = max(vmax, float(np.percentile(v.astype(float), 99.5)))
-    bins = np.linspace(0, vmax or 1.0, 60)
+            vmax = max(vmax, float(np.percentile(v, 99.5)))
+    nbins, top = 59, vmax or 1.0
+    bins = np.linspace(0, top, nbins + 1)
     for r, (v, d) in data.items():
-        if len(v):
+        if len(v):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
             w = voxels_per_leaf(d)
-            ax.hist(v.astype(float), bins=bins, weights=w / w.sum(), histtype="step", lw=1.3,
-                    label=r)
+            inside = (v >= 0) & (v <= top)
+            k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
+            ax.stairs(np.bincount(k, weights=w[inside], minlength=nbins) / w.sum(), bins,
+                      lw=1.3, label=r)
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")
@@ -234,87 +232,29 @@ def plot_loss_histograms(res: SimResult, path: Path) -> Optional[Path]:
     return path
 
 
-#: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
-TOPVIEW_RULES = ("chernoff", "kld-weighted-chernoff", "min-info-loss",
-                 "entropy-weighted-chernoff", "bhattacharyya", "min-entropy")
-COLORBAR = "info_loss_colorbar.png"
-
-
-def topview_rules(rules: Sequence[str], n: int = 3) -> list[str]:
-    """Up to ``n`` WEP rules of the run for the top views, in the run's order."""
-    picked = [r for r in TOPVIEW_RULES if r in rules][:n]
-    return [r for r in rules if r in picked]
-
-
-def write_maps_and_heatmaps(res: SimResult, out: Path, cfg: RunConfig, agents: Sequence[str],
-                            heatmaps: bool = True) -> dict:
-    """Fused maps, heat maps (occupied voxels of each fused map, one colour range for the
-    run), the colour bar and the report's top views; what was written, for the summary."""
-    from .export import map_voxel_loss, shared_color_range, write_colorbar, write_heatmap
-    from .topview import write_topview
-
-    export = cfg.export
-    if export != "none":
-        if res.central is not None:
-            res.central.save(out / "centralized.ot")
-        for r in res.rules:
-            d = out / r
-            d.mkdir(exist_ok=True)
-            for a in agents:
-                res.fused[r][a].save(d / f"{a}.ot")
-    info: dict = {"export": export, "formats": list(cfg.formats), "heatmaps": [],
-                  "topviews": [], "range": None}
-    if not agents:
-        return info
-    views = topview_rules(res.rules)
-    want = [(r, a) for r in res.rules for a in agents
-            if (export == "all" and heatmaps) or (r in views and a == agents[0])]
-    voxels = {(r, a): map_voxel_loss(res.loss[r][a], res.fused[r][a]) for r, a in want
-              if res.loss[r][a].num_leaves > 0}
-    voxels = {k: v for k, v in voxels.items() if len(v.loss)}
-    if not voxels:
-        return info
-    lo, hi = shared_color_range(voxels.values())
-    info["range"] = [lo, hi]
-    if export == "all" and heatmaps:
-        for (r, a), v in voxels.items():
-            for ext in cfg.formats:
-                info["heatmaps"].append(
-                    write_heatmap(v, out / r / f"{a}_info_loss.{ext}", vmin=lo, vmax=hi).name)
-        write_colorbar(out / COLORBAR, "inferno", lo, hi, label="information loss [nats]")
-        info["colorbar"] = COLORBAR
-    for r in views:
-        v = voxels.get((r, agents[0]))
-        if v is not None:
-            name = f"topview_{r}.png"
-            write_topview(v, res.fused[r][agents[0]].resolution, out / name, vmin=lo, vmax=hi,
-                          title=f"{agents[0]}, {r}: accumulated information loss of the occupied "
-                                "voxels (max over height)")
-            info["topviews"].append({"rule": r, "agent": agents[0], "file": name})
-    return info
-
-
 def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
                   export_agents: Optional[Sequence[str]] = None, heatmaps: bool = True,
-                  title: str = "octofuse run", event_bag=None) -> dict[str, Path]:
+                  title: str = "octofuse run", event_bag=None,
+                  maps: Optional[MapExports] = None) -> dict[str, Path]:
     """Write fused maps and heat maps (as ``cfg.export`` and ``cfg.formats`` ask),
     summary.json, plots, top views and report.md. ``event_bag``: the run's per-event bag
-    (:class:`~octofuse.outputs.event_bag.FusionEventBag`), named in the report."""
-    import time
-
+    (:class:`~octofuse.outputs.event_bag.FusionEventBag`), named in the report. ``maps``: the
+    map files already written rule by rule (then ``res`` need not hold the maps)."""
     from .event_loss import event_loss_summary, markdown_section as loss_section, messages_sentence
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    agents = list(export_agents) if export_agents is not None else res.agents
-    exported = write_maps_and_heatmaps(res, out, cfg, agents, heatmaps)
-    res.timings["export"] = res.timings.get("export", 0.0) + time.perf_counter() - t0
+    if maps is None:
+        agents = list(export_agents) if export_agents is not None else res.agents
+        maps = MapExports(out, cfg, res.rules, agents, heatmaps)
+        maps.add(res)
+    exported = maps.finish()
+    res.timings["export"] = res.timings.get("export", 0.0) + maps.seconds
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
     paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
-             "loss_hist": plot_loss_histograms(res, out / "info_loss_histogram.png")}
+             "loss_hist": plot_loss_histograms(maps.histogram, out / "info_loss_histogram.png")}
     means = mean_scores(res.scores) if res.scores else {}
     exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {
