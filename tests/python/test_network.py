@@ -222,6 +222,35 @@ def test_finished_maps_are_not_modified(four, ring_result):
         assert_same_map(maps[a], fresh[a], a)
 
 
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, threads):
+    """fuse_finished_by_rule (what `octofuse fuse` runs, a thread's worth of rules at a time)
+    gives every rule the maps, losses, traffic and scores of the run with all rules at once."""
+    from octofuse.fusion.network import merge_rule_results
+    from octofuse.fusion.rounds import fuse_finished_by_rule
+
+    maps, central = four
+    cfg = FuseConfig(topology="ring", rules=list(octofuse.RULES), schedule="rounds:4")
+    parts = list(fuse_finished_by_rule(maps, central, cfg, threads=threads))
+    assert [r for p in parts for r in p.rules] == list(octofuse.RULES)
+    assert all(len(p.rules) <= threads for p in parts) and len(parts[0].rules) == threads
+    for p in parts:
+        for r in p.rules:
+            for a in maps:
+                assert_same_map(p.fused[r][a], ring_result.fused[r][a], (r, a))
+                assert p.loss[r][a].loss_sum == ring_result.loss[r][a].loss_sum
+            assert p.traffic[r] == ring_result.traffic[r]
+    merged = merge_rule_results(parts)
+    assert merged.rules == ring_result.rules and merged.fused == {}
+    assert merged.scores.keys() == ring_result.scores.keys()
+    for r, per in ring_result.scores.items():
+        for a, sc in per.items():
+            assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
+    with pytest.raises(ValueError, match="alignment on first contact"):
+        next(fuse_finished_by_rule(maps, central, FuseConfig(topology="ring", align="planar",
+                                                             schedule="rounds:1")))
+
+
 # -- exchange semantics -----------------------------------------------------------------------
 
 
