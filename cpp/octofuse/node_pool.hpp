@@ -68,17 +68,4 @@ using ChildrenPool = BlockPool<64>;  ///< arrays of 8 child pointers
 extern template class BlockPool<16>;
 extern template class BlockPool<64>;
 
-/// Node types derive from this to live in the pool (the type must be 16 bytes).
-template <class Derived>
-struct PooledNode {
-  static void* operator new(std::size_t n) {
-    static_assert(sizeof(Derived) == NodePool::kBlock, "pooled nodes are 16 bytes");
-    (void)n;
-    return NodePool::allocate();
-  }
-  static void operator delete(void* p) noexcept {
-    if (p != nullptr) NodePool::release(p);
-  }
-};
-
 }  // namespace octofuse::detail

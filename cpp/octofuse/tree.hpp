@@ -10,53 +10,44 @@
 #include <octomap/OcTreeNode.h>
 #include <octomap/OccupancyOcTreeBase.h>
 
+#include <cstddef>
 #include <string>
 
 namespace octofuse {
 
-/// octomap::OcTreeNode (log-odds and children) in NodePool.
-class OccupancyNode : public octomap::OcTreeNode, public detail::PooledNode<OccupancyNode> {
+/// An OctoMap node type `Base` (value and children) whose nodes and arrays of children live
+/// in octofuse's pools; `Derived` is the node type itself.
+template <class Base, class Derived>
+class PooledTreeNode : public Base {
  public:
-  using detail::PooledNode<OccupancyNode>::operator new;
-  using detail::PooledNode<OccupancyNode>::operator delete;
-
-  OccupancyNode() = default;
-  /// Deep copy; the children are pooled nodes too (OctoMap's copy would make plain ones).
-  OccupancyNode(const OccupancyNode& rhs) : octomap::OcTreeNode() {
-    value = rhs.value;
-    copy_children(rhs);
+  static void* operator new(std::size_t) { return detail::NodePool::allocate(); }
+  static void operator delete(void* p) noexcept {
+    if (p != nullptr) detail::NodePool::release(p);
   }
 
- private:
-  void copy_children(const OccupancyNode& rhs) {
+  PooledTreeNode() = default;
+  /// Deep copy; the children are pooled too (OctoMap's copy would make plain nodes).
+  PooledTreeNode(const PooledTreeNode& rhs) : Base() {
+    this->value = rhs.value;
     if (rhs.children == nullptr) return;
-    children = static_cast<octomap::AbstractOcTreeNode**>(detail::ChildrenPool::allocate());
+    this->children = static_cast<octomap::AbstractOcTreeNode**>(detail::ChildrenPool::allocate());
     for (unsigned i = 0; i < 8; ++i) {
-      children[i] = rhs.children[i] == nullptr
-                        ? nullptr
-                        : new OccupancyNode(*static_cast<const OccupancyNode*>(rhs.children[i]));
+      this->children[i] = rhs.children[i] == nullptr
+                              ? nullptr
+                              : new Derived(*static_cast<const Derived*>(rhs.children[i]));
     }
   }
 };
 
-/// octomap::OcTreeDataNode<float> in NodePool: one float per voxel (e.g. information loss).
-class ScalarNode : public octomap::OcTreeDataNode<float>, public detail::PooledNode<ScalarNode> {
- public:
-  using detail::PooledNode<ScalarNode>::operator new;
-  using detail::PooledNode<ScalarNode>::operator delete;
+/// octomap::OcTreeNode (log-odds and children), pooled.
+class OccupancyNode : public PooledTreeNode<octomap::OcTreeNode, OccupancyNode> {};
 
-  ScalarNode() = default;
-  ScalarNode(const ScalarNode& rhs) : octomap::OcTreeDataNode<float>() {
-    value = rhs.value;
-    if (rhs.children == nullptr) return;
-    children = static_cast<octomap::AbstractOcTreeNode**>(detail::ChildrenPool::allocate());
-    for (unsigned i = 0; i < 8; ++i) {
-      children[i] = rhs.children[i] == nullptr
-                        ? nullptr
-                        : new ScalarNode(*static_cast<const ScalarNode*>(rhs.children[i]));
-    }
-  }
-};
+/// octomap::OcTreeDataNode<float>, pooled: one float per voxel (e.g. information loss).
+class ScalarNode : public PooledTreeNode<octomap::OcTreeDataNode<float>, ScalarNode> {};
+
+static_assert(sizeof(OccupancyNode) == detail::NodePool::kBlock &&
+                  sizeof(ScalarNode) == detail::NodePool::kBlock,
+              "pooled nodes are the size of the pool's blocks");
 
 }  // namespace octofuse
 
