@@ -1,6 +1,7 @@
 // octofuse: map comparison and delta extraction by simultaneous tree walks.
 #include "octofuse/compare.hpp"
 
+#include "octofuse/detail/pair_memo.hpp"
 #include "octofuse/rules.hpp"
 #include "octofuse/walk.hpp"
 
@@ -17,6 +18,9 @@ using W = detail::WalkNode<OccupancyTree>;
 struct Comparer {
   double tol, thr;
   Comparison c;
+  // KL of a voxel from its two stored values (the absent map's as +0): exact, memoized
+  detail::PairMemo<double> kl{detail::kl_logodds(0.0, 0.0)};
+  static void kl_of(float lr, float lm, double& out) { out = detail::kl_logodds(lr, lm); }
 
   int cls(const W& n) const {
     if (!n.present()) return kUnknown;
@@ -28,9 +32,10 @@ struct Comparer {
     if (r_done && m_done) {
       c.confusion[cls(r)][cls(m)] += weight;
       if (r.present()) {
-        const double lr = r.node->getLogOdds();
-        const double lm = m.present() ? m.node->getLogOdds() : 0.0;
-        c.kl_sum += weight * detail::kl_logodds(lr, lm);
+        const float stored_r = r.node->getLogOdds();
+        const float stored_m = m.present() ? m.node->getLogOdds() : 0.0f;
+        c.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
+        const double lr = stored_r, lm = stored_m;
         if (m.present()) {
           c.both_known += weight;
           c.abs_diff_sum += weight * std::fabs(lm - lr);

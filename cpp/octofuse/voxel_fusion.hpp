@@ -2,6 +2,7 @@
 // what a voxel only one map knows becomes, clamping of the stored value and the loss.
 #pragma once
 
+#include "octofuse/detail/pair_memo.hpp"
 #include "octofuse/rules.hpp"
 
 #include <cstdint>
@@ -60,38 +61,6 @@ struct FusionCounts {
   }
 };
 
-namespace detail {
-
-/// The last results of the rule for a few thousand pairs of stored values (direct mapped).
-/// The values of a map built from scans are sums of a few sensor-model increments, clamped,
-/// so the same pairs come back again and again; a hit costs a few ns where the rule costs
-/// 30-300 ns. The entries are exact results of the rule for their key (the pair of float
-/// bit patterns), so a hit returns exactly what computing would.
-struct RuleMemo {
-  static constexpr unsigned kBits = 12;
-  struct Entry {
-    std::uint64_t key;
-    float value, loss;
-  };
-  std::unique_ptr<Entry[]> entries;
-
-  static std::uint64_t key_of(float a, float b) {
-    std::uint32_t ua, ub;
-    std::memcpy(&ua, &a, sizeof ua);
-    std::memcpy(&ub, &b, sizeof ub);
-    return (std::uint64_t{ua} << 32) | ub;
-  }
-  Entry& slot(float a, float b) {
-    return entries[(key_of(a, b) * 0x9E3779B97F4A7C15ull) >> (64 - kBits)];
-  }
-  /// Fills every entry with the (exact) result for the pair whose key is 0: (+0, +0).
-  void init(float value, float loss) {
-    entries.reset(new Entry[1u << kBits]);
-    for (unsigned i = 0; i < (1u << kBits); ++i) entries[i] = {key_of(0.0f, 0.0f), value, loss};
-  }
-};
-
-}  // namespace detail
 
 /// The fusion of one voxel of map a with the same voxel of map b, rule R and policy U fixed
 /// at compile time. Fused values are clamped to the maps' thresholds; the loss is taken
@@ -103,30 +72,21 @@ class VoxelFusion {
   static constexpr UnknownPolicy kUnknown = U;
 
   /// `clamp_min`, `clamp_max`: the maps' clamping thresholds in log-odds.
-  VoxelFusion(float clamp_min, float clamp_max) : lmin_(clamp_min), lmax_(clamp_max) {
-    if constexpr (R != Rule::NaiveBayes) {
-      float v, l;
-      compute(0.0f, 0.0f, v, l);
-      memo_.init(v, l);
-    }
-  }
+  VoxelFusion(float clamp_min, float clamp_max)
+      : lmin_(clamp_min), lmax_(clamp_max),
+        memo_(Stored{compute(0.0f, 0.0f).value, compute(0.0f, 0.0f).loss}) {}
 
   /// Both maps know the voxel.
   VoxelValue both(float a, float b) {
-    VoxelValue out{0.0f, 0.0f, true};
     if constexpr (R == Rule::NaiveBayes) {
-      compute(a, b, out.value, out.loss);  // cheaper than a look-up
+      return compute(a, b);  // cheaper than a look-up
     } else {
-      detail::RuleMemo::Entry& e = memo_.slot(a, b);
-      const std::uint64_t key = detail::RuleMemo::key_of(a, b);
-      if (e.key != key) {
-        e.key = key;
-        compute(a, b, e.value, e.loss);
-      }
-      out.value = e.value;
-      out.loss = e.loss;
+      const Stored& s = memo_.get(a, b, [this](float x, float y, Stored& out) {
+        const VoxelValue v = compute(x, y);
+        out = {v.value, v.loss};
+      });
+      return {s.value, s.loss, true};
     }
-    return out;
   }
 
   /// Only map a knows the voxel.
@@ -148,15 +108,17 @@ class VoxelFusion {
   }
 
  private:
-  void compute(float a, float b, float& value, float& loss) const {
+  VoxelValue compute(float a, float b) const {
     const Fused f = fuse_logodds<R>(a, b, 0.0);
     const double l = f.l < lmin_ ? lmin_ : (f.l > lmax_ ? lmax_ : f.l);
-    value = static_cast<float>(l);
-    loss = static_cast<float>(f.info_loss);
+    return {static_cast<float>(l), static_cast<float>(f.info_loss), true};
   }
 
+  struct Stored {  // a memo entry: 16 bytes with its key
+    float value, loss;
+  };
   double lmin_, lmax_;
-  detail::RuleMemo memo_;
+  detail::PairMemo<Stored> memo_;  // not used by naive-bayes
 };
 
 /// Calls f(VoxelFusion<R, U>&) for the run-time rule and policy: the one dispatch of every

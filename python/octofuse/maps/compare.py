@@ -45,11 +45,11 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
 
 def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
     """Mean and 95th percentile of a loss map over its finest voxels."""
-    lv = loss.leaves()
-    if len(lv.values) == 0:
+    values, depths = loss.values_depths()
+    if len(values) == 0:
         return 0.0, 0.0
-    w = voxels_per_leaf(lv.depths)
-    v = lv.values.astype(np.float64)
+    w = voxels_per_leaf(depths)
+    v = values.astype(np.float64)
     return float(np.sum(w * v) / np.sum(w)), weighted_percentile(v, w, 95.0)
 
 
