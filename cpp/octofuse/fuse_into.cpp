@@ -181,10 +181,8 @@ struct ParallelInto {
 
     // the subtrees, in parallel: each worker has its own scratch trees (OctoMap's tree objects
     // count nodes and own a ray buffer, so they are made once per worker) and VoxelFusion. The
-    // workers are threads of their own and the caller waits: nodes are then allocated from the
-    // workers' malloc arenas, while the nodes they prune go back to the caller's arena (with the
-    // caller allocating too, the two contend for that arena's lock and 2 threads were slower
-    // than one)
+    // workers are threads of their own and the caller waits: each allocates and frees nodes
+    // through its own lists of the node pools
     std::mutex loss_lock;
     std::atomic<std::size_t> next{0};
     std::vector<FuseIntoStats> stats(threads);

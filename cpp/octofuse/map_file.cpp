@@ -227,10 +227,10 @@ std::size_t physical_memory() {
   return static_cast<std::size_t>(pages) * static_cast<std::size_t>(page);
 }
 
-// Refuses a tree that would need more than half of the machine's memory (node and child
-// array sizes as glibc's allocator rounds them).
+// Refuses a tree that would need more than half of the machine's memory (nodes and child
+// arrays as octofuse's pools store them).
 void check_memory(const std::string& path, const Counts& c) {
-  const double node = detail::NodePool::kBlock, children = 8.0 * sizeof(void*) + 16.0;
+  const double node = detail::NodePool::kBlock, children = detail::ChildrenPool::kBlock;
   const double need = node * static_cast<double>(c.nodes) + children * static_cast<double>(c.inner);
   const double have = static_cast<double>(physical_memory());
   if (need > 0.5 * have) {

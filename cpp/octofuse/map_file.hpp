@@ -29,7 +29,7 @@ std::unique_ptr<OccupancyMap> read_map_stream(const std::string& bytes, const st
 /// The bytes write_map_file() writes (header and tree data), without a file.
 std::string write_map_stream(const OccupancyMap& map, bool binary = false);
 
-/// OctoMap's node data alone (OccupancyTree::writeData: value and child mask per node, depth
+/// OctoMap's node data alone (OcTree::writeData: value and child mask per node, depth
 /// first), as octomap_msgs' fullMapToMsg puts it in an octomap_msgs/Octomap message; empty for
 /// an empty map.
 std::string write_tree_data(const OccupancyMap& map);

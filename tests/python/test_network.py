@@ -224,14 +224,14 @@ def test_finished_maps_are_not_modified(four, ring_result):
 
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, threads):
-    """fuse_finished_by_rule (what `octofuse fuse` runs, a thread's worth of rules at a time)
+    """fuse_finished_in_rule_groups (what `octofuse fuse` runs, a thread's worth of rules at a time)
     gives every rule the maps, losses, traffic and scores of the run with all rules at once."""
     from octofuse.fusion.network import merge_rule_results
-    from octofuse.fusion.rounds import fuse_finished_by_rule
+    from octofuse.fusion.rounds import fuse_finished_in_rule_groups
 
     maps, central = four
     cfg = FuseConfig(topology="ring", rules=list(octofuse.RULES), schedule="rounds:4")
-    parts = list(fuse_finished_by_rule(maps, central, cfg, threads=threads))
+    parts = list(fuse_finished_in_rule_groups(maps, central, cfg, threads=threads))
     assert [r for p in parts for r in p.rules] == list(octofuse.RULES)
     assert all(len(p.rules) <= threads for p in parts) and len(parts[0].rules) == threads
     for p in parts:
@@ -247,7 +247,7 @@ def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, t
         for a, sc in per.items():
             assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
     with pytest.raises(ValueError, match="alignment on first contact"):
-        next(fuse_finished_by_rule(maps, central, FuseConfig(topology="ring", align="planar",
+        next(fuse_finished_in_rule_groups(maps, central, FuseConfig(topology="ring", align="planar",
                                                              schedule="rounds:1")))
 
 

@@ -50,7 +50,7 @@ void parallel_for(std::size_t n, unsigned threads, F f) {
 }
 
 /// Runs f(i) for i in [0, workers), each on a thread of its own, while the calling thread waits:
-/// for work that allocates, so that the allocations come from the workers' own malloc arenas and
+/// for work that allocates, so that the allocations come from the workers' own free lists and
 /// do not contend with the caller's. An index whose thread the system refuses runs on the
 /// caller after the others started. Exceptions as in parallel_for: the first one is rethrown
 /// on the calling thread once every thread has ended.

@@ -180,10 +180,10 @@ def demo(export_bag, **p):
 def fuse_cmd(maps_dir, rounds, **p):
     """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
     from ..fusion.network import merge_rule_results
-    from ..fusion.rounds import fuse_finished, fuse_finished_by_rule
+    from ..fusion.rounds import fuse_finished, fuse_finished_in_rule_groups
     from ..maps.occupancy import OccupancyMap
-    from ..outputs.map_exports import MapExports
     from ..maps.truth import Scene
+    from ..outputs.map_exports import MapExports
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
 
@@ -208,7 +208,7 @@ def fuse_cmd(maps_dir, rounds, **p):
             written = MapExports(stage, cfg, cfg.fuse.rules, list(maps),
                                  threads=cfg.build.threads or os.cpu_count() or 1)
             parts = []
-            for part in fuse_finished_by_rule(maps, central, cfg.fuse, truth=truth,
+            for part in fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
                                               threads=cfg.build.threads):
                 written.add(part)
                 parts.append(replace(part, fused={}, loss={}, unclamped={}))

@@ -370,7 +370,7 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
 
 def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
     """One result from the results of the same run with different rules (e.g.
-    :func:`octofuse.fusion.rounds.fuse_finished_by_rule`), without the rules' maps (``fused``,
+    :func:`octofuse.fusion.rounds.fuse_finished_in_rule_groups`), without the rules' maps (``fused``,
     ``loss`` and ``unclamped`` are left empty: written and freed by the caller). Times add up."""
     first = parts[0]
     timings: dict[str, float] = defaultdict(float)

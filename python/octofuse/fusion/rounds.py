@@ -75,7 +75,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     return res
 
 
-def fuse_finished_by_rule(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
+def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
                           fuse_cfg: FuseConfig, *, truth=None,
                           threads: int = 0) -> Iterator[SimResult]:
     """:func:`fuse_finished` a few rules at a time (one per thread, side by side), so that a

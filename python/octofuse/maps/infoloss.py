@@ -98,6 +98,14 @@ class InfoLossMap:
         raw = self._t.values_depths()
         return raw["values"], raw["depths"]
 
+    def on_leaves(self, map, voxels: str = "occupied") -> tuple[Leaves, np.ndarray]:
+        """The leaves of the occupancy map ``map`` of the class ``voxels`` ("occupied":
+        log-odds > 0, "free" or "all") that a leaf of this map contains the centre of, and that
+        leaf's loss (float32): what :meth:`Leaves.values_at` finds at their centres, in one walk
+        of the core. Leaves whose loss is not finite are left out."""
+        raw = map._m.leaves_with(self._t, voxels)
+        return leaves_from_core(raw), raw["scalar"]
+
     def accumulate(self, other: "InfoLossMap") -> None:
         """Add ``other`` into this map voxel by voxel (in place)."""
         self._t.accumulate(other._t)

@@ -178,8 +178,8 @@ def map_voxel_loss(loss: InfoLossMap | Leaves, map: OccupancyMap,
     if voxels not in ("occupied", "free", "all"):
         raise ValueError(f"voxels={voxels!r}: expected 'occupied', 'free' or 'all'")
     if isinstance(loss, InfoLossMap):  # one walk in the core, the same lookup as values_at
-        raw = map._m.leaves_with(loss._t, voxels)
-        return MapVoxelLoss(raw["centers"], raw["sizes"], raw["values"], raw["scalar"])
+        ml, values = loss.on_leaves(map, voxels)
+        return MapVoxelLoss(ml.centers, ml.sizes, ml.values, values)
     lv = _as_leaves(loss)
     ml = map.leaves()
     logodds = np.asarray(ml.values, dtype=np.float32)
