@@ -134,7 +134,8 @@ void define_maps(py::module_& m) {
                                 : voxels == "free"   ? LeafClass::Free
                                 : voxels == "all"    ? LeafClass::All
                                                      : throw py::value_error(
-                                                           "voxels: expected 'occupied', 'free' or 'all'");
+                                                           "voxels = '" + voxels +
+                                                           "': expected 'occupied', 'free' or 'all'");
         LeafArrays l;
         std::vector<float> values;
         {

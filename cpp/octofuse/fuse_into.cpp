@@ -185,7 +185,9 @@ struct ParallelInto {
     // through its own lists of the node pools
     std::mutex loss_lock;
     std::atomic<std::size_t> next{0};
-    std::vector<FuseIntoStats> stats(threads);
+    // counts per part, added in part order afterwards: the loss sum does not depend on which
+    // worker took which part
+    std::vector<FuseIntoStats> stats(level.size());
     std::vector<std::size_t> sizes(threads, 0), loss_sizes(threads, 0);
     const double res = dst.getResolution();
     detail::run_on_workers(threads, [&](std::size_t worker) {
@@ -209,18 +211,19 @@ struct ParallelInto {
       } settle{sizes[worker], loss_sizes[worker], scratch, scratch_loss.get()};
       for (std::size_t k = next++; k < level.size(); k = next++) {
         const Part& t = level[k];
+        w.st = {};
         switch (t.kind) {
           case Kind::Walk: w.walk(t.d, t.m, *t.lc, t.depth); break;
           case Kind::MsgOnly: w.msg_only(t.m, t.d, *t.lc, t.depth); break;
           case Kind::PriorOnly: w.prior_only(t.d, *t.lc, t.depth); break;
         }
+        stats[k] = w.st;
       }
-      stats[worker] = w.st;
     });
 
     FuseIntoStats st;
+    for (const FuseIntoStats& part : stats) st += part;
     for (std::size_t k = 0; k < threads; ++k) {
-      st += stats[k];
       detail::TreeAccess<OccupancyTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
       if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
     }

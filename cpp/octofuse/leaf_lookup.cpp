@@ -68,10 +68,7 @@ LeafArrays leaves_with_values(const OccupancyMap& map, const ScalarTree& scalar,
       }
     }
     if (!found || !std::isfinite(v)) continue;
-    for (double c : centre) out.centers.push_back(c);
-    out.sizes.push_back(it.getSize());
-    out.values.push_back(lo);
-    out.depths.push_back(static_cast<std::uint8_t>(d));
+    detail::append_leaf(out, t, it);
     scalar_values.push_back(v);
   }
   return out;

@@ -24,14 +24,8 @@ LeafArrays collect_leaves(const Tree& tree) {
   out.sizes.reserve(n);
   out.values.reserve(n);
   out.depths.reserve(n);
-  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
-    const octomap::OcTreeKey& k = it.getKey();
-    const unsigned d = it.getDepth();
-    for (int a = 0; a < 3; ++a) out.centers.push_back(tree.keyToCoord(k[a], d));
-    out.sizes.push_back(it.getSize());
-    out.values.push_back(it->getValue());
-    out.depths.push_back(static_cast<std::uint8_t>(d));
-  }
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it)
+    detail::append_leaf(out, tree, it);
   return out;
 }
 

@@ -44,6 +44,21 @@ struct LeafArrays {
   std::vector<std::uint8_t> depths;  ///< n, tree depth of the leaf (16 = finest)
 };
 
+namespace detail {
+
+/// Appends the leaf at iterator `it` of `tree` to `out`: its centre, edge length, value, depth.
+template <class Tree, class LeafIterator>
+void append_leaf(LeafArrays& out, const Tree& tree, const LeafIterator& it) {
+  const octomap::OcTreeKey& k = it.getKey();
+  const unsigned d = it.getDepth();
+  for (int a = 0; a < 3; ++a) out.centers.push_back(tree.keyToCoord(k[a], d));
+  out.sizes.push_back(it.getSize());
+  out.values.push_back(it->getValue());
+  out.depths.push_back(static_cast<std::uint8_t>(d));
+}
+
+}  // namespace detail
+
 /// An OctoMap occupancy tree with octofuse's parameters; owns its OccupancyTree.
 class OccupancyMap {
  public:

@@ -61,7 +61,6 @@ struct FusionCounts {
   }
 };
 
-
 /// The fusion of one voxel of map a with the same voxel of map b, rule R and policy U fixed
 /// at compile time. Fused values are clamped to the maps' thresholds; the loss is taken
 /// against the unclamped naive-Bayes value.
@@ -72,19 +71,17 @@ class VoxelFusion {
   static constexpr UnknownPolicy kUnknown = U;
 
   /// `clamp_min`, `clamp_max`: the maps' clamping thresholds in log-odds.
-  VoxelFusion(float clamp_min, float clamp_max)
-      : lmin_(clamp_min), lmax_(clamp_max),
-        memo_(Stored{compute(0.0f, 0.0f).value, compute(0.0f, 0.0f).loss}) {}
+  VoxelFusion(float clamp_min, float clamp_max) : lmin_(clamp_min), lmax_(clamp_max) {
+    if constexpr (R != Rule::NaiveBayes) memo_ = detail::PairMemo<Stored>(stored(0.0f, 0.0f));
+  }
 
   /// Both maps know the voxel.
   VoxelValue both(float a, float b) {
     if constexpr (R == Rule::NaiveBayes) {
       return compute(a, b);  // cheaper than a look-up
     } else {
-      const Stored& s = memo_.get(a, b, [this](float x, float y, Stored& out) {
-        const VoxelValue v = compute(x, y);
-        out = {v.value, v.loss};
-      });
+      const Stored& s =
+          memo_.get(a, b, [this](float x, float y, Stored& out) { out = stored(x, y); });
       return {s.value, s.loss, true};
     }
   }
@@ -117,6 +114,10 @@ class VoxelFusion {
   struct Stored {  // a memo entry: 16 bytes with its key
     float value, loss;
   };
+  Stored stored(float a, float b) const {
+    const VoxelValue v = compute(a, b);
+    return {v.value, v.loss};
+  }
   double lmin_, lmax_;
   detail::PairMemo<Stored> memo_;  // not used by naive-bayes
 };

@@ -246,9 +246,10 @@ def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, t
     for r, per in ring_result.scores.items():
         for a, sc in per.items():
             assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
-    with pytest.raises(ValueError, match="alignment on first contact"):
-        next(fuse_finished_in_rule_groups(maps, central, FuseConfig(topology="ring", align="planar",
-                                                             schedule="rounds:1")))
+    aligned = list(fuse_finished_in_rule_groups(
+        maps, central, FuseConfig(topology="ring", align="planar", schedule="rounds:1",
+                                  rules=list(octofuse.RULES)), threads=threads))
+    assert [p.rules for p in aligned] == [list(octofuse.RULES)]  # one group: links align once
 
 
 # -- exchange semantics -----------------------------------------------------------------------

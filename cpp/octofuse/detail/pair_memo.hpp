@@ -17,6 +17,9 @@ class PairMemo {
  public:
   static constexpr unsigned kBits = 12;
 
+  /// No table: for a function that is cheaper than a look-up (get() must not be called).
+  PairMemo() = default;
+
   /// Every entry starts as the result `at_zero` for the pair (+0, +0).
   explicit PairMemo(const T& at_zero) : entries_(new Entry[1u << kBits]) {
     for (unsigned i = 0; i < (1u << kBits); ++i) entries_[i] = {key_of(0.0f, 0.0f), at_zero};

@@ -4,7 +4,6 @@ maps, in rounds) and ``bench`` (rules x topologies)."""
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -180,7 +179,7 @@ def demo(export_bag, **p):
 def fuse_cmd(maps_dir, rounds, **p):
     """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
     from ..fusion.network import merge_rule_results
-    from ..fusion.rounds import fuse_finished, fuse_finished_in_rule_groups
+    from ..fusion.rounds import fuse_finished_in_rule_groups
     from ..maps.occupancy import OccupancyMap
     from ..maps.truth import Scene
     from ..outputs.map_exports import MapExports
@@ -204,21 +203,16 @@ def fuse_cmd(maps_dir, rounds, **p):
     truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     with staged_folder(out, "fuse") as stage:
-        if cfg.fuse.align == "off":  # a rule per thread at a time: maps written, then freed
-            written = MapExports(stage, cfg, cfg.fuse.rules, list(maps),
-                                 threads=cfg.build.threads or os.cpu_count() or 1)
-            parts = []
-            for part in fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
-                                              threads=cfg.build.threads):
-                written.add(part)
-                parts.append(replace(part, fused={}, loss={}, unclamped={}))
-                del part  # the next rules' maps reuse its memory
-            return_freed_memory()
-            res = merge_rule_results(parts)
-        else:  # links align on the first rule's maps: every rule at once
-            written = None
-            res = fuse_finished(maps, central, cfg.fuse, truth=truth, threads=cfg.build.threads)
-            return_freed_memory()
+        # a few rules at a time: their maps written, then freed before the next ones run
+        written = MapExports(stage, cfg, cfg.fuse.rules, list(maps), threads=cfg.build.workers)
+        parts = []
+        for part in fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
+                                                 threads=cfg.build.workers):
+            written.add(part)
+            parts.append(replace(part, fused={}, loss={}, unclamped={}))
+            del part  # the next rules' maps reuse its memory
+        return_freed_memory()
+        res = merge_rule_results(parts)
         write_outputs(res, stage, cfg, title=title, maps=written)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")

@@ -76,19 +76,17 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
 
 
 def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
-                          fuse_cfg: FuseConfig, *, truth=None,
-                          threads: int = 0) -> Iterator[SimResult]:
+                                 fuse_cfg: FuseConfig, *, truth=None,
+                                 threads: int = 0) -> Iterator[SimResult]:
     """:func:`fuse_finished` a few rules at a time (one per thread, side by side), so that a
     caller can write those rules' maps and free them before the next ones run: the rules' maps
     never meet, so every rule's result is the one of the run with all rules. The agents' own
-    maps are scored with the first rules. Not with alignment on first contact
-    (``fuse_cfg.align``): a link first used after round 1 aligns on the first rule's maps when
-    the rules run together."""
-    if fuse_cfg.align != "off":
-        raise ValueError("rules a few at a time: not with alignment on first contact (align = "
-                         f"{fuse_cfg.align!r}); fuse all rules together")
+    maps are scored with the first rules. With alignment on first contact (``fuse_cfg.align``)
+    every rule runs in one group: a link first used after round 1 aligns on the first rule's
+    maps when the rules run together."""
     threads = threads or os.cpu_count() or 1
     rules = list(fuse_cfg.rules)
-    for k in range(0, len(rules), threads):
-        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=rules[k:k + threads]),
+    size = threads if fuse_cfg.align == "off" else len(rules)
+    for k in range(0, len(rules), size):
+        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=rules[k:k + size]),
                             truth=truth, threads=threads, score_local=k == 0)
