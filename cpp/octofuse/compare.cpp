@@ -6,7 +6,9 @@
 #include "octofuse/walk.hpp"
 
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace octofuse {
@@ -15,38 +17,65 @@ namespace {
 
 using W = detail::WalkNode<OccupancyTree>;
 
+// Walks the reference and several maps at once: each map follows the walk it would have
+// alone (down to where both it and the reference are leaves or unknown), so its sums are
+// added in the same order; the reference is read once for all of them.
 struct Comparer {
   double tol, thr;
-  Comparison c;
+  std::vector<Comparison> out;
+  // the maps still being walked below the current node, per depth: (index, walk node)
+  std::vector<std::vector<std::pair<std::size_t, W>>> active;
   // KL of a voxel from its two stored values (the absent map's as +0): exact, memoized
   detail::PairMemo<double> kl{detail::kl_logodds(0.0, 0.0)};
   static void kl_of(float lr, float lm, double& out) { out = detail::kl_logodds(lr, lm); }
+
+  Comparer(double tol_, double thr_, std::size_t n)
+      : tol(tol_), thr(thr_), out(n), active(18) {
+    for (auto& level : active) level.reserve(n);
+  }
 
   int cls(const W& n) const {
     if (!n.present()) return kUnknown;
     return n.node->getLogOdds() > thr ? kOccupied : kFree;
   }
 
-  void walk(const W& r, const W& m, double weight) {
-    const bool r_done = !r.present() || r.leaf, m_done = !m.present() || m.leaf;
-    if (r_done && m_done) {
-      c.confusion[cls(r)][cls(m)] += weight;
-      if (r.present()) {
-        const float stored_r = r.node->getLogOdds();
-        const float stored_m = m.present() ? m.node->getLogOdds() : 0.0f;
-        c.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
-        const double lr = stored_r, lm = stored_m;
-        if (m.present()) {
-          c.both_known += weight;
-          c.abs_diff_sum += weight * std::fabs(lm - lr);
-          if (std::fabs(lm) > std::fabs(lr) + tol) c.overconfident += weight;
-        }
-      }
-      return;
+  void count(Comparison& c, const W& r, const W& m, double weight) {
+    c.confusion[cls(r)][cls(m)] += weight;
+    if (!r.present()) return;
+    const float stored_r = r.node->getLogOdds();
+    const float stored_m = m.present() ? m.node->getLogOdds() : 0.0f;
+    c.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
+    const double lr = stored_r, lm = stored_m;
+    if (m.present()) {
+      c.both_known += weight;
+      c.abs_diff_sum += weight * std::fabs(lm - lr);
+      if (std::fabs(lm) > std::fabs(lr) + tol) c.overconfident += weight;
     }
-    for (unsigned i = 0; i < 8; ++i) {
-      const W cr = r.child(i), cm = m.child(i);
-      if (cr.present() || cm.present()) walk(cr, cm, weight / 8.0);
+  }
+
+  // `active[depth]` holds the maps to walk at reference node `r`.
+  void walk(const W& r, unsigned depth, double weight) {
+    auto& here = active[depth];
+    const bool r_done = !r.present() || r.leaf;
+    std::size_t left = 0;  // maps that go on below, moved to the front
+    for (const auto& [i, m] : here) {
+      if (r_done && (!m.present() || m.leaf)) {
+        count(out[i], r, m, weight);
+      } else {
+        here[left++] = {i, m};
+      }
+    }
+    here.resize(left);
+    if (left == 0) return;
+    auto& below = active[depth + 1];
+    for (unsigned c = 0; c < 8; ++c) {
+      const W cr = r.child(c);
+      below.clear();
+      for (const auto& [i, m] : here) {
+        const W cm = m.child(c);
+        if (cr.present() || cm.present()) below.push_back({i, cm});
+      }
+      if (!below.empty()) walk(cr, depth + 1, weight / 8.0);
     }
   }
 };
@@ -110,13 +139,23 @@ void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
 
 }  // namespace
 
+std::vector<Comparison> compare_maps(const OccupancyMap& ref,
+                                     const std::vector<const OccupancyMap*>& maps, double tol,
+                                     double occ_threshold) {
+  Comparer cmp(tol, occ_threshold, maps.size());
+  const W r = W::root(ref.tree());
+  for (std::size_t i = 0; i < maps.size(); ++i) {
+    const W m = W::root(maps[i]->tree());
+    if (r.present() || m.present()) cmp.active[0].push_back({i, m});
+  }
+  // weight 8^16: the root stands for all finest voxels
+  if (!cmp.active[0].empty()) cmp.walk(r, 0, std::pow(8.0, 16));
+  return std::move(cmp.out);
+}
+
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold) {
-  Comparer cmp{tol, occ_threshold, {}};
-  const W r = W::root(ref.tree()), m = W::root(map.tree());
-  // weight 8^16: the root stands for all finest voxels
-  if (r.present() || m.present()) cmp.walk(r, m, std::pow(8.0, 16));
-  return cmp.c;
+  return compare_maps(ref, {&map}, tol, occ_threshold)[0];
 }
 
 std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,

@@ -7,6 +7,7 @@
 #include <array>
 #include <cstddef>
 #include <memory>
+#include <vector>
 
 namespace octofuse {
 
@@ -25,9 +26,16 @@ struct Comparison {
   double abs_diff_sum = 0.0;     ///< sum of |l_map - l_ref| over voxels both know
 };
 
-/// Compares `map` with the reference `ref` (e.g. an agent's map with the centralized map).
-/// `tol` is the over-confidence tolerance in log-odds; `occ_threshold` the occupancy
-/// threshold in log-odds (OctoMap's default: 0).
+/// Compares each of `maps` with the reference `ref` (e.g. the agents' maps with the
+/// centralized map) in one walk of `ref`: out[i] is the comparison of maps[i], the same
+/// numbers, summed in the same order, as when it is compared alone. `tol` is the
+/// over-confidence tolerance in log-odds; `occ_threshold` the occupancy threshold in log-odds
+/// (OctoMap's default: 0).
+std::vector<Comparison> compare_maps(const OccupancyMap& ref,
+                                     const std::vector<const OccupancyMap*>& maps, double tol,
+                                     double occ_threshold = 0.0);
+
+/// One map against the reference.
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold = 0.0);
 

@@ -16,7 +16,7 @@ from conftest import expand, random_map
 
 import octofuse
 from octofuse import OccupancyMap, fuse_maps
-from octofuse.maps.compare import compare, finest_centers, loss_stats, score, weighted_percentile
+from octofuse.maps.compare import compare, compare_many, finest_centers, loss_stats, score, weighted_percentile
 from octofuse.maps.truth import Scene
 
 RES = 0.1
@@ -220,6 +220,24 @@ def test_compare_equals_a_voxel_by_voxel_reference(which, tol):
     want = reference_score(central, agent, tol)
     assert 0 < want["coverage"] < 1 and 0 < want["overconfidence"] < 1
     assert_score(s, want)
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_compare_many_gives_each_map_its_own_comparison(threads):
+    """One walk of the reference for several maps (pruned and fine, disjoint, empty, the
+    reference itself) gives every map exactly the score it gets alone."""
+    central = random_map(1, 25)
+    maps = [random_map(2, 2, offset=(0.35, 0.1, 0.0)), OccupancyMap(RES), central.copy(),
+            random_map(3, 25, offset=(-0.2, 0.3, 0.1)), random_map(4, 3, offset=(9.0, 9.0, 9.0)),
+            block_map()]
+    many = compare_many(central, maps, 0.1, threads=threads)
+    assert [s.kl_mean for s in many][2] == 0.0
+    # different maps, different scores (the empty and the disjoint map score alike)
+    assert len({s.kl_mean for s in many}) == len(maps) - 1
+    for m, s in zip(maps, many):
+        np.testing.assert_equal(s.to_dict(), compare(central, m, 0.1).to_dict())  # exactly
+    assert compare_many(OccupancyMap(RES), maps[:2], 0.1, threads)[1].voxels == 0.0
+    assert compare_many(central, [], 0.1, threads) == []
 
 
 # -- loss statistics and percentiles ----------------------------------------------------------

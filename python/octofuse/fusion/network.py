@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 from ..config import CHANNEL_FILTER, FuseConfig
-from ..maps.compare import Score, score
+from ..maps.compare import Score, compare_many, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
 from .agent_frames import AgentFrames, moved
@@ -344,16 +344,21 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
     floor)."""
     jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
         [(r, a) for r in res.rules for a in res.agents]
+    agent_map = lambda r, a: res.local[a] if r == LOCAL else res.fused[r][a]  # noqa: E731
+    # maps in the common frame: compared in one walk of the centralized map
+    as_is = [j for j in jobs if res.frames.get(j[1]) is None]
+    compared = dict(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
+                                            threads)))
 
     def one(job):
         r, a = job
-        T = res.frames.get(a)  # maps of agents in frames of their own scored in the common one
-        common = lambda m: moved(m, T)  # noqa: E731
+        m = moved(agent_map(r, a), res.frames.get(a))  # other frames: scored in the common one
+        c = compared.get(job)
         if r == LOCAL:
-            return score(common(res.local[a]), res.central, tol=tol, truth=truth)
+            return score(m, res.central, tol=tol, truth=truth, compared=c)
         tr = res.traffic[r]
         loss = None if r == CHANNEL_FILTER else res.loss[r][a]  # exact: no WEP loss
-        return score(common(res.fused[r][a]), res.central, tol=tol, loss=loss, truth=truth,
+        return score(m, res.central, tol=tol, loss=loss, truth=truth, compared=c,
                      bytes_sent=tr.sent[a], bytes_received=tr.received[a],
                      bytes_sent_32b=tr.sent_32b[a])
 

@@ -170,21 +170,23 @@ class SwarmWorker:
     def score(self, central: bytes, tol: float, truth=None) -> dict:
         """Scores of this worker's agents against the centralized map (as in
         :func:`octofuse.fusion.network.score_result`), with their traffic."""
-        from ..maps.compare import score
+        from ..maps.compare import compare_many, score
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
 
         c = OccupancyMap.from_bytes(central)
-        out: dict = {LOCAL: {}}
-        for a in self.names:
-            out[LOCAL][a] = score(self.local[a], c, tol=tol, truth=truth)
-        for r in self.rules:
-            out[r] = {}
-            for a in self.names:
-                loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
-                out[r][a] = score(self.fused[a][r], c, tol=tol, loss=loss, truth=truth,
-                                  bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
-                                  bytes_sent_32b=self.sent_32b[r][a])
+        jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
+        agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
+        compared = compare_many(c, [agent_map(*j) for j in jobs], tol, self.threads)
+        out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
+        for (r, a), s in zip(jobs, compared):
+            if r == LOCAL:
+                out[r][a] = score(self.local[a], c, tol=tol, truth=truth, compared=s)
+                continue
+            loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
+            out[r][a] = score(self.fused[a][r], c, tol=tol, loss=loss, truth=truth, compared=s,
+                              bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
+                              bytes_sent_32b=self.sent_32b[r][a])
         self._check_memory()
         return out
 

@@ -66,11 +66,15 @@ class Scene:
 
     def near_surface(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Whether each point lies within ``tol`` of a box surface (``|signed_distance| <=
-        tol``), box by box over only the points in the box grown by ``tol``."""
+        tol``), box by box over only the points in the box grown by ``tol`` (found among the
+        points sorted by x)."""
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         near = np.zeros(len(pts), dtype=bool)
+        order = np.argsort(pts[:, 0], kind="stable")
+        xs = pts[order, 0]
         for lo, hi in self.boxes:
-            cand = np.flatnonzero(np.all((pts >= lo - tol) & (pts <= hi + tol), axis=1))
+            span = order[np.searchsorted(xs, lo[0] - tol, "left"):np.searchsorted(xs, hi[0] + tol, "right")]
+            cand = span[np.all((pts[span] >= lo - tol) & (pts[span] <= hi + tol), axis=1)]
             if len(cand) == 0:
                 continue
             q = pts[cand]
