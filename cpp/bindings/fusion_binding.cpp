@@ -12,8 +12,11 @@ namespace octofuse::bindings {
 
 namespace {
 
-/// (voxels fused, voxels copied, loss summed over the fused voxels): finest voxels, nats.
-py::tuple counts_tuple(const FusionCounts& c) { return py::make_tuple(c.fused, c.copied, c.loss_sum); }
+/// (voxels fused, voxels copied, loss summed over the fused voxels, leaves of the message):
+/// finest voxels, nats, leaves.
+py::tuple counts_tuple(const FusionCounts& c) {
+  return py::make_tuple(c.fused, c.copied, c.loss_sum, c.msg_leaves);
+}
 
 }  // namespace
 

@@ -35,6 +35,12 @@ struct IntoWalker {
     if (dst.nodeHasChildren(n) && !dst.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
   }
 
+  // Counts child `c` of message node `m` if it is one of the message's own leaves (not a
+  // part of a coarse leaf the walk expands): each is reached once, from its parent.
+  void count_msg_leaf(const MsgNode& m, const MsgNode& c) {
+    if (!m.leaf && c.present() && c.leaf) ++st.msg_leaves;
+  }
+
   // The leaf d at `depth` gets v.
   void set(OcNode* d, const VoxelValue& v, const LossCursor& lc, unsigned depth) {
     d->setLogOdds(v.value);
@@ -62,8 +68,9 @@ struct IntoWalker {
     }
     for (unsigned i = 0; i < 8; ++i) {
       const MsgNode c = m.child(i);
-      if (c.present())
-        msg_only(c, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{}, depth + 1);
+      if (!c.present()) continue;
+      count_msg_leaf(m, c);
+      msg_only(c, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{}, depth + 1);
     }
     finish_occ(d);
     if (kPrior) loss.finish(lc);
@@ -78,6 +85,7 @@ struct IntoWalker {
     if (d_leaf) dst.expandNode(d);  // the message is finer here
     for (unsigned i = 0; i < 8; ++i) {
       const MsgNode mc = m.child(i);
+      count_msg_leaf(m, mc);
       if (!dst.nodeChildExists(d, i)) {
         if (mc.present()) {
           msg_only(mc, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{},
@@ -98,6 +106,7 @@ struct IntoWalker {
 
   void run(const OccupancyTree& msg) {
     const MsgNode m = MsgNode::root(msg);
+    if (m.leaf) st.msg_leaves = 1;
     OcNode* root = dst.getRoot();
     if (!m.present() && !(kPrior && root != nullptr)) return;
     const LossCursor lc = loss.root();
@@ -146,6 +155,8 @@ struct ParallelInto {
   FuseIntoStats run(const OccupancyTree& msg) {
     detail::LossAdder top(loss_tree);
     std::vector<Part> level{{Kind::Walk, dst.getRoot(), MsgNode::root(msg), keep(top.root()), 0}};
+    FuseIntoStats st;  // the message's leaves in the top; the parts' counts are added below
+    if (level[0].m.leaf) st.msg_leaves = 1;
     const std::size_t target = 16 * std::size_t{threads};
     for (unsigned depth = 0; depth < 14 && level.size() < target; ++depth) {
       std::vector<Part> next;
@@ -161,6 +172,7 @@ struct ParallelInto {
         if (d_leaf) dst.expandNode(t.d);
         for (unsigned i = 0; i < 8; ++i) {
           const MsgNode mc = t.m.child(i);
+          if (!t.m.leaf && mc.present() && mc.leaf) ++st.msg_leaves;
           if (!dst.nodeChildExists(t.d, i)) {
             if (mc.present())
               next.push_back({Kind::MsgOnly, dst.createNodeChild(t.d, i), mc,
@@ -221,7 +233,6 @@ struct ParallelInto {
       }
     });
 
-    FuseIntoStats st;
     for (const FuseIntoStats& part : stats) st += part;
     for (std::size_t k = 0; k < threads; ++k) {
       detail::TreeAccess<OccupancyTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
@@ -248,6 +259,9 @@ struct MutualWalker {
   void walk(OcNode* da, OcNode* db, const LossCursor& la, const LossCursor& lb, unsigned depth) {
     OccupancyTree &ta = a.dst, &tb = b.dst;
     const bool a_leaf = !ta.nodeHasChildren(da), b_leaf = !tb.nodeHasChildren(db);
+    // each map's own leaves, as messages to the other: the children of a node that was
+    // inner on arrival (a node made by expandNode arrives as a leaf)
+    const MsgNode ma{&ta, da, a_leaf}, mb{&tb, db, b_leaf};
     if (a_leaf && b_leaf) {
       const float va = da->getLogOdds(), vb = db->getLogOdds();
       a.set(da, a.fusion.both(va, vb), la, depth);
@@ -258,6 +272,8 @@ struct MutualWalker {
     if (b_leaf) tb.expandNode(db);
     for (unsigned i = 0; i < 8; ++i) {
       const bool ea = ta.nodeChildExists(da, i), eb = tb.nodeChildExists(db, i);
+      b.count_msg_leaf(ma, ma.child(i));  // a's leaves, sent to b
+      a.count_msg_leaf(mb, mb.child(i));
       if (ea && eb) {
         walk(ta.getNodeChild(da, i), tb.getNodeChild(db, i), a.loss.child(la, i),
              b.loss.child(lb, i), depth + 1);
@@ -280,6 +296,8 @@ struct MutualWalker {
   }
 
   void run(OcNode* ra, OcNode* rb) {
+    if (!a.dst.nodeHasChildren(ra)) b.st.msg_leaves = 1;  // a root leaf
+    if (!b.dst.nodeHasChildren(rb)) a.st.msg_leaves = 1;
     const LossCursor la = a.loss.root(), lb = b.loss.root();
     walk(ra, rb, la, lb, 0);
     a.loss.done();

@@ -41,6 +41,9 @@ struct FusionCounts {
   std::uint64_t fused = 0;   ///< voxels the rule was applied to
   std::uint64_t copied = 0;  ///< voxels known to one map only and copied (policy Copy)
   double loss_sum = 0.0;     ///< information loss summed over the fused voxels (nats)
+  /// leaves of the message (the map fused in) as it was: its size as a list of voxels,
+  /// counted by the walk that reads it anyway (in-place fusions only; 0 otherwise)
+  std::uint64_t msg_leaves = 0;
 
   /// Counts the voxels of one leaf at `depth` that got `v`.
   void add(const VoxelValue& v, unsigned depth) {
@@ -57,6 +60,7 @@ struct FusionCounts {
     fused += o.fused;
     copied += o.copied;
     loss_sum += o.loss_sum;
+    msg_leaves += o.msg_leaves;
     return *this;
   }
 };

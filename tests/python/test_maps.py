@@ -272,6 +272,26 @@ def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unkn
     assert expand(lb.leaves(), 0.1) == expand(lb_ref.leaves(), 0.1)
 
 
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+def test_in_place_fusions_count_the_leaves_of_what_they_fuse_in(pair, unknown):
+    """The walks count each message's own leaves (coarse leaves the walk expands count once):
+    the voxels of the messages of a run, without a walk of their own."""
+    from octofuse import _core
+    from octofuse.rules import parse_rule, parse_unknown
+
+    empty = OccupancyMap(0.1)
+    pairs = [pair, pair[::-1], _random_tree_pair(5), _random_tree_pair(6), (pair[0], empty),
+             (empty, pair[1]), (empty, OccupancyMap(0.1))]
+    for a, b in pairs:
+        want = a.num_leaves, b.num_leaves
+        assert octofuse.exchange_maps(a.copy(), b.copy(), "chernoff", unknown) == want
+        for threads in (1, 2, 3):
+            counts = _core._fuse_into(a.copy()._m, b._m, parse_rule("min-info-loss"),
+                                      parse_unknown(unknown), None, threads=threads)
+            assert counts[3] == b.num_leaves
+    assert min(pairs[2][0].leaves().depths) < 16 and max(pairs[2][1].leaves().depths) == 16
+
+
 def _random_tree_data(rng, top_depth=11, leaf_prob=(0.25, 0.3, 0.35, 0.45, 1.0)):
     """OctoMap node data (``OcTree::writeData``: each node's float log-odds and its child mask,
     depth first) of a random tree: one path from the root down to ``top_depth``, then random

@@ -189,13 +189,6 @@ class Network:
                leaves: Optional[dict] = None) -> None:
         """Counts a message ``m`` from ``s`` to ``d``. ``leaves``: leaf counts of the maps
         sent so far in the group (a sender's unchanged map sent again is not counted again)."""
-        tr = self.traffic[r]
-        nbytes = message_bytes(m)
-        tr.sent[s] += nbytes
-        if lost:
-            tr.lost += 1
-        else:
-            tr.received[d] += nbytes
         if leaves is None:
             n = m.num_leaves
         else:  # keyed by identity, the map kept alive so that its id is not reused
@@ -203,7 +196,18 @@ class Network:
             if n is None:
                 n = m.num_leaves
                 leaves[id(m)] = (m, n)
-        tr.sent_32b[s] += 32 * n
+        self._count_sizes(r, s, d, message_bytes(m), n, lost)
+
+    def _count_sizes(self, r: str, s: str, d: str, nbytes: int, n_leaves: int,
+                     lost: bool = False) -> None:
+        """Counts a message of ``nbytes`` (OctoMap's stream) and ``n_leaves`` voxels."""
+        tr = self.traffic[r]
+        tr.sent[s] += nbytes
+        if lost:
+            tr.lost += 1
+        else:
+            tr.received[d] += nbytes
+        tr.sent_32b[s] += 32 * n_leaves
         tr.messages += 1
 
     def _exchange_cf(self, group: Sequence[Exchange]) -> None:
@@ -256,17 +260,22 @@ class Network:
             if two_way:
                 sends_left[s] -= 1
                 sends_left[d] -= 1
-                self._count(r, s, d, maps[s], leaves=leaves)
-                self._count(r, d, s, maps[d], leaves=leaves)
+                sizes = message_bytes(maps[s]), message_bytes(maps[d])
                 before_modifying(s)
                 before_modifying(d)
                 t1 = time.perf_counter()
                 loss_d = self._loss(r, d, maps[d].resolution)
                 loss_s = self._loss(r, s, maps[s].resolution)
                 before = _loss_totals(loss_d), _loss_totals(loss_s)
-                exchange_maps(maps[d], maps[s], rule=r, unknown=cfg.unknown,
-                              loss_a=loss_d, loss_b=loss_s)
+                # the walk counts the leaves each map had: the two messages' voxels
+                n_d, n_s = exchange_maps(maps[d], maps[s], rule=r, unknown=cfg.unknown,
+                                         loss_a=loss_d, loss_b=loss_s)
                 self.timings["fusion"] += time.perf_counter() - t1
+                self._count_sizes(r, s, d, sizes[0], n_s)
+                self._count_sizes(r, d, s, sizes[1], n_d)
+                for x, n in ((s, n_s), (d, n_d)):  # a later message of x sends its copy
+                    if x in start:
+                        leaves[id(start[x])] = (start[x], n)
                 self._record(r, group[k], loss_d, before[0])
                 self._record(r, group[k + 1], loss_s, before[1])
                 modified |= {s, d}

@@ -82,8 +82,9 @@ class InfoLossMap:
         return obj
 
     def _record(self, counts) -> None:
-        """Adds the core's counts of one fusion: (voxels fused, voxels copied, loss sum)."""
-        fused, copied, loss_sum = counts
+        """Adds the counts of one fusion: (voxels fused, voxels copied, loss sum), as the
+        core's counts begin."""
+        fused, copied, loss_sum = counts[:3]
         self.voxels_fused += int(fused)
         self.voxels_copied += int(copied)
         self.loss_sum += float(loss_sum)

@@ -322,7 +322,7 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
         raise TypeError("fuse_maps expects two OccupancyMap objects")
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
     raw_map, raw_loss, counts = _core._fuse_maps(a._m, b._m, rule, unknown)
-    return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, *counts))
+    return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, *counts[:3]))
 
 
 def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
@@ -348,10 +348,12 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
 
 def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
                   unknown: str = "copy", loss_a: InfoLossMap | None = None,
-                  loss_b: InfoLossMap | None = None) -> None:
+                  loss_b: InfoLossMap | None = None) -> tuple[int, int]:
     """A simultaneous two-way exchange, in place: ``a`` fuses ``b`` and ``b`` fuses ``a``
     (each as it was before), in one walk and without copying either map. Equal to
     ``fuse_into(a, b0)`` and ``fuse_into(b, a0)``. Losses are added into ``loss_a``/``loss_b``.
+    Returns the leaves ``a`` and ``b`` had, i.e. the sizes of the two messages in voxels
+    (counted by the walk: ``a0.num_leaves`` and ``b0.num_leaves``).
     """
     if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
         raise TypeError("exchange_maps expects two OccupancyMap objects")
@@ -362,6 +364,7 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     for loss, counts in ((loss_a, counts_a), (loss_b, counts_b)):
         if loss is not None:
             loss._record(counts)
+    return int(counts_b[3]), int(counts_a[3])  # what a received is b's
 
 
 def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np.ndarray,
