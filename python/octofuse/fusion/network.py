@@ -109,6 +109,7 @@ class Network:
         self.timings: dict[str, float] = defaultdict(float)
         self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
         self.fuse_threads = max(1, threads // max(1, len(rules)))  # threads of one fuse_into
+        self._rule_seconds: dict[str, float] = defaultdict(float)  # each rule's last exchange
         #: lossy links, deltas: (rule, sender, receiver) -> last seq sent / applied, and the
         #: snapshots sent but not yet acknowledged (a delta goes against the last acknowledged)
         self._seq: dict[tuple, int] = defaultdict(int)
@@ -171,8 +172,16 @@ class Network:
             for r in self.rules:
                 self._exchange_rule(r, group)
         else:
-            list(self.pool.map(lambda r: self._exchange_rule(r, group), self.rules))
+            # the slowest rules first (as they were in the last group): the threads finish
+            # the group together
+            order = sorted(self.rules, key=lambda r: -self._rule_seconds[r])
+            list(self.pool.map(lambda r: self._timed_exchange(r, group), order))
         self.timings["exchange + fusion (wall)"] += time.perf_counter() - t0
+
+    def _timed_exchange(self, r: str, group: Sequence[Exchange]) -> None:
+        t0 = time.perf_counter()
+        self._exchange_rule(r, group)
+        self._rule_seconds[r] = time.perf_counter() - t0
 
     def close(self) -> None:
         if self.pool is not None:
