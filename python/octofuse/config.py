@@ -201,6 +201,9 @@ class FuseConfig:
     agent_frames: list[AgentFrame] = field(default_factory=list)
     #: estimate each link's transform on first contact: off, planar (x, y, z, yaw) or full
     align: str = "off"
+    #: ``run``: the rules whose maps are held at once; more rules replay the bags once per
+    #: group of this many (memory for time: every replay maps the scans again). 0: all in one
+    rules_per_pass: int = 0
 
     def validate(self, where: str) -> None:
         from .rules import RULES, UNKNOWN_POLICIES
@@ -228,6 +231,9 @@ class FuseConfig:
             raise ValueError(f"{where}.overconfidence_tol = {self.overconfidence_tol}: "
                              "expected a number >= 0")
         self.robust.validate(f"{where}.robust")
+        if self.rules_per_pass < 0:
+            raise ValueError(f"{where}.rules_per_pass = {self.rules_per_pass}: expected 0 or more "
+                             "rules (0: every rule in one pass)")
         if not (math.isfinite(self.loss) and 0.0 <= self.loss < 1.0):
             raise ValueError(f"{where}.loss = {self.loss}: expected a probability from 0 to "
                              "below 1")

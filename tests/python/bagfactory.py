@@ -621,20 +621,32 @@ def run_cli(capsys, *args) -> tuple[int, str, str]:
 
 def run_keeping_result(*args):
     """Run ``octofuse ARGS`` in-process: (exit code, the SimResult its outputs were written
-    from, or None), to check the files against."""
+    from, or None), to check the files against. The rules' maps, written group by group and
+    freed before the outputs, are put back into it."""
+    import dataclasses
+
     import pytest
 
     import octofuse.outputs.report as report
     from octofuse.cli import main
+    from octofuse.outputs.map_exports import MapExports
 
-    kept, write = {}, report.write_outputs
+    kept, write, add = {}, report.write_outputs, MapExports.add
+    maps: dict = {"fused": {}, "loss": {}, "unclamped": {}}
+
+    def keep_maps(self, res):
+        for k, per in maps.items():
+            per.update(getattr(res, k))
+        return add(self, res)
 
     def keep(res, *a, **kw):
-        kept["res"] = res
+        kept["res"] = dataclasses.replace(res, **{k: getattr(res, k) or per
+                                                  for k, per in maps.items()})
         return write(res, *a, **kw)
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(report, "write_outputs", keep)
+        mp.setattr(MapExports, "add", keep_maps)
         code = main([str(a) for a in args])
     return code, kept.get("res")
 

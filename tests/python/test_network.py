@@ -394,6 +394,46 @@ def whole_and_delta(team_bag):
     return out
 
 
+@pytest.mark.parametrize("per_pass", [1, 2])
+def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, whole_and_delta,
+                                                                      per_pass):
+    """simulate_in_rule_groups (the bags replayed once per group of rules, as `demo` runs)
+    gives every rule the maps, losses, traffic, scores and timeline of one pass with all rules;
+    the agents' own maps are mapped, sampled and scored in the first pass only."""
+    from octofuse.fusion.network import merge_rule_results
+    from octofuse.fusion.simulate import simulate_in_rule_groups
+
+    one = simulate(run_config(team_bag), FuseConfig(topology="ring", schedule=PERIOD,
+                                                   rules=SOME_RULES), samples=3)
+    cfg = FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES, rules_per_pass=per_pass)
+    parts = list(simulate_in_rule_groups(run_config(team_bag), cfg, samples=3))
+    assert [p.rules for p in parts] == [SOME_RULES[k:k + per_pass]
+                                        for k in range(0, len(SOME_RULES), per_pass)]
+    assert parts[0].local and not any(p.local for p in parts[1:])
+    for p in parts:
+        assert_same_map(p.central, one.central, "central")
+        for r in p.rules:
+            for a in one.agents:
+                assert_same_map(p.fused[r][a], one.fused[r][a], (r, a))
+                assert p.loss[r][a].loss_sum == one.loss[r][a].loss_sum
+            assert p.traffic[r] == one.traffic[r]
+    merged = merge_rule_results(parts)
+    assert merged.timeline == one.timeline  # in time order, each time's samples in rule order
+    assert merged.scores.keys() == one.scores.keys()
+    for r, per in one.scores.items():
+        for a, sc in per.items():
+            assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
+    # the pass of the whole-map fixture is the same run without samples
+    for a in one.agents:
+        assert_same_map(whole_and_delta[False].fused["chernoff"][a], one.fused["chernoff"][a], a)
+    robust = FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES, rules_per_pass=1)
+    robust.robust.enabled = True
+    groups = simulate_in_rule_groups(run_config(team_bag), robust, samples=0)
+    assert next(groups).rules == SOME_RULES  # robust fusion votes once, on the own maps
+    with pytest.raises(ValueError, match="rules_per_pass = -1"):
+        FuseConfig(rules_per_pass=-1).validate("fuse")
+
+
 def test_deltas_send_fewer_bytes_and_reach_the_same_voxels(whole_and_delta):
     whole, delta = whole_and_delta[False], whole_and_delta[True]
     assert [e for e in delta.events] == whole.events

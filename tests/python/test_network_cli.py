@@ -303,6 +303,32 @@ def test_demo_on_every_400th_scan(tmp_path, capsys):
     assert s["findings"][0].startswith("Rumour propagation") and s["findings"][0].endswith("holds.")
 
 
+def test_demo_in_passes_writes_what_one_pass_writes(tmp_path, capsys):
+    """The demo's rules two at a time (the bag replayed per pair) write the files of one pass
+    with every rule: the same maps and heat maps byte for byte, the same summary but for the
+    timings, the setting itself and the folder."""
+    if not (REPO / "data" / "lab8.bag").is_file():
+        pytest.skip("the bundled dataset data/lab8.bag is not present")
+    rules = "naive-bayes,chernoff,min-info-loss,channel-filter"
+    outs = {}
+    for per_pass in ("0", "2"):
+        outs[per_pass] = tmp_path / f"demo{per_pass}"
+        code, _, err = run_cli(capsys, "demo", "--every", "400", "--rules", rules,
+                               "--rules-per-pass", per_pass, "--out", outs[per_pass])
+        assert code == 0, err
+    files = sorted(p.relative_to(outs["0"]) for p in outs["0"].rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(outs["2"]) for p in outs["2"].rglob("*") if p.is_file())
+    assert Path("channel-filter/robot1.ot") in files
+    for f in files:
+        if f.suffix not in (".json", ".md", ".png"):
+            assert (outs["0"] / f).read_bytes() == (outs["2"] / f).read_bytes(), f
+    one, two = (json.loads((outs[k] / "summary.json").read_text()) for k in ("0", "2"))
+    assert (one["config"]["fuse"]["rules_per_pass"], two["config"]["fuse"]["rules_per_pass"]) == (0, 2)
+    for s in (one, two):
+        del s["timings_s"], s["config"]["fuse"]["rules_per_pass"], s["config"]["out"]
+    assert one == two
+
+
 # -- bad input ------------------------------------------------------------------------------------
 
 

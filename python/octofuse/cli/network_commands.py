@@ -14,8 +14,8 @@ import click
 from ..config import RunConfig
 from .options import (_DEFAULT, CliError, Progress, bag_arguments, build_options, cli,
                       config_options, console, dump_config, exchange_options, export_options,
-                      frame_options, need_bags, need_out, out_option, rule_option, run_config,
-                      say, topology_option)
+                      frame_options, need_bags, need_out, out_option, passes_option, rule_option,
+                      run_config, say, topology_option)
 
 
 export_bag_option = click.option(
@@ -27,7 +27,7 @@ export_bag_option = click.option(
 
 def _run_and_report(cfg: RunConfig, title: str, command: str,
                     export_bag: Optional[Path] = None) -> None:
-    from ..fusion.simulate import simulate
+    from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
@@ -37,20 +37,22 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     truth = Scene.find(cfg.truth, cfg.build.bags)
     bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
     try:
-        with contextlib.ExitStack() as stack:
-            bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
-            src = None
-            if bag is not None:  # stamped in bag time: the bags' start is needed first
-                from ..scans.source import ScanSource
-
-                src = stack.enter_context(ScanSource(cfg.build))
-                bag.start_ns = src.bags.start_ns or 0
-            res = simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar,
-                           source=src, observer=bag)
-        return_freed_memory()
         with staged_folder(out, command) as stage:
-            write_outputs(res, stage, cfg, export_agents=_export_agents(cfg.export_agents, res.agents),
-                          title=title, event_bag=bag)
+            with contextlib.ExitStack() as stack:
+                bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
+                if bag is not None:  # one pass in bag time: the bags' start is needed first
+                    from ..scans.source import ScanSource
+
+                    src = stack.enter_context(ScanSource(cfg.build))
+                    bag.start_ns = src.bags.start_ns or 0
+                    passes = [simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
+                                       progress=bar, source=src, observer=bag)]
+                else:
+                    passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
+                                                     truth=truth, progress=bar)
+                res, written = write_rule_groups(
+                    passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
+            write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
             if bag is not None:
                 bag.close()
     finally:
@@ -60,6 +62,26 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     if bag is not None:
         say(f"bag: {bag.path} ({bag.messages} map messages)")
     say(f"report: {out / 'report.md'}")
+
+
+def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
+    """The results of a run's groups of rules merged into one, each group's maps written into
+    ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
+    histogram values); the merged result and the :class:`MapExports` that wrote them.
+    ``export_agents(agents)``: the agents whose maps are written."""
+    from ..fusion.network import merge_rule_results
+    from ..outputs.map_exports import MapExports
+
+    written, parts = None, []
+    for part in results:
+        if written is None:
+            written = MapExports(stage, cfg, cfg.fuse.rules, export_agents(part.agents),
+                                 threads=cfg.build.workers)
+        written.add(part)
+        parts.append(replace(part, fused={}, loss={}, unclamped={}))
+        del part  # the next rules' maps reuse its memory
+        return_freed_memory()
+    return merge_rule_results(parts), written
 
 
 def return_freed_memory() -> None:
@@ -113,6 +135,7 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
               "or names", show_default=_DEFAULT.export_agents)
 @export_options
 @export_bag_option
+@passes_option(_DEFAULT.fuse.rules_per_pass)
 @click.option("--robust/--no-robust", default=None, show_default="off",
               help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
                    "its time and parameters: fuse.robust in --config)")
@@ -126,6 +149,11 @@ def run(bags, export_bag, **p):
     need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
     need_out(cfg, p["out"])
     _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag)
+
+
+#: the demo's 8 rules in 2 passes over the bag: half the maps held at once (1.1 GB less), for
+#: the time of mapping the scans once more
+DEMO_RULES_PER_PASS = 4
 
 
 def bundled_dataset() -> Path:
@@ -147,12 +175,13 @@ def bundled_dataset() -> Path:
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @export_options
 @export_bag_option
+@passes_option(DEMO_RULES_PER_PASS)
 def demo(export_bag, **p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
     cfg = run_config(p, bags=[bag], defaults={
         "fuse": {"rules": ["all", "channel-filter"], "topology": "max-robust:3",
-                 "schedule": "aperiodic:20"},
+                 "schedule": "aperiodic:20", "rules_per_pass": DEMO_RULES_PER_PASS},
         "samples": 8, "export_agents": "first"})
     say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
         "aperiodic exchanges, every rule")
@@ -178,11 +207,9 @@ def demo(export_bag, **p):
 @out_option
 def fuse_cmd(maps_dir, rounds, **p):
     """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
-    from ..fusion.network import merge_rule_results
     from ..fusion.rounds import fuse_finished_in_rule_groups
     from ..maps.occupancy import OccupancyMap
     from ..maps.truth import Scene
-    from ..outputs.map_exports import MapExports
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
 
@@ -204,15 +231,10 @@ def fuse_cmd(maps_dir, rounds, **p):
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     with staged_folder(out, "fuse") as stage:
         # a few rules at a time: their maps written, then freed before the next ones run
-        written = MapExports(stage, cfg, cfg.fuse.rules, list(maps), threads=cfg.build.workers)
-        parts = []
-        for part in fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
-                                                 threads=cfg.build.workers):
-            written.add(part)
-            parts.append(replace(part, fused={}, loss={}, unclamped={}))
-            del part  # the next rules' maps reuse its memory
-        return_freed_memory()
-        res = merge_rule_results(parts)
+        res, written = write_rule_groups(
+            fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
+                                         threads=cfg.build.workers),
+            stage, cfg, lambda agents: agents)
         write_outputs(res, stage, cfg, title=title, maps=written)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")

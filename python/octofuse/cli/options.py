@@ -102,6 +102,15 @@ frame_options = _options(
                  help="estimate each link's transform on first contact: off, planar (x, y, z, "
                       "yaw) or full", show_default=_DEFAULT.fuse.align),
 )
+
+
+def passes_option(default: int):
+    return click.option(
+        "--rules-per-pass", type=click.IntRange(min=0), metavar="N", show_default=str(default),
+        help="rules whose maps are held at once; more rules replay the bags once per group of "
+             "this many (less memory, more time); 0: all in one pass")
+
+
 topology_option = click.option("--topology", help="ring, line, star, complete, grid, random:P, "
                                 "max-robust:K or a graph file", show_default=_DEFAULT.fuse.topology)
 out_option = click.option("--out", type=click.Path(file_okay=False, path_type=Path),
@@ -153,7 +162,8 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunCon
     fuse = _given(rules=list(p.get("rule") or ()), topology=p.get("topology"),
                   schedule=p.get("schedule"), directions=p.get("directions"),
                   delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"),
-                  spanning_tree=p.get("spanning_tree"), loss=p.get("loss"))
+                  spanning_tree=p.get("spanning_tree"), loss=p.get("loss"),
+                  rules_per_pass=p.get("rules_per_pass"))
     if p.get("robust") is not None:
         fuse["robust"] = {"enabled": p["robust"]}
     if p.get("agent_frame"):

@@ -404,8 +404,12 @@ def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
     for p in parts:
         scores.update(p.scores)
     tree = next((p.tree for p in parts if p.tree is not None), None)
+    exact = next((p.central_unclamped for p in parts if p.central_unclamped is not None), None)
     return replace(
         first, rules=[r for p in parts for r in p.rules], fused={}, loss={},
         traffic={r: p.traffic[r] for p in parts for r in p.rules},
-        timeline=[s for p in parts for s in p.timeline], timings=timings, scores=scores,
-        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree, unclamped={})
+        # in time order, each time's samples in rule order: as in the run with every rule
+        timeline=sorted((s for p in parts for s in p.timeline), key=lambda s: s["t"]),
+        timings=timings, scores=scores,
+        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree, unclamped={},
+        central_unclamped=exact)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import time
+from dataclasses import replace
 from itertools import groupby
-from typing import Callable, Optional
+from typing import Callable, Iterator, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from ..maps.build import insert_scans
-from ..maps.compare import compare
+from ..maps.compare import compare, compare_many
 from ..maps.occupancy import OccupancyMap
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
@@ -21,7 +22,8 @@ from .schedule import mission_events, parse_schedule
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
              progress: Optional[Callable[[int, int], None]] = None,
              source: Optional[ScanSource] = None,
-             observer: Optional[Callable[[float, list, Network, dict], None]] = None) -> SimResult:
+             observer: Optional[Callable[[float, list, Network, dict], None]] = None,
+             local: bool = True) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -36,13 +38,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     maps its scans in its own frame (they reach the centralized map moved by its frame, its maps
     are moved into the common frame to be scored; :mod:`.agent_frames`).
     ``observer(t, group, network, scans)``, if given, is called after every group of exchanges
-    with the number of scans inserted so far per agent.
+    with the number of scans inserted so far per agent. ``local``: map, sample and score the
+    agents' own maps too (the floor; robust fusion votes on them).
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
         raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
+    if fuse_cfg.robust.enabled and not local:
+        raise ValueError("robust fusion votes on the agents' own maps: simulate them (local=True)")
     if spec.kind == "rounds":
         raise ValueError("schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
                          "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -62,7 +67,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             exact = open_map(mk())  # the centralized map without clamping
         frames = AgentFrames.from_config(agents, fuse_cfg)
         net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
-        local = {a: mk() for a in agents}
+        own = {a: mk() for a in agents} if local else {}
         central = mk()
         inserted: dict[str, int] = {a: 0 for a in agents}
         sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
@@ -71,12 +76,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
         def sample(t):
             t0 = time.perf_counter()
-            jobs = [(r, a, maps[a]) for r, maps in [(LOCAL, local)] + [(r, net.fused[r]) for r in rules]
-                    for a in agents]
-            run = net.pool.map if net.pool else map
+            jobs = [(r, a, maps[a]) for r, maps in ([(LOCAL, own)] if local else [])
+                    + [(r, net.fused[r]) for r in rules] for a in agents]
             tol = fuse_cfg.overconfidence_tol
+            # maps scored as they are: one walk of the centralized map for all of them
+            as_is = [i for i, (r, a, _) in enumerate(jobs)
+                     if r != CHANNEL_FILTER and frames.frames.get(a) is None]
+            scores = dict(zip(as_is, compare_many(central, [jobs[i][2] for i in as_is], tol,
+                                                  build_cfg.workers)))
 
-            def one(j):
+            def one(j):  # a copy scored: moved into the common frame, or clamped
                 m = frames.to_common(j[1], j[2])
                 if j[0] == CHANNEL_FILTER:
                     from .channel_filter import clamped
@@ -84,7 +93,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     m = clamped(m)
                 return compare(central, m, tol)
 
-            for (r, a, _), s in zip(jobs, run(one, jobs)):
+            rest = [i for i in range(len(jobs)) if i not in scores]
+            run = net.pool.map if net.pool else map
+            scores.update(zip(rest, run(one, [jobs[i] for i in rest])))
+            for i, (r, a, _) in enumerate(jobs):
+                s = scores[i]
                 timeline.append({"t": t, "rule": r, "agent": a, "kl": s.kl_mean,
                                  "overconfidence": s.overconfidence, "coverage": s.coverage})
             timings["scoring"] += time.perf_counter() - t0
@@ -103,7 +116,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 return
             t0 = time.perf_counter()
             targets = [[net.fused[r][agents[s.agent]] for r in rules if r != CHANNEL_FILTER]
-                       + [local[agents[s.agent]]] for s in batch]
+                       + ([own[agents[s.agent]]] if local else []) for s in batch]
             # the centralized map in the common frame: scans of agents with a frame moved there
             insert_scans(*frames.scan_targets(batch, targets, central), build_cfg.workers)
             if exact is not None:  # maps with open clamping: one call of their own
@@ -123,7 +136,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
                 if kind == -1:
-                    vote.append(_vote(local, graph, fuse_cfg, t))
+                    vote.append(_vote(own, graph, fuse_cfg, t))
                 elif kind == 0:
                     if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
                         out = set(vote[0].excluded) if vote else set()
@@ -154,7 +167,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         src.check_placed()
         stats, notes = src.stats, src.notes()
     fused, unclamped = net.result_maps()
-    res = SimResult(agents, rules, graph, events, central, local, fused,
+    res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree, unclamped=unclamped,
@@ -162,10 +175,34 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     t0 = time.perf_counter()
-    res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, build_cfg.workers)
+    res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, build_cfg.workers,
+                              local=local)
     timings["scoring"] += time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     return res
+
+
+def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
+                            truth=None, progress: Optional[Callable[[int, int], None]] = None
+                            ) -> Iterator[SimResult]:
+    """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
+    replaying the bags once per group, so that a caller can write a group's maps and free them
+    before the next group runs. The rules' maps never meet, so every rule's result is the one
+    of the run with all rules. The agents' own maps are mapped and scored in the first pass
+    only. Robust fusion (its vote on the agents' own maps) and alignment on first contact (on
+    the first rule's maps) run every rule in one pass. ``progress`` counts the scans of every
+    pass."""
+    fuse_cfg.validate("fuse")
+    rules = list(fuse_cfg.rules)
+    size = fuse_cfg.rules_per_pass or len(rules)
+    if fuse_cfg.robust.enabled or fuse_cfg.align != "off":
+        size = len(rules)
+    groups = [rules[k:k + size] for k in range(0, len(rules), size)]
+    for k, group in enumerate(groups):
+        step = None if progress is None else \
+            (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
+        yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples, truth=truth,
+                       progress=step, local=k == 0)
 
 
 def _vote(local, graph, fuse_cfg: FuseConfig, t: float):
