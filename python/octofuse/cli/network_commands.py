@@ -45,8 +45,9 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 
                     src = stack.enter_context(ScanSource(cfg.build))
                     bag.start_ns = src.bags.start_ns or 0
-                    passes = [simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
-                                       progress=bar, source=src, observer=bag)]
+                    passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
+                                       progress=bar, source=src, observer=bag)
+                              for _ in range(1))  # run when asked for, not held afterwards
                 else:
                     passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
                                                      truth=truth, progress=bar)
