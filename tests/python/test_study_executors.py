@@ -86,6 +86,25 @@ def test_a_cell_equals_a_run_of_its_own(bag, seeded, tmp_path):
     assert "kl_mean_sd" not in row and row["seeds"] == "1"
 
 
+def test_a_cell_in_passes_has_the_rows_of_one_pass(bag, seeded, tmp_path, monkeypatch):
+    """With fuse.rules_per_pass a cell replays its bag per rule and keeps only the scores:
+    the same rows as the cell of the grid that ran both rules at once."""
+    import octofuse.fusion.simulate as sim
+
+    passes, real = [], sim.simulate
+    monkeypatch.setattr(sim, "simulate", lambda *a, **kw: passes.append(a[1].rules) or real(*a, **kw))
+    out = tmp_path / "passes"
+    cfg = config(bag)
+    cfg.fuse.seed, cfg.fuse.rules_per_pass = 1, 1
+    run_study(cfg, ["ring"], out, executor=SerialExecutor())
+    assert passes == [[r] for r in RULES]
+    one = next(iter(load_cells([out]).values()))
+    want = next(c for c in load_cells([seeded[0]]).values()
+                if (c["cell"]["topology"], c["cell"]["seed"]) == ("ring", 1))
+    assert one["rows"] == want["rows"]
+    assert [r["rule"] for r in one["rows"]] == [LOCAL, *RULES]
+
+
 def test_resume_carries_finished_cells_over(bag, seeded, tmp_path, monkeypatch):
     old, _ = seeded
     ran: list = []

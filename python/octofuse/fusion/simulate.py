@@ -183,15 +183,15 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
 
 def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
-                            truth=None, progress: Optional[Callable[[int, int], None]] = None
-                            ) -> Iterator[SimResult]:
+                            truth=None, progress: Optional[Callable[[int, int], None]] = None,
+                            source: Optional[ScanSource] = None) -> Iterator[SimResult]:
     """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
     replaying the bags once per group, so that a caller can write a group's maps and free them
     before the next group runs. The rules' maps never meet, so every rule's result is the one
     of the run with all rules. The agents' own maps are mapped and scored in the first pass
     only. Robust fusion (its vote on the agents' own maps) and alignment on first contact (on
     the first rule's maps) run every rule in one pass. ``progress`` counts the scans of every
-    pass."""
+    pass; ``source``, if given, is read once per pass."""
     fuse_cfg.validate("fuse")
     rules = list(fuse_cfg.rules)
     size = fuse_cfg.rules_per_pass or len(rules)
@@ -202,7 +202,7 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
         step = None if progress is None else \
             (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
         yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples, truth=truth,
-                       progress=step, local=k == 0)
+                       progress=step, source=source, local=k == 0)
 
 
 def _vote(local, graph, fuse_cfg: FuseConfig, t: float):

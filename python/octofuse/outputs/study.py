@@ -23,6 +23,7 @@ import hashlib
 import json
 import math
 import os
+from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
@@ -30,7 +31,6 @@ from typing import Any, Callable, Optional, Sequence
 from ..config import RunConfig, to_dict
 from ..fusion.executors import Executor, SerialExecutor, make_executor
 from ..fusion.graph import make_graph
-from ..fusion.network import LOCAL
 from .report import COLUMNS, mean_scores
 
 #: per-cell results inside a study's output folder
@@ -95,17 +95,24 @@ def run_cell(payload: tuple) -> dict:
     """Run one cell (in this process or in a Ray worker): its rows per rule and its timings.
     ``payload`` is ``(cfg, cell, truth, threads)``; ``threads`` (if not None) replaces the
     build threads (the numbers do not depend on it)."""
-    from ..fusion.simulate import simulate
+    from ..fusion.simulate import simulate_in_rule_groups
 
     cfg, cell, truth, threads, source = (*payload, None)[:5]
     c = cell_config(cfg, cell)
     if threads is not None:
         c.build.threads = int(threads)
-    res = simulate(c.build, c.fuse, samples=0, truth=truth, source=source)
+    scores, messages, timings = {}, {}, defaultdict(float)
+    # a few rules at a time with fuse.rules_per_pass: only their scores are kept
+    for part in simulate_in_rule_groups(c.build, c.fuse, samples=0, truth=truth, source=source):
+        scores.update(part.scores)
+        messages.update({r: part.traffic[r].messages for r in part.rules})
+        for k, v in part.timings.items():
+            timings[k] += float(v)
+        del part
     rows = []
-    for rule, row in mean_scores(res.scores).items():
-        rows.append({"rule": rule, "messages": res.traffic[rule].messages if rule != LOCAL else 0, **row})
-    return {"rows": rows, "timings": {k: float(v) for k, v in res.timings.items()}}
+    for rule, row in mean_scores(scores).items():
+        rows.append({"rule": rule, "messages": messages.get(rule, 0), **row})
+    return {"rows": rows, "timings": dict(timings)}
 
 
 def load_cells(folders: Sequence[str | os.PathLike]) -> dict[str, dict]:
