@@ -48,6 +48,16 @@ void define_fusion(py::module_& m) {
       py::arg("threads") = 1);
 
   m.def(
+      "_subtract_into",
+      [](OccupancyMap& dst, const OccupancyMap& msg) {
+        if (&dst == &msg) throw py::value_error("cannot subtract a map from itself in place");
+        check_compatible(dst, msg);
+        py::gil_scoped_release release;
+        subtract_into(dst, msg);
+      },
+      py::arg("dst"), py::arg("msg"));
+
+  m.def(
       "_fuse_mutual",
       [](OccupancyMap& a, OccupancyMap& b, Rule rule, UnknownPolicy unknown, ScalarTree* loss_a,
          ScalarTree* loss_b) {

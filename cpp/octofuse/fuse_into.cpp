@@ -305,6 +305,16 @@ struct MutualWalker {
   }
 };
 
+// Naive Bayes with the message's values negated as they are read (exact: negation is).
+struct Difference {
+  static constexpr Rule kRule = Rule::NaiveBayes;
+  static constexpr UnknownPolicy kUnknown = UnknownPolicy::Copy;
+  VoxelFusion<Rule::NaiveBayes, UnknownPolicy::Copy> nb;
+  VoxelValue both(float a, float b) { return nb.both(a, -b); }
+  VoxelValue only_a(float a) { return nb.only_a(a); }
+  VoxelValue only_b(float b) { return nb.only_b(-b); }
+};
+
 void add_tree(detail::LossAdder& adder, const ScalarWalk& b, const LossCursor& c) {
   if (b.leaf) {
     adder.add(c, b.node->getValue());
@@ -366,6 +376,13 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
   detail::TreeAccess<OccupancyTree>::mark_changed(a.tree());
   detail::TreeAccess<OccupancyTree>::mark_changed(b.tree());
   return st;
+}
+
+void subtract_into(OccupancyMap& dst, const OccupancyMap& msg) {
+  check_compatible(dst, msg);
+  Difference fusion{{dst.clamp_min_logodds(), dst.clamp_max_logodds()}};
+  IntoWalker<Difference>{fusion, dst.tree(), detail::LossAdder(nullptr), {}}.run(msg.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(dst.tree());
 }
 
 void accumulate_loss(ScalarTree& acc, const ScalarTree& b) {

@@ -28,6 +28,12 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
                                                     UnknownPolicy unknown, ScalarTree* loss_a,
                                                     ScalarTree* loss_b);
 
+/// `dst -= msg` voxel by voxel in log-odds, in place: naive-Bayes fusion (unknown voxels
+/// copied) of `msg` with its values negated as they are read, so the same tree and bits as
+/// fuse_into(dst, negated copy of msg) without the copy. Clamps to dst's thresholds (the
+/// channel filter's maps have them open). Requires compatible maps.
+void subtract_into(OccupancyMap& dst, const OccupancyMap& msg);
+
 /// Adds the scalar tree `b` into `acc` voxel by voxel (a coarse leaf of either stands for
 /// the voxels below it; voxels only in b are added to acc). Accumulates information loss.
 void accumulate_loss(ScalarTree& acc, const ScalarTree& b);

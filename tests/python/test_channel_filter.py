@@ -152,6 +152,26 @@ def test_open_maps_add_and_subtract_exactly(prefixes):
     assert va.max() > chi or va.min() < clo
 
 
+def test_subtracting_is_adding_a_negated_copy_bit_for_bit(prefixes):
+    """subtract_into walks the map it subtracts with its values negated as read: the same
+    tree, node for node, as adding a negated copy (on coarse and fine leaves both ways)."""
+    from conftest import random_map
+
+    maps = [prefixes["a"][-1], prefixes["b"][-1], prefixes["a"][0], empty_open()]
+    pruned = [random_map(1, 25), random_map(2, 2, offset=(0.35, 0.1, 0.0))]  # 0.1 m
+    assert (pruned[0].leaves().depths < 16).any()
+    pairs = [(x, y, unclamped_copy) for x in maps for y in maps]  # open clamping
+    pairs += [(x, y, OccupancyMap.copy) for x in pruned for y in pruned]  # OctoMap's, clamped
+    for x, y, copy in pairs:
+        got, want = copy(x), copy(x)
+        subtract_into(got, y)
+        fuse_into(want, copy(y).negate_values(), rule="naive-bayes", unknown="copy")
+        assert got.to_bytes() == want.to_bytes()  # every node and value
+        assert got.num_nodes == want.num_nodes
+    with pytest.raises(ValueError, match="itself"):
+        octofuse.maps.occupancy.subtract_into(maps[0], maps[0])
+
+
 # -- exactness on trees, message by message ---------------------------------------------------
 
 

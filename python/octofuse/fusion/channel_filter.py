@@ -47,12 +47,14 @@ messages on the other links are not used by it.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 from ..config import CHANNEL_FILTER
+from ..maps import occupancy
 from ..maps.occupancy import OccupancyMap, fuse_into
 from .graph import Graph, make_graph
 
@@ -66,6 +68,11 @@ __all__ = ["CHANNEL_FILTER", "ChannelFilter", "Message", "add_into", "clamped", 
 def open_map(m: OccupancyMap) -> OccupancyMap:
     """Open ``m``'s clamping (thresholds -inf/+inf log-odds) in place; returns ``m``."""
     return m.open_clamping()
+
+
+def is_open(m: OccupancyMap) -> bool:
+    """Whether ``m``'s clamping is open (-inf/+inf log-odds)."""
+    return m.clamping_logodds == (-math.inf, math.inf)
 
 
 def unclamped_copy(m: OccupancyMap) -> OccupancyMap:
@@ -90,8 +97,8 @@ def add_into(dst: OccupancyMap, src: OccupancyMap) -> None:
 
 
 def subtract_into(dst: OccupancyMap, src: OccupancyMap) -> None:
-    """``dst -= src`` voxel by voxel (adds a negated copy)."""
-    add_into(dst, negated(src))
+    """``dst -= src`` voxel by voxel (the same as adding a negated copy, without the copy)."""
+    occupancy.subtract_into(dst, src)
 
 
 # -- the tree -------------------------------------------------------------------------------
@@ -254,9 +261,10 @@ class ChannelFilter:
             return
         add_into(dst, payload)
         if old is not None:
-            old.negate_values()  # replaced below: negate in place
-            add_into(dst, old)
-        self.channel[link] = unclamped_copy(payload)
+            subtract_into(dst, old)
+        # kept as it came: the filter never modifies a whole contribution (a copy if its
+        # clamping is not open)
+        self.channel[link] = payload if is_open(payload) else unclamped_copy(payload)
 
     # -- accounting ----------------------------------------------------------------------
     def link_memory(self, agent: str) -> int:

@@ -346,6 +346,15 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
     return loss
 
 
+def subtract_into(dst: OccupancyMap, msg: OccupancyMap) -> None:
+    """``dst -= msg`` voxel by voxel in log-odds, in place (a voxel only ``msg`` knows gets
+    its negated value): the naive-Bayes fusion of a negated copy of ``msg``, bit for bit,
+    without the copy."""
+    if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
+        raise TypeError("subtract_into expects two OccupancyMap objects")
+    _core._subtract_into(dst._m, msg._m)
+
+
 def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
                   unknown: str = "copy", loss_a: InfoLossMap | None = None,
                   loss_b: InfoLossMap | None = None) -> tuple[int, int]:
