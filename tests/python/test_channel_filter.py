@@ -169,7 +169,7 @@ def test_subtracting_is_adding_a_negated_copy_bit_for_bit(prefixes):
         assert got.to_bytes() == want.to_bytes()  # every node and value
         assert got.num_nodes == want.num_nodes
     with pytest.raises(ValueError, match="itself"):
-        octofuse.maps.occupancy.subtract_into(maps[0], maps[0])
+        subtract_into(maps[0], maps[0])
 
 
 # -- exactness on trees, message by message ---------------------------------------------------

@@ -54,8 +54,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..config import CHANNEL_FILTER
-from ..maps import occupancy
-from ..maps.occupancy import OccupancyMap, fuse_into
+from ..maps.occupancy import OccupancyMap, fuse_into, subtract_into
 from .graph import Graph, make_graph
 
 __all__ = ["CHANNEL_FILTER", "ChannelFilter", "Message", "add_into", "clamped", "negated",
@@ -94,11 +93,6 @@ def add_into(dst: OccupancyMap, src: OccupancyMap) -> None:
     """``dst += src`` voxel by voxel (naive-Bayes fusion: l_dst + l_src - l_0 with l_0 = 0;
     a voxel ``dst`` does not know gets ``src``'s value). ``dst`` must have open clamping."""
     fuse_into(dst, src, rule="naive-bayes", unknown="copy")
-
-
-def subtract_into(dst: OccupancyMap, src: OccupancyMap) -> None:
-    """``dst -= src`` voxel by voxel (the same as adding a negated copy, without the copy)."""
-    occupancy.subtract_into(dst, src)
 
 
 # -- the tree -------------------------------------------------------------------------------
