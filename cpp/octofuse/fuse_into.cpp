@@ -21,6 +21,10 @@ using MsgNode = detail::WalkNode<OccupancyTree>;
 using ScalarWalk = detail::WalkNode<ScalarTree>;
 using detail::LossCursor;
 
+/// Whether child `c` of message node `m` is one of the message's own leaves (not a part of a
+/// coarse leaf the walk expands): each is reached once, from its parent.
+bool own_leaf(const MsgNode& m, const MsgNode& c) { return !m.leaf && c.present() && c.leaf; }
+
 /// Fuses a message into dst in place; the per-voxel policy is fixed at compile time. `dst` is
 /// the tree whose node operations are called: the destination itself, or in a parallel walk a
 /// worker's scratch tree (which then counts the nodes the worker created and deleted).
@@ -35,11 +39,7 @@ struct IntoWalker {
     if (dst.nodeHasChildren(n) && !dst.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
   }
 
-  // Counts child `c` of message node `m` if it is one of the message's own leaves (not a
-  // part of a coarse leaf the walk expands): each is reached once, from its parent.
-  void count_msg_leaf(const MsgNode& m, const MsgNode& c) {
-    if (!m.leaf && c.present() && c.leaf) ++st.msg_leaves;
-  }
+  void count_msg_leaf(const MsgNode& m, const MsgNode& c) { st.msg_leaves += own_leaf(m, c); }
 
   // The leaf d at `depth` gets v.
   void set(OcNode* d, const VoxelValue& v, const LossCursor& lc, unsigned depth) {
@@ -172,7 +172,7 @@ struct ParallelInto {
         if (d_leaf) dst.expandNode(t.d);
         for (unsigned i = 0; i < 8; ++i) {
           const MsgNode mc = t.m.child(i);
-          if (!t.m.leaf && mc.present() && mc.leaf) ++st.msg_leaves;
+          st.msg_leaves += own_leaf(t.m, mc);
           if (!dst.nodeChildExists(t.d, i)) {
             if (mc.present())
               next.push_back({Kind::MsgOnly, dst.createNodeChild(t.d, i), mc,
