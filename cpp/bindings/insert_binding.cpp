@@ -56,7 +56,7 @@ void define_insert(py::module_& m) {
           s.map_frame = !map_frame.empty() && map_frame[i];
           for (OccupancyMap* m : s.targets) {
             if (m == nullptr) throw py::value_error("insert batch: a target map is None");
-            check_compatible(*m, *s.targets.front());
+            check_same_grid(*m, *s.targets.front());  // clamping and sensor model: per map
           }
           keep.push_back(a);
         }

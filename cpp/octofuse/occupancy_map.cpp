@@ -127,13 +127,18 @@ std::uint64_t OccupancyMap::known_voxels() const {
 }
 LeafArrays scalar_leaves(const ScalarTree& tree) { return collect_leaves(tree); }
 
-void check_compatible(const OccupancyMap& a, const OccupancyMap& b) {
+void check_same_grid(const OccupancyMap& a, const OccupancyMap& b) {
   const MapParams &pa = a.params(), &pb = b.params();
   if (std::fabs(pa.resolution - pb.resolution) > 1e-9 * pa.resolution) {
     throw std::invalid_argument("maps have different resolutions (" + std::to_string(pa.resolution) +
                                 " m and " + std::to_string(pb.resolution) +
                                 " m); fuse maps built at the same resolution");
   }
+}
+
+void check_compatible(const OccupancyMap& a, const OccupancyMap& b) {
+  check_same_grid(a, b);
+  const MapParams &pa = a.params(), &pb = b.params();
   if (a.clamp_min_logodds() != b.clamp_min_logodds() ||
       a.clamp_max_logodds() != b.clamp_max_logodds()) {
     throw std::invalid_argument(

@@ -112,6 +112,10 @@ class OccupancyMap {
 /// Leaves of a scalar tree.
 LeafArrays scalar_leaves(const ScalarTree& tree);
 
+/// Throws std::invalid_argument if two maps do not share a voxel grid (different
+/// resolution): the same rays then pass the same voxels of both.
+void check_same_grid(const OccupancyMap& a, const OccupancyMap& b);
+
 /// Throws std::invalid_argument saying what differs if two maps cannot be combined voxel by
 /// voxel (different resolution or clamping).
 void check_compatible(const OccupancyMap& a, const OccupancyMap& b);

@@ -120,6 +120,28 @@ def test_insert_scans_equals_scan_by_scan():
         assert_same_map(batch, plain)
 
 
+def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
+    """The rays of a scan are cast once for all its targets, whatever their clamping or
+    sensor model (those act per map): each map ends as if filled on its own."""
+    from octofuse.maps.occupancy import insert_batch
+
+    scans = random_scans(6, 12)
+    kinds = [lambda: OccupancyMap(0.1), lambda: OccupancyMap(0.1).open_clamping(),
+             lambda: OccupancyMap(0.1, prob_hit=0.9, prob_miss=0.3, clamping=(0.05, 0.99))]
+    poses = np.stack([np.eye(4)] * len(scans))
+    poses[:, :3, 3] = [origin for _, origin in scans]
+    points = [np.ascontiguousarray(pts - origin) for pts, origin in scans]
+    together = [k() for k in kinds]
+    insert_batch(points, poses, np.full(len(scans), -1.0), [together] * len(scans), 2)
+    for k, got in zip(kinds, together):
+        alone = k()
+        insert_batch(points, poses, np.full(len(scans), -1.0), [[alone]] * len(scans), 2)
+        assert got.to_bytes() == alone.to_bytes()
+    assert together[0].to_bytes() != together[1].to_bytes() != together[2].to_bytes()
+    with pytest.raises(ValueError, match="different resolutions"):
+        insert_batch(points[:1], poses[:1], np.full(1, -1.0), [[OccupancyMap(0.1), OccupancyMap(0.2)]], 1)
+
+
 def test_insert_errors_name_the_row_and_leave_the_map():
     m = OccupancyMap(0.1)
     with pytest.raises(ValueError, match="non-finite coordinate at row 1"):

@@ -115,13 +115,13 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             if not batch:
                 return
             t0 = time.perf_counter()
-            targets = [[net.fused[r][agents[s.agent]] for r in rules if r != CHANNEL_FILTER]
+            # every map a scan goes into, its rays cast once (the channel filter's with open
+            # clamping); the centralized maps in the common frame: scans of agents with a
+            # frame moved there
+            targets = [[net.fused[r][agents[s.agent]] for r in rules]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
-            # the centralized map in the common frame: scans of agents with a frame moved there
-            insert_scans(*frames.scan_targets(batch, targets, central), build_cfg.workers)
-            if exact is not None:  # maps with open clamping: one call of their own
-                insert_scans(batch, [[net.fused[CHANNEL_FILTER][agents[s.agent]], exact]
-                                     for s in batch], build_cfg.workers)
+            common = [central] + ([exact] if exact is not None else [])
+            insert_scans(*frames.scan_targets(batch, targets, common), build_cfg.workers)
             for s in batch:
                 inserted[agents[s.agent]] += 1
             timings["insertion"] += time.perf_counter() - t0
