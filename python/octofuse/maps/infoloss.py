@@ -42,9 +42,13 @@ class Leaves(NamedTuple):
         return out
 
 
+#: finest voxels under a leaf at depth d (index d, 0 to 16): 8^(16-d), exact in float64
+_VOXELS_AT_DEPTH = np.ldexp(1.0, 3 * (16 - np.arange(17)))
+
+
 def voxels_per_leaf(depths: np.ndarray) -> np.ndarray:
     """Finest voxels each leaf stands for (a leaf at depth d: 8^(16-d)), as float64."""
-    return np.power(8.0, 16 - np.asarray(depths).astype(np.float64))
+    return _VOXELS_AT_DEPTH[np.asarray(depths)]
 
 
 def _pack_keys(k: np.ndarray) -> np.ndarray:
