@@ -132,7 +132,7 @@ void check_same_grid(const OccupancyMap& a, const OccupancyMap& b) {
   if (std::fabs(pa.resolution - pb.resolution) > 1e-9 * pa.resolution) {
     throw std::invalid_argument("maps have different resolutions (" + std::to_string(pa.resolution) +
                                 " m and " + std::to_string(pb.resolution) +
-                                " m); fuse maps built at the same resolution");
+                                " m); use maps built at the same resolution");
   }
 }
 

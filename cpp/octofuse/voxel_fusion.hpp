@@ -6,8 +6,6 @@
 #include "octofuse/rules.hpp"
 
 #include <cstdint>
-#include <cstring>
-#include <memory>
 
 namespace octofuse {
 

@@ -165,8 +165,8 @@ class AgentFrames:
         return [self.links[k].as_dict() for k in sorted(self.links)]
 
     def scan_targets(self, scans: Sequence, targets: Sequence[list],
-                     central: Sequence) -> tuple[list, list]:
-        """Scans and their target maps with the maps of the common frame (``central``: the
+                     common: Sequence) -> tuple[list, list]:
+        """Scans and their target maps with the maps of the common frame (``common``: the
         centralized map, and its unclamped twin) added: a scan of an agent in the common
         frame also goes into them; one of an agent with its own frame is followed by a copy
         moved by that frame (points and origin) for them."""
@@ -175,10 +175,10 @@ class AgentFrames:
             T = self.frames.get(self.agents[scan.agent])
             if T is None:
                 out_scans.append(scan)
-                out_targets.append([*tgt, *central])
+                out_targets.append([*tgt, *common])
             else:
                 out_scans += [scan, dataclasses.replace(scan, pose=T @ scan.pose)]
-                out_targets += [list(tgt), list(central)]
+                out_targets += [list(tgt), list(common)]
         return out_scans, out_targets
 
 

@@ -12,6 +12,7 @@ from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.compare import Score, compare_many, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
+from ..threads import thread_map
 from .agent_frames import AgentFrames, moved
 from .graph import Graph
 from .schedule import Exchange
@@ -380,15 +381,21 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
                      bytes_sent=tr.sent[a], bytes_received=tr.received[a],
                      bytes_sent_32b=tr.sent_32b[a])
 
-    if threads > 1:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            results = list(pool.map(one, jobs))
-    else:
-        results = [one(j) for j in jobs]
     out: dict[str, dict[str, Score]] = {}
-    for (r, a), s in zip(jobs, results):
+    for (r, a), s in zip(jobs, thread_map(one, jobs, threads)):
         out.setdefault(r, {})[a] = s
     return out
+
+
+def rule_groups(fuse_cfg: FuseConfig, size: int) -> list[list[str]]:
+    """``fuse_cfg.rules`` in groups of at most ``size`` (0: one group), to run one group after
+    the other: the rules' maps never meet, so each rule's result is that of the run with every
+    rule. Robust fusion (its vote is taken once, before the rules' exchanges) and alignment on
+    first contact (on the first rule's maps) put every rule in one group."""
+    rules = list(fuse_cfg.rules)
+    if size <= 0 or fuse_cfg.robust.enabled or fuse_cfg.align != "off":
+        size = len(rules)
+    return [rules[k:k + size] for k in range(0, len(rules), size)]
 
 
 def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:

@@ -11,7 +11,7 @@ from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
 from .agent_frames import AgentFrames
 from .graph import make_graph
-from .network import SimResult, Network, score_result
+from .network import SimResult, Network, rule_groups, score_result
 from .schedule import drop_messages, parse_schedule, rounds as make_rounds
 
 
@@ -82,11 +82,8 @@ def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optiona
     caller can write those rules' maps and free them before the next ones run: the rules' maps
     never meet, so every rule's result is the one of the run with all rules. The agents' own
     maps are scored with the first rules. With alignment on first contact (``fuse_cfg.align``)
-    every rule runs in one group: a link first used after round 1 aligns on the first rule's
-    maps when the rules run together."""
+    every rule runs in one group (:func:`~octofuse.fusion.network.rule_groups`)."""
     threads = threads or os.cpu_count() or 1
-    rules = list(fuse_cfg.rules)
-    size = threads if fuse_cfg.align == "off" else len(rules)
-    for k in range(0, len(rules), size):
-        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=rules[k:k + size]),
+    for k, group in enumerate(rule_groups(fuse_cfg, threads)):
+        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=group),
                             truth=truth, threads=threads, score_local=k == 0)

@@ -15,7 +15,7 @@ from ..maps.occupancy import OccupancyMap
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .graph import make_graph
-from .network import LOCAL, SimResult, Network, score_result
+from .network import LOCAL, SimResult, Network, rule_groups, score_result
 from .schedule import mission_events, parse_schedule
 
 
@@ -189,15 +189,11 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
     replaying the bags once per group, so that a caller can write a group's maps and free them
     before the next group runs. The rules' maps never meet, so every rule's result is the one
     of the run with all rules. The agents' own maps are mapped and scored in the first pass
-    only. Robust fusion (its vote on the agents' own maps) and alignment on first contact (on
-    the first rule's maps) run every rule in one pass. ``progress`` counts the scans of every
+    only. Robust fusion and alignment on first contact run every rule in one pass
+    (:func:`~octofuse.fusion.network.rule_groups`). ``progress`` counts the scans of every
     pass; ``source``, if given, is read once per pass."""
     fuse_cfg.validate("fuse")
-    rules = list(fuse_cfg.rules)
-    size = fuse_cfg.rules_per_pass or len(rules)
-    if fuse_cfg.robust.enabled or fuse_cfg.align != "off":
-        size = len(rules)
-    groups = [rules[k:k + size] for k in range(0, len(rules), size)]
+    groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
     for k, group in enumerate(groups):
         step = None if progress is None else \
             (lambda done, total, k=k: progress(k * total + done, len(groups) * total))

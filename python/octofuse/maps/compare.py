@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 
+from ..threads import thread_map
 from .infoloss import InfoLossMap, voxels_per_leaf
 from .occupancy import OccupancyMap, class_counts_of
 
@@ -67,12 +67,8 @@ def compare_many(central: OccupancyMap, agents: Sequence[OccupancyMap], tol: flo
     agents = list(agents)
     threads = max(1, min(threads, len(agents)))
     shares = [list(range(k, len(agents), threads)) for k in range(threads)]  # sizes mixed
-    run = lambda idx: class_counts_of(central, [agents[i] for i in idx], tol)  # noqa: E731
-    if threads == 1:
-        counts = [run(shares[0])]
-    else:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            counts = list(pool.map(run, shares))
+    counts = thread_map(lambda idx: class_counts_of(central, [agents[i] for i in idx], tol),
+                        shares, threads)
     out: list[Optional[Score]] = [None] * len(agents)
     for idx, share in zip(shares, counts):
         for i, d in zip(idx, share):

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..config import CHANNEL_FILTER, RunConfig
 from ..fusion.network import SimResult
+from ..threads import thread_map
 
 #: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
 TOPVIEW_RULES = ("chernoff", "kld-weighted-chernoff", "min-info-loss",
@@ -67,25 +68,17 @@ class MapExports:
             return None
 
         jobs = [(r, a) for r in res.rules for a in self.agents]
-        for (r, a), v in zip(jobs, self._map(one, jobs)):
+        for (r, a), v in zip(jobs, thread_map(one, jobs, self.threads)):
             if v is not None and len(v.loss):
                 self.voxels[(r, a)] = v
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
             if r not in ("naive-bayes", CHANNEL_FILTER):
-                per_agent = list(self._map(lambda a: res.loss[r][a].values_depths(), res.agents))
+                per_agent = thread_map(lambda a: res.loss[r][a].values_depths(), res.agents,
+                                       self.threads)
                 self.histogram[r] = (np.concatenate([x[0] for x in per_agent]),
                                      np.concatenate([x[1] for x in per_agent]))
         self.seconds += time.perf_counter() - t0
-
-    def _map(self, fn, items):
-        """``fn`` over ``items`` in order, on ``threads`` threads (the core releases the GIL)."""
-        if self.threads == 1 or len(items) < 2:
-            return [fn(x) for x in items]
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=self.threads) as pool:
-            return list(pool.map(fn, items))
 
     def finish(self) -> dict:
         """Heat maps (occupied voxels of each fused map, one colour range for the run), the
@@ -105,8 +98,8 @@ class MapExports:
         if self.heatmaps:
             jobs = [(v, out / r / f"{a}_info_loss.{ext}") for (r, a), v in self.voxels.items()
                     for ext in cfg.formats]
-            info["heatmaps"] = [p.name for p in self._map(
-                lambda job: write_heatmap(job[0], job[1], vmin=lo, vmax=hi), jobs)]
+            info["heatmaps"] = [p.name for p in thread_map(
+                lambda job: write_heatmap(job[0], job[1], vmin=lo, vmax=hi), jobs, self.threads)]
             write_colorbar(out / COLORBAR, "inferno", lo, hi, label="information loss [nats]")
             info["colorbar"] = COLORBAR
         first = self.agents[0]

@@ -1,0 +1,20 @@
+"""A function over items on a few of the caller's threads: for calls into the C++ core, which
+releases the GIL while it works."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int) -> list[R]:
+    """``[fn(x) for x in items]`` on up to ``threads`` threads, the results in order; on the
+    caller's thread alone for one thread or one item."""
+    items = list(items)
+    if threads <= 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=min(threads, len(items))) as pool:
+        return list(pool.map(fn, items))
