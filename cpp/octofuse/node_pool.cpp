@@ -72,9 +72,7 @@ void BlockPool<kSize>::Cache::refill() {
   using H = SlabHeader<kSize>;
   Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  // the lowest free blocks, lowest address first, linked in that order
-  Free* first = nullptr;
-  Free** tail = &first;
+  // the lowest free blocks, stacked so that the lowest address is taken first
   std::size_t got = 0;
   while (got < kBatch) {
     while (s.cursor < s.slabs.size() && s.slabs[s.cursor]->free == 0) ++s.cursor;
@@ -91,10 +89,7 @@ void BlockPool<kSize>::Cache::refill() {
       while (bits != 0 && got < kBatch) {
         const unsigned b = static_cast<unsigned>(__builtin_ctzll(bits));
         bits &= bits - 1;
-        Free* f = reinterpret_cast<Free*>(base + (w * 64 + b) * kSize);
-        *tail = f;
-        tail = &f->next;
-        ++got;
+        blocks[kBatch - 1 - got++] = base + (w * 64 + b) * kSize;
         --h->free;
       }
       h->bits[w] = bits;
@@ -102,9 +97,10 @@ void BlockPool<kSize>::Cache::refill() {
     }
     h->first_word = w;
   }
-  *tail = nullptr;
+  if (got < kBatch) {  // a short batch: move it to the bottom of the stack
+    for (std::size_t i = 0; i < got; ++i) blocks[i] = blocks[kBatch - got + i];
+  }
   s.free_blocks -= got;
-  head = first;
   count = got;
 }
 
@@ -113,13 +109,11 @@ void BlockPool<kSize>::Cache::spill(std::size_t n) noexcept {
   using H = SlabHeader<kSize>;
   Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  for (std::size_t i = 0; i < n && head != nullptr; ++i) {
-    Free* f = head;
-    head = f->next;
-    --count;
+  for (; n > 0 && count > 0; --n) {  // the most recently freed first
+    void* f = blocks[--count];
     H* h = H::of(f);
     const std::size_t b =
-        static_cast<std::size_t>(reinterpret_cast<char*>(f) - reinterpret_cast<char*>(h)) / kSize;
+        static_cast<std::size_t>(static_cast<char*>(f) - reinterpret_cast<char*>(h)) / kSize;
     h->bits[b / 64] |= std::uint64_t{1} << (b % 64);
     if (b / 64 < h->first_word) h->first_word = b / 64;
     ++h->free;

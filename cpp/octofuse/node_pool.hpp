@@ -10,7 +10,7 @@ namespace octofuse::detail {
 /// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
 /// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
 /// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
-/// side by side, however scattered the blocks freed before were), and frees onto a list of
+/// side by side, however scattered the blocks freed before were), and frees onto a stack of
 /// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
 /// trim() gives empty slabs back to the system.
 template <std::size_t kSize>
@@ -20,19 +20,14 @@ class BlockPool {
 
   static void* allocate() {
     Cache& c = cache();
-    if (c.head == nullptr) c.refill();
-    Free* b = c.head;
-    c.head = b->next;
-    --c.count;
-    return b;
+    if (c.count == 0) c.refill();
+    return c.blocks[--c.count];
   }
 
   static void release(void* p) noexcept {
     Cache& c = cache();
-    Free* b = static_cast<Free*>(p);
-    b->next = c.head;
-    c.head = b;
-    if (++c.count >= 2 * kBatch) c.spill(kBatch);
+    if (c.count == 2 * kBatch) c.spill(kBatch);
+    c.blocks[c.count++] = p;
   }
 
   struct Stats {
@@ -45,12 +40,11 @@ class BlockPool {
   static std::size_t trim();
 
  private:
-  struct Free {
-    Free* next;
-  };
   static constexpr std::size_t kBatch = 1024;  ///< blocks a thread takes or gives at once
+  // A thread's free blocks: a stack of addresses (the blocks themselves are not touched, so
+  // taking and giving batches under the pool's lock reads no block).
   struct Cache {
-    Free* head = nullptr;
+    void* blocks[2 * kBatch];
     std::size_t count = 0;
     void refill();
     void spill(std::size_t n) noexcept;
