@@ -12,6 +12,7 @@ from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from ..maps.build import insert_scans
 from ..maps.compare import compare, compare_many
 from ..maps.occupancy import OccupancyMap
+from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .graph import make_graph
@@ -21,7 +22,7 @@ from .schedule import mission_events, parse_schedule
 
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
              progress: Optional[Callable[[int, int], None]] = None,
-             source: Optional[ScanSource] = None,
+             source: Optional[ScanSource | ScanReplay] = None,
              observer: Optional[Callable[[float, list, Network, dict], None]] = None,
              local: bool = True) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
@@ -52,7 +53,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         raise ValueError("schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
                          "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S")
     t_all = time.perf_counter()
-    with contextlib.nullcontext(source) if source is not None else ScanSource(build_cfg) as src:
+    with _opened(source, build_cfg) as src:
         done = [0]
         agents = [a.name for a in src.agents]
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
@@ -191,14 +192,22 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
     of the run with all rules. The agents' own maps are mapped and scored in the first pass
     only. Robust fusion and alignment on first contact run every rule in one pass
     (:func:`~octofuse.fusion.network.rule_groups`). ``progress`` counts the scans of every
-    pass; ``source``, if given, is read once per pass."""
+    pass. The bags (or ``source``) are read in the first pass; later passes replay its scans
+    (:class:`~octofuse.scans.replay.ScanReplay`)."""
     fuse_cfg.validate("fuse")
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
-    for k, group in enumerate(groups):
-        step = None if progress is None else \
-            (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
-        yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples, truth=truth,
-                       progress=step, source=source, local=k == 0)
+    with _opened(source, build_cfg) as src:
+        scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
+        for k, group in enumerate(groups):
+            step = None if progress is None else \
+                (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
+            yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples,
+                           truth=truth, progress=step, source=scans, local=k == 0)
+
+
+def _opened(source, build_cfg: BuildConfig):
+    """``source`` as a context that leaves it open, or a :class:`ScanSource` of the bags."""
+    return contextlib.nullcontext(source) if source is not None else ScanSource(build_cfg)
 
 
 def _vote(local, graph, fuse_cfg: FuseConfig, t: float):
