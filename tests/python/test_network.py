@@ -423,9 +423,13 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, 
     for r, per in one.scores.items():
         for a, sc in per.items():
             assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
-    # the pass of the whole-map fixture is the same run without samples
+    # the pass of the whole-map fixture is the same run without samples: the same maps, and
+    # the same final scores (here taken anew, there from the last sample, after every change)
     for a in one.agents:
         assert_same_map(whole_and_delta[False].fused["chernoff"][a], one.fused["chernoff"][a], a)
+    for r, per in whole_and_delta[False].scores.items():
+        for a, sc in per.items():
+            assert one.scores[r][a].to_dict() == sc.to_dict(), (r, a)
     robust = FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES, rules_per_pass=1)
     robust.robust.enabled = True
     groups = simulate_in_rule_groups(run_config(team_bag), robust, samples=0)

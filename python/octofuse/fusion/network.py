@@ -358,15 +358,18 @@ def _loss_totals(loss: InfoLossMap) -> tuple[int, float]:
 
 
 def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
-                 local: bool = True) -> dict[str, dict[str, Score]]:
+                 local: bool = True, compared: Optional[dict] = None
+                 ) -> dict[str, dict[str, Score]]:
     """Scores of every agent for every rule, and (``local``) of the local-only maps (the
-    floor)."""
+    floor). ``compared``: (rule, agent) -> the comparison of those final maps with the
+    centralized map, where it was taken already."""
     jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
         [(r, a) for r in res.rules for a in res.agents]
     agent_map = lambda r, a: res.local[a] if r == LOCAL else res.fused[r][a]  # noqa: E731
     # maps in the common frame: compared in one walk of the centralized map
-    as_is = [j for j in jobs if res.frames.get(j[1]) is None]
-    compared = dict(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
+    compared = dict(compared or {})
+    as_is = [j for j in jobs if res.frames.get(j[1]) is None and j not in compared]
+    compared.update(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
                                             threads)))
 
     def one(job):

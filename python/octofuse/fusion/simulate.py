@@ -74,6 +74,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
         timeline: list[dict] = []
         timings = net.timings
+        #: the last sample's comparisons of maps in the common frame, until a map changes:
+        #: after the last scan and exchange they are the final scores' comparisons
+        final: dict = {}
 
         def sample(t):
             t0 = time.perf_counter()
@@ -101,6 +104,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 s = scores[i]
                 timeline.append({"t": t, "rule": r, "agent": a, "kl": s.kl_mean,
                                  "overconfidence": s.overconfidence, "coverage": s.coverage})
+            final.update({(r, a): scores[i] for i, (r, a, _) in enumerate(jobs)
+                          if frames.frames.get(a) is None})
             timings["scoring"] += time.perf_counter() - t0
 
         # exchange groups and KL samples, merged in time order: (time, kind, payload)
@@ -123,6 +128,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             common = [central] + ([exact] if exact is not None else [])
             insert_scans(*frames.scan_targets(batch, targets, common), build_cfg.workers)
+            final.clear()
             for s in batch:
                 inserted[agents[s.agent]] += 1
             timings["insertion"] += time.perf_counter() - t0
@@ -145,6 +151,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                         group = [] if held else [e for e in group if agents[e.sender] not in out]
                     if group:
                         net.exchange(group)
+                        final.clear()
                         if observer is not None:
                             observer(t, group, net, dict(inserted))
                 else:
@@ -177,7 +184,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     t0 = time.perf_counter()
     res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, build_cfg.workers,
-                              local=local)
+                              local=local, compared=final)
     timings["scoring"] += time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     return res
