@@ -1,5 +1,5 @@
-"""A function over items on a few of the caller's threads: for calls into the C++ core, which
-releases the GIL while it works."""
+"""A function over items on a few of the caller's threads: for work that releases the GIL
+(calls into the C++ core, numpy on large arrays)."""
 
 from __future__ import annotations
 

@@ -15,6 +15,7 @@ from ..fusion.agent_frames import frames_section
 from ..fusion.network import LOCAL, SimResult
 from ..maps.frames import matrix_pose
 from ..maps.infoloss import voxels_per_leaf
+from ..threads import thread_map
 from .map_exports import MapExports
 
 #: columns of the results tables: (key, header, format)
@@ -195,9 +196,10 @@ def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
 
 
 def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
-                         path: Path) -> Optional[Path]:
+                         path: Path, threads: int = 1) -> Optional[Path]:
     """The loss histogram of every rule: ``data`` maps a rule to the loss values and depths
-    of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`)."""
+    of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`); the rules'
+    histograms are counted on ``threads`` threads."""
     if not data:
         return None
     import matplotlib
@@ -205,20 +207,21 @@ def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
-    vmax = 0.0
-    for v, _ in data.values():
-        if len(v):
-            vmax = max(vmax, float(np.percentile(v, 99.5)))
-    nbins, top = 59, vmax or 1.0
+    rules = [r for r, (v, _) in data.items() if len(v)]
+    tops = thread_map(lambda r: float(np.percentile(data[r][0], 99.5)), rules, threads)
+    nbins, top = 59, max([0.0, *tops]) or 1.0
     bins = np.linspace(0, top, nbins + 1)
-    for r, (v, d) in data.items():
-        if len(v):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
-            w = voxels_per_leaf(d)
-            inside = (v >= 0) & (v <= top)
-            k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
-            ax.stairs(np.bincount(k, weights=w[inside], minlength=nbins) / w.sum(), bins,
-                      lw=1.3, label=r)
+
+    def fractions(r):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
+        v, d = data[r]
+        w = voxels_per_leaf(d)
+        inside = (v >= 0) & (v <= top)
+        k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
+        return np.bincount(k, weights=w[inside], minlength=nbins) / w.sum()
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for r, h in zip(rules, thread_map(fractions, rules, threads)):
+        ax.stairs(h, bins, lw=1.3, label=r)
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")
@@ -254,7 +257,8 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
     paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
-             "loss_hist": plot_loss_histograms(maps.histogram, out / "info_loss_histogram.png")}
+             "loss_hist": plot_loss_histograms(maps.histogram, out / "info_loss_histogram.png",
+                                               cfg.build.workers)}
     means = mean_scores(res.scores) if res.scores else {}
     exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {
