@@ -335,3 +335,19 @@ def test_bad_export_flags_are_one_line(bag, tmp_path, capsys, flags, message):
     code, _, err = run_cli(capsys, "run", bag, *flags, "--out", tmp_path / "o")
     assert code in (1, 2) and message in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
+    from octofuse.outputs.report import plot_loss_histograms
+
+    rng = np.random.default_rng(3)
+    data = {r: (rng.gamma(2.0, s, 5000).astype(np.float32),
+                rng.integers(13, 17, 5000).astype(np.uint8))
+            for r, s in (("chernoff", 0.3), ("min-info-loss", 0.5), ("empty", 0.1))}
+    data["empty"] = (np.zeros(0, np.float32), np.zeros(0, np.uint8))
+    one = plot_loss_histograms(data, tmp_path / "one.png", 1)
+    two = plot_loss_histograms(data, tmp_path / "two.png", 2)
+    assert one.read_bytes() == two.read_bytes()
+    # a rule with other values draws another image
+    data["chernoff"] = (data["chernoff"][0] * 2, data["chernoff"][1])
+    assert plot_loss_histograms(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()
