@@ -99,7 +99,9 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         accumulate_loss(self, other);
       })
-      .def("copy", [](const ScalarTree& t) { return std::make_unique<ScalarTree>(t); });
+      .def("copy", [](const ScalarTree& t) { return std::make_unique<ScalarTree>(t); })
+      .def("clear", &ScalarTree::clear, py::call_guard<py::gil_scoped_release>(),
+           "Removes every value, freeing the nodes.");
 
   py::class_<OccupancyMap>(m, "_OccupancyMap")
       .def(py::init([](double res, double hit, double miss, double cmin, double cmax) {
@@ -151,6 +153,8 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         return std::make_unique<OccupancyMap>(self);
       })
+      .def("clear", [](OccupancyMap& self) { self.tree().clear(); },
+           py::call_guard<py::gil_scoped_release>(), "Removes every voxel, freeing the nodes.")
       .def_property_readonly("num_leaves", [](const OccupancyMap& s) {
         py::gil_scoped_release release;  // counting walks the tree
         return s.num_leaves();

@@ -378,3 +378,18 @@ def test_counts_are_finest_voxels_and_the_loss_sum_is_the_voxels_loss(seed, rule
     acc = la.copy()
     acc.accumulate(lb)
     assert (acc.voxels_fused, acc.loss_sum) == (2 * fused, pytest.approx(la.loss_sum + lb.loss_sum))
+
+
+def test_clear_frees_every_voxel_and_leaves_a_usable_map():
+    from octofuse.threads import thread_map
+
+    maps = [random_map(s, 3) for s in range(4)]
+    fused = [fuse_maps(maps[0], m, "chernoff") for m in maps[1:]]
+    assert all(m.num_leaves > 0 for m in maps) and all(f.info_loss.num_leaves > 0 for f in fused)
+    thread_map(lambda m: m.clear(), [*maps, *(f.info_loss for f in fused)], 2)
+    assert [m.num_leaves for m in maps] == [0] * 4
+    assert all(f.info_loss.num_leaves == 0 and f.info_loss.loss_sum == 0 for f in fused)
+    maps[0].insert_scan(np.array([[1.0, 0.5, 0.2]]), (0.0, 0.0, 0.2))  # maps again as a new map
+    fresh = OccupancyMap(0.1)
+    fresh.insert_scan(np.array([[1.0, 0.5, 0.2]]), (0.0, 0.0, 0.2))
+    assert expand(maps[0].leaves(), 0.1) == expand(fresh.leaves(), 0.1) != {}

@@ -72,6 +72,7 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     ``export_agents(agents)``: the agents whose maps are written."""
     from ..fusion.network import merge_rule_results
     from ..outputs.map_exports import MapExports
+    from ..threads import thread_map
 
     written, parts = None, []
     for part in results:
@@ -79,8 +80,12 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
             written = MapExports(stage, cfg, cfg.fuse.rules, export_agents(part.agents),
                                  threads=cfg.build.workers)
         written.add(part)
+        # the rules' maps freed on every thread: the next rules' maps reuse their memory
+        rule_maps = [m for per in (*part.fused.values(), *part.loss.values(), part.unclamped)
+                     for m in per.values()]
+        thread_map(lambda m: m.clear(), rule_maps, cfg.build.workers)
         parts.append(replace(part, fused={}, loss={}, unclamped={}))
-        del part  # the next rules' maps reuse its memory
+        del part, rule_maps
         return_freed_memory()
     return merge_rule_results(parts), written
 

@@ -120,6 +120,12 @@ class InfoLossMap:
         return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied,
                                  self.loss_sum)
 
+    def clear(self) -> None:
+        """Remove every value and count, freeing the nodes (without the GIL)."""
+        self._t.clear()
+        self.voxels_fused = self.voxels_copied = 0
+        self.loss_sum = 0.0
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the leaves as ``.npz`` arrays (read back by :func:`read_info_loss`)."""
         p = Path(path)

@@ -223,6 +223,11 @@ class OccupancyMap:
         """A deep copy of the map."""
         return OccupancyMap._wrap(self._m.copy())
 
+    def clear(self) -> None:
+        """Remove every voxel, freeing the nodes (without the GIL: maps no longer needed can
+        be freed on several threads)."""
+        self._m.clear()
+
     # -- log-odds arithmetic (exact fusion by channel filters) ---------------------------
     def open_clamping(self) -> "OccupancyMap":
         """Open the clamping (thresholds -inf/+inf log-odds) in place, so sums stay exact."""
