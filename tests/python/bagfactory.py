@@ -622,7 +622,7 @@ def run_cli(capsys, *args) -> tuple[int, str, str]:
 def run_keeping_result(*args):
     """Run ``octofuse ARGS`` in-process: (exit code, the SimResult its outputs were written
     from, or None), to check the files against. The rules' maps, written group by group and
-    freed before the outputs, are put back into it."""
+    freed before the outputs, are put back into it (copies taken as they were written)."""
     import dataclasses
 
     import pytest
@@ -636,7 +636,8 @@ def run_keeping_result(*args):
 
     def keep_maps(self, res):
         for k, per in maps.items():
-            per.update(getattr(res, k))
+            for key, m in getattr(res, k).items():  # rule -> agent -> map, or agent -> map
+                per[key] = {a: x.copy() for a, x in m.items()} if isinstance(m, dict) else m.copy()
         return add(self, res)
 
     def keep(res, *a, **kw):
