@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     import ray
 
     from octofuse.config import FuseConfig
-    from octofuse.fusion.network import LOCAL
+    from octofuse.fusion.results import LOCAL
     from octofuse.fusion.simulate import simulate
     from octofuse.fusion.swarm import simulate_swarm
     from octofuse.maps.build import make_build_config

@@ -22,7 +22,7 @@ from test_frames import SENSORS, room_map  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import AgentFrame, FuseConfig, RunConfig, from_dict  # noqa: E402
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
-from octofuse.fusion.network import LOCAL  # noqa: E402
+from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402

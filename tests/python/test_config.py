@@ -16,7 +16,7 @@ import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
 
 from octofuse.config import BuildConfig, FuseConfig, RunConfig, dump_yaml, load_yaml  # noqa: E402
-from octofuse.fusion.network import LOCAL  # noqa: E402
+from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 
 RES = "0.2"

@@ -28,7 +28,7 @@ from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.scans.source import ScanSource  # noqa: E402
 from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
-from octofuse.fusion.network import LOCAL
+from octofuse.fusion.results import LOCAL
 from octofuse.fusion.rounds import fuse_finished
 from octofuse.fusion.simulate import simulate  # noqa: E402
 
@@ -226,7 +226,7 @@ def test_finished_maps_are_not_modified(four, ring_result):
 def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, threads):
     """fuse_finished_in_rule_groups (what `octofuse fuse` runs, a thread's worth of rules at a time)
     gives every rule the maps, losses, traffic and scores of the run with all rules at once."""
-    from octofuse.fusion.network import merge_rule_results
+    from octofuse.fusion.results import merge_rule_results
     from octofuse.fusion.rounds import fuse_finished_in_rule_groups
 
     maps, central = four
@@ -400,7 +400,7 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, 
     """simulate_in_rule_groups (the bags replayed once per group of rules, as `demo` runs)
     gives every rule the maps, losses, traffic, scores and timeline of one pass with all rules;
     the agents' own maps are mapped, sampled and scored in the first pass only."""
-    from octofuse.fusion.network import merge_rule_results
+    from octofuse.fusion.results import merge_rule_results
     from octofuse.fusion.simulate import simulate_in_rule_groups
 
     one = simulate(run_config(team_bag), FuseConfig(topology="ring", schedule=PERIOD,

@@ -19,7 +19,7 @@ from bagfactory import S, T0, assert_same_map, run_cli, run_keeping_result  # no
 
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
-from octofuse.fusion.network import LOCAL
+from octofuse.fusion.results import LOCAL
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 
 RES = "0.2"

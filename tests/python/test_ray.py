@@ -18,7 +18,7 @@ import bagfactory as bf  # noqa: E402
 
 from octofuse.config import FuseConfig, RunConfig  # noqa: E402
 from octofuse.fusion.executors import RayExecutor, make_executor  # noqa: E402
-from octofuse.fusion.network import LOCAL  # noqa: E402
+from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.fusion.swarm import simulate_swarm  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402

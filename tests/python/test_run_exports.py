@@ -19,7 +19,7 @@ from bagfactory import run_cli, run_keeping_result  # noqa: E402
 from conftest import finest_voxels  # noqa: E402
 
 from octofuse import OccupancyMap  # noqa: E402
-from octofuse.fusion.network import FusionEvent  # noqa: E402
+from octofuse.fusion.results import FusionEvent  # noqa: E402
 from octofuse.outputs.event_loss import (MIN_EXPLAINED, counts_messages,  # noqa: E402
                                          event_loss_summary, messages_sentence)
 from octofuse.outputs.export import MapVoxelLoss, colorize, read_cloud  # noqa: E402

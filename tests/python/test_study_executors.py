@@ -16,7 +16,7 @@ import bagfactory as bf  # noqa: E402
 from octofuse.config import FuseConfig, RunConfig  # noqa: E402
 from octofuse.fusion import executors  # noqa: E402
 from octofuse.fusion.executors import SerialExecutor, make_executor  # noqa: E402
-from octofuse.fusion.network import LOCAL  # noqa: E402
+from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.outputs.study import CELLS_DIR, load_cells, run_study, study_cells  # noqa: E402
 

@@ -70,7 +70,7 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
     histogram values); the merged result and the :class:`MapExports` that wrote them.
     ``export_agents(agents)``: the agents whose maps are written."""
-    from ..fusion.network import merge_rule_results
+    from ..fusion.results import merge_rule_results
     from ..outputs.map_exports import MapExports
     from ..threads import thread_map
 

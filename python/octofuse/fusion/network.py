@@ -5,94 +5,20 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 from ..config import CHANNEL_FILTER, FuseConfig
-from ..maps.compare import Score, compare_many, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
-from ..threads import thread_map
-from .agent_frames import AgentFrames, moved
-from .graph import Graph
+from .agent_frames import AgentFrames
+from .results import FusionEvent, Traffic
 from .schedule import Exchange
-
-LOCAL = "local-only"
 
 
 def message_bytes(m: OccupancyMap) -> int:
     """Size of a map message: OctoMap's full stream, 4-byte log-odds + 1 child byte per node."""
     return 5 * m.num_nodes
 
-
-@dataclass
-class Traffic:
-    sent: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    received: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    sent_32b: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    messages: int = 0
-    lost: int = 0  #: messages sent that never arrived (counted in ``sent``, not ``received``)
-    fusions: list["FusionEvent"] = field(default_factory=list)  #: messages fused, in order
-
-
-@dataclass(frozen=True)
-class FusionEvent:
-    """One message fused: when, by which rule, from whom into whom, the voxels fused and the
-    information loss summed over them (nats; None where the loss is not kept)."""
-
-    time_s: float
-    rule: str
-    sender: str
-    receiver: str
-    voxels: Optional[int]
-    loss: Optional[float]
-
-    @property
-    def mean_loss(self) -> Optional[float]:
-        """Loss per fused voxel (None without loss or voxels)."""
-        return self.loss / self.voxels if self.loss is not None and self.voxels else None
-
-    def to_dict(self) -> dict:
-        return {"t": self.time_s, "rule": self.rule, "sender": self.sender,
-                "receiver": self.receiver, "voxels": self.voxels, "loss": self.loss,
-                "mean_loss": self.mean_loss}
-
-
-@dataclass
-class SimResult:
-    """Everything a fusion run produced."""
-
-    agents: list[str]
-    rules: list[str]
-    graph: Graph
-    events: list[Exchange]
-    central: Optional[OccupancyMap]  #: None when fusing finished maps without one
-    local: dict[str, OccupancyMap]
-    fused: dict[str, dict[str, OccupancyMap]]  #: rule -> agent -> map
-    loss: dict[str, dict[str, InfoLossMap]]  #: rule -> agent -> accumulated loss
-    traffic: dict[str, Traffic]  #: rule -> traffic
-    timeline: list[dict] = field(default_factory=list)  #: samples {t, rule, agent, kl, overconfidence}
-    timings: dict[str, float] = field(default_factory=lambda: defaultdict(float))
-    scores: dict[str, dict[str, Score]] = field(default_factory=dict)  #: rule|local-only -> agent
-    build_stats: list = field(default_factory=list)
-    build_notes: list[str] = field(default_factory=list)  #: skipped transforms, dropped points
-    #: robust fusion: the robots voted out (their messages were not fused) and the vote
-    #: (:class:`octofuse.fusion.robust.RobustOutcome`, None without robust fusion)
-    excluded: list[str] = field(default_factory=list)
-    robust: Optional[object] = None
-    #: rule -> agent -> {"map": bytes of the agent's map, "links": bytes of its per-link state
-    #: (channel-filter: the neighbours' contributions; deltas: the maps they are taken against)}
-    memory: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
-    #: the channel filter's links (agent index pairs) and its unclamped agent maps (``fused``
-    #: holds them clamped, as scored and written)
-    tree: Optional[tuple] = None
-    unclamped: dict[str, OccupancyMap] = field(default_factory=dict)
-    #: the centralized map without clamping (runs with the channel filter): the exact target
-    central_unclamped: Optional[OccupancyMap] = None
-    #: agent -> its map frame into the common frame (agents in the common frame left out),
-    #: and per link the alignment on first contact (:mod:`octofuse.fusion.agent_frames`)
-    frames: dict = field(default_factory=dict)
-    alignment: list[dict] = field(default_factory=list)
 
 
 class Network:
@@ -355,71 +281,3 @@ class Network:
 def _loss_totals(loss: InfoLossMap) -> tuple[int, float]:
     """Voxels fused and information loss summed over them (nats)."""
     return loss.voxels_fused, float(loss.loss_sum)
-
-
-def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
-                 local: bool = True, compared: Optional[dict] = None
-                 ) -> dict[str, dict[str, Score]]:
-    """Scores of every agent for every rule, and (``local``) of the local-only maps (the
-    floor). ``compared``: (rule, agent) -> the comparison of those final maps with the
-    centralized map, where it was taken already."""
-    jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
-        [(r, a) for r in res.rules for a in res.agents]
-    agent_map = lambda r, a: res.local[a] if r == LOCAL else res.fused[r][a]  # noqa: E731
-    # maps in the common frame: compared in one walk of the centralized map
-    compared = dict(compared or {})
-    as_is = [j for j in jobs if res.frames.get(j[1]) is None and j not in compared]
-    compared.update(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
-                                            threads)))
-
-    def one(job):
-        r, a = job
-        m = moved(agent_map(r, a), res.frames.get(a))  # other frames: scored in the common one
-        c = compared.get(job)
-        if r == LOCAL:
-            return score(m, res.central, tol=tol, truth=truth, compared=c)
-        tr = res.traffic[r]
-        loss = None if r == CHANNEL_FILTER else res.loss[r][a]  # exact: no WEP loss
-        return score(m, res.central, tol=tol, loss=loss, truth=truth, compared=c,
-                     bytes_sent=tr.sent[a], bytes_received=tr.received[a],
-                     bytes_sent_32b=tr.sent_32b[a])
-
-    out: dict[str, dict[str, Score]] = {}
-    for (r, a), s in zip(jobs, thread_map(one, jobs, threads)):
-        out.setdefault(r, {})[a] = s
-    return out
-
-
-def rule_groups(fuse_cfg: FuseConfig, size: int) -> list[list[str]]:
-    """``fuse_cfg.rules`` in groups of at most ``size`` (0: one group), to run one group after
-    the other: the rules' maps never meet, so each rule's result is that of the run with every
-    rule. Robust fusion (its vote is taken once, before the rules' exchanges) and alignment on
-    first contact (on the first rule's maps) put every rule in one group."""
-    rules = list(fuse_cfg.rules)
-    if size <= 0 or fuse_cfg.robust.enabled or fuse_cfg.align != "off":
-        size = len(rules)
-    return [rules[k:k + size] for k in range(0, len(rules), size)]
-
-
-def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
-    """One result from the results of the same run with different rules (e.g.
-    :func:`octofuse.fusion.rounds.fuse_finished_in_rule_groups`), without the rules' maps (``fused``,
-    ``loss`` and ``unclamped`` are left empty: written and freed by the caller). Times add up."""
-    first = parts[0]
-    timings: dict[str, float] = defaultdict(float)
-    for p in parts:
-        for k, v in p.timings.items():
-            timings[k] += v
-    scores: dict[str, dict[str, Score]] = {}
-    for p in parts:
-        scores.update(p.scores)
-    tree = next((p.tree for p in parts if p.tree is not None), None)
-    exact = next((p.central_unclamped for p in parts if p.central_unclamped is not None), None)
-    return replace(
-        first, rules=[r for p in parts for r in p.rules], fused={}, loss={},
-        traffic={r: p.traffic[r] for p in parts for r in p.rules},
-        # in time order, each time's samples in rule order: as in the run with every rule
-        timeline=sorted((s for p in parts for s in p.timeline), key=lambda s: s["t"]),
-        timings=timings, scores=scores,
-        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree, unclamped={},
-        central_unclamped=exact)

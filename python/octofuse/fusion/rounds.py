@@ -11,7 +11,8 @@ from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
 from .agent_frames import AgentFrames
 from .graph import make_graph
-from .network import SimResult, Network, rule_groups, score_result
+from .network import Network
+from .results import SimResult, rule_groups, score_result
 from .schedule import drop_messages, parse_schedule, rounds as make_rounds
 
 
@@ -82,7 +83,7 @@ def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optiona
     caller can write those rules' maps and free them before the next ones run: the rules' maps
     never meet, so every rule's result is the one of the run with all rules. The agents' own
     maps are scored with the first rules. With alignment on first contact (``fuse_cfg.align``)
-    every rule runs in one group (:func:`~octofuse.fusion.network.rule_groups`)."""
+    every rule runs in one group (:func:`~octofuse.fusion.results.rule_groups`)."""
     threads = threads or os.cpu_count() or 1
     for k, group in enumerate(rule_groups(fuse_cfg, threads)):
         yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=group),

@@ -16,7 +16,8 @@ from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .graph import make_graph
-from .network import LOCAL, SimResult, Network, rule_groups, score_result
+from .network import Network
+from .results import LOCAL, SimResult, rule_groups, score_result
 from .schedule import mission_events, parse_schedule
 
 
@@ -198,7 +199,7 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
     before the next group runs. The rules' maps never meet, so every rule's result is the one
     of the run with all rules. The agents' own maps are mapped and scored in the first pass
     only. Robust fusion and alignment on first contact run every rule in one pass
-    (:func:`~octofuse.fusion.network.rule_groups`). ``progress`` counts the scans of every
+    (:func:`~octofuse.fusion.results.rule_groups`). ``progress`` counts the scans of every
     pass. The bags (or ``source``) are read in the first pass; later passes replay its scans
     (:class:`~octofuse.scans.replay.ScanReplay`)."""
     fuse_cfg.validate("fuse")

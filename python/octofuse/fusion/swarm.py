@@ -33,7 +33,8 @@ from typing import Callable, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig, MapConfig
 from .executors import ray_session
-from .network import LOCAL, Traffic, message_bytes
+from .network import message_bytes
+from .results import LOCAL, Traffic
 
 
 def _rss_bytes() -> tuple[int, int, int]:
@@ -169,7 +170,7 @@ class SwarmWorker:
 
     def score(self, central: bytes, tol: float, truth=None) -> dict:
         """Scores of this worker's agents against the centralized map (as in
-        :func:`octofuse.fusion.network.score_result`), with their traffic."""
+        :func:`octofuse.fusion.results.score_result`), with their traffic."""
         from ..maps.compare import compare_many, score
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap

@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from ..config import CHANNEL_FILTER, RunConfig
-from ..fusion.network import SimResult
+from ..fusion.results import SimResult
 from ..threads import thread_map
 
 #: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)

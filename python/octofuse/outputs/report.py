@@ -12,7 +12,7 @@ import numpy as np
 
 from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
-from ..fusion.network import LOCAL, SimResult
+from ..fusion.results import LOCAL, SimResult
 from ..maps.frames import matrix_pose
 from ..maps.infoloss import voxels_per_leaf
 from ..threads import thread_map

@@ -29,7 +29,7 @@ def skip_notes(result) -> list[str]:
 
 
 def scores_table(res, title: str) -> Table:
-    """Mean scores per rule of a :class:`~octofuse.fusion.network.SimResult`."""
+    """Mean scores per rule of a :class:`~octofuse.fusion.results.SimResult`."""
     from .report import mean_scores
 
     t = Table("rule", "KL(central‖agent)", "over-confident", "agreement", "coverage",
