@@ -114,6 +114,48 @@ inline bool fuse_certain(double la, double lb, Fused& out) {
   return true;
 }
 
+/// Whether R is one of the weighted Chernoff rules (a factor per map, then a root finding).
+constexpr bool is_weighted_chernoff(Rule r) {
+  return r == Rule::EntropyWeightedChernoff || r == Rule::KldWeightedChernoff;
+}
+
+/// A weighted Chernoff rule's factor of one map's value: its entropy (entropy-weighted: the
+/// rule balances KL / H) or its KL from the prior (KLD-weighted: the rule balances c KL).
+template <Rule R>
+inline double chernoff_factor(double l, double l0) {
+  static_assert(is_weighted_chernoff(R));
+  if constexpr (R == Rule::EntropyWeightedChernoff) {
+    return entropy_logodds(l);
+  } else {
+    return kl_logodds(l, l0);
+  }
+}
+
+/// The weight of a weighted Chernoff rule for finite la != lb, given both maps' factors.
+template <Rule R>
+inline double weighted_chernoff_weight(double la, double lb, double ca, double cb) {
+  static_assert(is_weighted_chernoff(R));
+  if constexpr (R == Rule::EntropyWeightedChernoff) {
+    if (ca == cb) return chernoff_weight(la, lb);
+    // c = 1/H, both scaled by H_a H_b: c_a -> H_b, c_b -> H_a
+    return weighted_chernoff_weight(la, lb, cb, ca, chernoff_weight(la, lb));
+  } else {
+    if (ca <= 0.0 && cb <= 0.0) return 0.5;
+    if (ca <= 0.0) return 0.0;  // a learnt nothing over the prior: take b
+    if (cb <= 0.0) return 1.0;
+    return weighted_chernoff_weight(la, lb, ca, cb, chernoff_weight(la, lb));
+  }
+}
+
+/// The WEP fusion of finite la, lb with weight w on a: the fused log-odds (kept between the
+/// inputs), w and the loss against naive Bayes.
+inline Fused wep_fuse(double la, double lb, double l0, double w) {
+  const double lo = la < lb ? la : lb, hi = la < lb ? lb : la;
+  double l = w * la + (1.0 - w) * lb;  // exact at w = 0 and w = 1
+  l = l < lo ? lo : (l > hi ? hi : l);
+  return {l, w, kl_logodds(la + lb - l0, l)};
+}
+
 }  // namespace detail
 
 template <Rule R>
@@ -126,17 +168,9 @@ inline double wep_weight(double la, double lb, double l0) {
     return std::fabs(la) >= std::fabs(lb) ? 1.0 : 0.0;
   } else if constexpr (R == Rule::Chernoff) {
     return chernoff_weight(la, lb);
-  } else if constexpr (R == Rule::EntropyWeightedChernoff) {
-    const double ha = entropy_logodds(la), hb = entropy_logodds(lb);
-    if (ha == hb) return chernoff_weight(la, lb);
-    // c = 1/H, both scaled by H_a H_b: c_a -> H_b, c_b -> H_a
-    return weighted_chernoff_weight(la, lb, hb, ha, chernoff_weight(la, lb));
-  } else if constexpr (R == Rule::KldWeightedChernoff) {
-    const double ca = kl_logodds(la, l0), cb = kl_logodds(lb, l0);
-    if (ca <= 0.0 && cb <= 0.0) return 0.5;
-    if (ca <= 0.0) return 0.0;  // a learnt nothing over the prior: take b
-    if (cb <= 0.0) return 1.0;
-    return weighted_chernoff_weight(la, lb, ca, cb, chernoff_weight(la, lb));
+  } else if constexpr (is_weighted_chernoff(R)) {
+    return weighted_chernoff_weight<R>(la, lb, chernoff_factor<R>(la, l0),
+                                       chernoff_factor<R>(lb, l0));
   } else if constexpr (R == Rule::MinInfoLoss) {
     const double w = (la + lb - l0 - lb) / (la - lb);
     return w < 0.0 ? 0.0 : (w > 1.0 ? 1.0 : w);
@@ -159,19 +193,16 @@ inline Fused fuse_logodds(double la, double lb, double l0) {
   if constexpr (R == Rule::NaiveBayes) {
     return {lnb, kNaN, 0.0};
   } else {
-    const double lo = la < lb ? la : lb, hi = la < lb ? lb : la;
     if constexpr (R == Rule::MinInfoLoss) {
       // exact projection, so the loss is exactly 0 when l_NB lies between the inputs
+      const double lo = la < lb ? la : lb, hi = la < lb ? lb : la;
       const double l = lnb < lo ? lo : (lnb > hi ? hi : lnb);
       return {l, wep_weight<R>(la, lb, l0), l == lnb ? 0.0 : kl_logodds(lnb, l)};
     } else {
       if constexpr (R == Rule::Chernoff) {
         if (chernoff_pack_applies(la, lb, l0)) return chernoff_fuse_one(la, lb);
       }
-      const double w = wep_weight<R>(la, lb, l0);
-      double l = w * la + (1.0 - w) * lb;  // exact at w = 0 and w = 1
-      l = l < lo ? lo : (l > hi ? hi : l);
-      return {l, w, kl_logodds(lnb, l)};
+      return wep_fuse(la, lb, l0, wep_weight<R>(la, lb, l0));
     }
   }
 }

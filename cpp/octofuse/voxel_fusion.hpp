@@ -5,7 +5,9 @@
 #include "octofuse/detail/pair_memo.hpp"
 #include "octofuse/rules.hpp"
 
+#include <cmath>
 #include <cstdint>
+#include <memory>
 
 namespace octofuse {
 
@@ -74,6 +76,9 @@ class VoxelFusion {
 
   /// `clamp_min`, `clamp_max`: the maps' clamping thresholds in log-odds.
   VoxelFusion(float clamp_min, float clamp_max) : lmin_(clamp_min), lmax_(clamp_max) {
+    if constexpr (detail::is_weighted_chernoff(R)) {
+      factors_ = std::make_unique<detail::ValueMemo<double>>(detail::chernoff_factor<R>(0.0, 0.0));
+    }
     if constexpr (R != Rule::NaiveBayes) memo_ = detail::PairMemo<Stored>(stored(0.0f, 0.0f));
   }
 
@@ -107,21 +112,34 @@ class VoxelFusion {
   }
 
  private:
-  VoxelValue compute(float a, float b) const {
-    const Fused f = fuse_logodds<R>(a, b, 0.0);
+  VoxelValue compute(float a, float b) {
+    const Fused f = fuse(a, b);
     const double l = f.l < lmin_ ? lmin_ : (f.l > lmax_ ? lmax_ : f.l);
     return {static_cast<float>(l), static_cast<float>(f.info_loss), true};
+  }
+
+  // fuse_logodds<R>(a, b, 0); the weighted Chernoff rules take each map's factor from a memo
+  Fused fuse(float a, float b) {
+    if constexpr (detail::is_weighted_chernoff(R)) {
+      if (std::isfinite(a) && std::isfinite(b) && a != b) {
+        const auto factor = [](float x) { return detail::chernoff_factor<R>(x, 0.0); };
+        const double ca = factors_->get(a, factor), cb = factors_->get(b, factor);
+        return detail::wep_fuse(a, b, 0.0, detail::weighted_chernoff_weight<R>(a, b, ca, cb));
+      }
+    }
+    return fuse_logodds<R>(a, b, 0.0);
   }
 
   struct Stored {  // a memo entry: 16 bytes with its key
     float value, loss;
   };
-  Stored stored(float a, float b) const {
+  Stored stored(float a, float b) {
     const VoxelValue v = compute(a, b);
     return {v.value, v.loss};
   }
   double lmin_, lmax_;
   detail::PairMemo<Stored> memo_;  // not used by naive-bayes
+  std::unique_ptr<detail::ValueMemo<double>> factors_;  // the weighted Chernoff rules only
 };
 
 /// Calls f(VoxelFusion<R, U>&) for the run-time rule and policy: the one dispatch of every

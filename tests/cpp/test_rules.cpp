@@ -1,10 +1,13 @@
 // Defining properties of the per-voxel rules (see MATH.md), checked over a grid of inputs.
 #include "octofuse/fuse_arrays.hpp"
 #include "octofuse/rules.hpp"
+#include "octofuse/voxel_fusion.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <vector>
 
 using namespace octofuse;
@@ -113,4 +116,36 @@ TEST(Rules, CertaintiesDominateAndContradictionsAreFlagged) {
   EXPECT_EQ(st.index, 0u);
   st = fuse_arrays(Rule::Chernoff, a + 1, b + 1, 1, true, 0.0, v, w, l);
   EXPECT_EQ(st.what, BadInput::Contradiction);
+}
+
+// A tree walk's per-voxel fusion (memos of pairs, and of each map's factor for the weighted
+// Chernoff rules) gives exactly what fuse_logodds gives, clamped and stored as floats.
+template <Rule R>
+void expect_voxel_fusion_is_fuse_logodds() {
+  const float cmin = -2.0f, cmax = 3.5f;
+  VoxelFusion<R, UnknownPolicy::Copy> vf(cmin, cmax);
+  std::uint64_t state = 12345;
+  auto next = [&] {  // few distinct values (as sensor-model sums), so that the memos hit
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<float>(static_cast<int>((state >> 33) % 41) - 20) * 0.17f;
+  };
+  for (int i = 0; i < 20000; ++i) {
+    const float a = next(), b = i % 7 == 0 ? a : next();
+    const Fused f = fuse_logodds<R>(a, b, 0.0);
+    const double l = f.l < cmin ? cmin : (f.l > cmax ? cmax : f.l);
+    const VoxelValue v = vf.both(a, b);
+    ASSERT_EQ(v.value, static_cast<float>(l)) << rule_name(R) << " " << a << " " << b;
+    ASSERT_EQ(v.loss, static_cast<float>(f.info_loss)) << rule_name(R) << " " << a << " " << b;
+  }
+  const float inf = std::numeric_limits<float>::infinity();
+  EXPECT_EQ(vf.both(inf, 1.0f).value, cmax);  // certainties: through fuse_logodds
+  EXPECT_EQ(vf.both(-1.0f, -inf).value, cmin);
+}
+
+TEST(Rules, TreeWalkVoxelFusionIsFuseLogodds) {
+  expect_voxel_fusion_is_fuse_logodds<Rule::Bhattacharyya>();
+  expect_voxel_fusion_is_fuse_logodds<Rule::Chernoff>();
+  expect_voxel_fusion_is_fuse_logodds<Rule::EntropyWeightedChernoff>();
+  expect_voxel_fusion_is_fuse_logodds<Rule::KldWeightedChernoff>();
+  expect_voxel_fusion_is_fuse_logodds<Rule::MinInfoLoss>();
 }

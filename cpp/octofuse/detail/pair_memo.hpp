@@ -1,4 +1,4 @@
-// octofuse: a memo of a function of two stored float values (direct mapped, exact).
+// octofuse: memos of a function of one or two stored float values (direct mapped, exact).
 #pragma once
 
 #include <cstdint>
@@ -48,6 +48,39 @@ class PairMemo {
     std::memcpy(&ub, &b, sizeof ub);
     return (std::uint64_t{ua} << 32) | ub;
   }
+  std::unique_ptr<Entry[]> entries_;
+};
+
+/// The same for a function of one stored value (e.g. a rule's factor of one map's value,
+/// which repeats far more often than the pairs).
+template <class T>
+class ValueMemo {
+ public:
+  static constexpr unsigned kBits = 12;
+
+  /// Every entry starts as the result `at_zero` for +0.
+  explicit ValueMemo(const T& at_zero) : entries_(new Entry[1u << kBits]) {
+    for (unsigned i = 0; i < (1u << kBits); ++i) entries_[i] = {0u, at_zero};
+  }
+
+  /// f(a), computed by `compute(a)` unless a's slot holds it.
+  template <class Compute>
+  const T& get(float a, Compute&& compute) {
+    std::uint32_t key;
+    std::memcpy(&key, &a, sizeof key);
+    Entry& e = entries_[(key * 0x9E3779B1u) >> (32 - kBits)];
+    if (e.key != key) {
+      e.key = key;
+      e.value = compute(a);
+    }
+    return e.value;
+  }
+
+ private:
+  struct Entry {
+    std::uint32_t key;
+    T value;
+  };
   std::unique_ptr<Entry[]> entries_;
 };
 
