@@ -91,9 +91,9 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
 
 
 def return_freed_memory() -> None:
-    """Give the pages the run freed (copies, messages, scratch trees) back to the system before
-    the outputs are written, so that writing adds to what the run holds, not to its peak
-    (the tree pools' empty slabs, and glibc's ``malloc_trim``)."""
+    """Give the pages the run freed (a group's maps, copies, messages, scratch trees) back to
+    the system, so that the next group and the outputs add to what the run holds, not to its
+    peak (the tree pools' empty slabs, and glibc's ``malloc_trim``)."""
     import ctypes
 
     from .. import _core

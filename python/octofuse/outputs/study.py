@@ -23,8 +23,7 @@ import hashlib
 import json
 import math
 import os
-from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
@@ -95,24 +94,23 @@ def run_cell(payload: tuple) -> dict:
     """Run one cell (in this process or in a Ray worker): its rows per rule and its timings.
     ``payload`` is ``(cfg, cell, truth, threads)``; ``threads`` (if not None) replaces the
     build threads (the numbers do not depend on it)."""
+    from ..fusion.results import merge_rule_results
     from ..fusion.simulate import simulate_in_rule_groups
 
     cfg, cell, truth, threads, source = (*payload, None)[:5]
     c = cell_config(cfg, cell)
     if threads is not None:
         c.build.threads = int(threads)
-    scores, messages, timings = {}, {}, defaultdict(float)
-    # a few rules at a time with fuse.rules_per_pass: only their scores are kept
-    for part in simulate_in_rule_groups(c.build, c.fuse, samples=0, truth=truth, source=source):
-        scores.update(part.scores)
-        messages.update({r: part.traffic[r].messages for r in part.rules})
-        for k, v in part.timings.items():
-            timings[k] += float(v)
-        del part
+    # a few rules at a time with fuse.rules_per_pass: each group's maps dropped as it comes
+    res = merge_rule_results([
+        replace(part, fused={}, loss={}, unclamped={})
+        for part in simulate_in_rule_groups(c.build, c.fuse, samples=0, truth=truth,
+                                            source=source)])
     rows = []
-    for rule, row in mean_scores(scores).items():
-        rows.append({"rule": rule, "messages": messages.get(rule, 0), **row})
-    return {"rows": rows, "timings": dict(timings)}
+    for rule, row in mean_scores(res.scores).items():
+        messages = res.traffic[rule].messages if rule in res.traffic else 0  # local-only: none
+        rows.append({"rule": rule, "messages": messages, **row})
+    return {"rows": rows, "timings": {k: float(v) for k, v in res.timings.items()}}
 
 
 def load_cells(folders: Sequence[str | os.PathLike]) -> dict[str, dict]:
