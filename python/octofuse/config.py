@@ -201,8 +201,8 @@ class FuseConfig:
     agent_frames: list[AgentFrame] = field(default_factory=list)
     #: estimate each link's transform on first contact: off, planar (x, y, z, yaw) or full
     align: str = "off"
-    #: ``run``: the rules whose maps are held at once; more rules replay the bags once per
-    #: group of this many (memory for time: every replay maps the scans again). 0: all in one
+    #: ``run``: the rules whose maps are held at once; more rules map the scans once per
+    #: group of this many (memory for time). 0: all in one
     rules_per_pass: int = 0
 
     def validate(self, where: str) -> None:

@@ -107,7 +107,7 @@ frame_options = _options(
 def passes_option(default: int):
     return click.option(
         "--rules-per-pass", type=click.IntRange(min=0), metavar="N", show_default=str(default),
-        help="rules whose maps are held at once; more rules replay the bags once per group of "
+        help="rules whose maps are held at once; more rules map the scans once per group of "
              "this many (less memory, more time); 0: all in one pass")
 
 
