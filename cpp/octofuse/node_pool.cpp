@@ -127,6 +127,28 @@ BlockPool<kSize>::Cache::~Cache() {
   spill(count);
 }
 
+namespace {
+
+// Owns a thread's cache: returns its blocks to the slabs and deletes it when the thread exits.
+template <std::size_t kSize, class Cache>
+struct CacheOwner {
+  Cache* cache = nullptr;
+  ~CacheOwner() {
+    pool_cache<kSize> = nullptr;
+    delete cache;
+  }
+};
+
+}  // namespace
+
+template <std::size_t kSize>
+typename BlockPool<kSize>::Cache* BlockPool<kSize>::new_cache() {
+  thread_local CacheOwner<kSize, Cache> owner;
+  owner.cache = new Cache;
+  pool_cache<kSize> = owner.cache;
+  return owner.cache;
+}
+
 template <std::size_t kSize>
 typename BlockPool<kSize>::Stats BlockPool<kSize>::stats() {
   Shared<kSize>& s = shared<kSize>();

@@ -13,6 +13,13 @@ namespace octofuse::detail {
 /// side by side, however scattered the blocks freed before were), and frees onto a stack of
 /// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
 /// trim() gives empty slabs back to the system.
+/// The thread's cache of BlockPool<kSize> (null until its first use). Only a pointer is
+/// thread-local, in the initial-exec model: one load, not a call into the dynamic linker for
+/// every block (a module loaded at run time has room for a few such bytes). A variable
+/// template, not a static member: its constant initializer is seen wherever it is read.
+template <std::size_t kSize>
+inline thread_local void* pool_cache __attribute__((tls_model("initial-exec"))) = nullptr;
+
 template <std::size_t kSize>
 class BlockPool {
  public:
@@ -50,10 +57,13 @@ class BlockPool {
     void spill(std::size_t n) noexcept;
     ~Cache();
   };
+  // The thread's cache, created on its first use and destroyed at its exit.
   static Cache& cache() {
-    thread_local Cache c;
-    return c;
+    void* c = pool_cache<kSize>;
+    if (__builtin_expect(c == nullptr, 0)) c = new_cache();
+    return *static_cast<Cache*>(c);
   }
+  static Cache* new_cache();
 };
 
 using NodePool = BlockPool<16>;      ///< tree nodes
