@@ -2,6 +2,7 @@
 #include "octofuse/compare.hpp"
 
 #include "octofuse/detail/pair_memo.hpp"
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/rules.hpp"
 #include "octofuse/walk.hpp"
 
@@ -116,7 +117,7 @@ void finish_inner(OccupancyTree& t, OccupancyNode* n) {
   if (!t.nodeHasChildren(n)) return;
   for (unsigned i = 0; i < 8; ++i)
     if (t.nodeChildExists(n, i)) finish_inner(t, t.getNodeChild(n, i));
-  if (!t.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
+  detail::prune_or_max(t, n);
 }
 
 // Builds a tree from disjoint leaves given by lower-corner key and depth.

@@ -2,6 +2,7 @@
 #include "octofuse/fuse_into.hpp"
 
 #include "octofuse/detail/parallel_for.hpp"
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/loss_tree.hpp"
 #include "octofuse/walk.hpp"
 
@@ -35,9 +36,7 @@ struct IntoWalker {
   OccupancyTree& dst;
   detail::LossAdder loss;
   FuseIntoStats st;
-  void finish_occ(OcNode* n) {
-    if (dst.nodeHasChildren(n) && !dst.pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds());
-  }
+  void finish_occ(OcNode* n) { detail::prune_or_max(dst, n); }
 
   void count_msg_leaf(const MsgNode& m, const MsgNode& c) { st.msg_leaves += own_leaf(m, c); }
 

@@ -3,6 +3,7 @@
 
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/scan_check.hpp"
 #include "octofuse/tree_access.hpp"
 
@@ -150,7 +151,7 @@ class BatchApplier {
       any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g);
       b = g;
     }
-    if (any && !t_.pruneNode(node)) node->updateOccupancyChildren();
+    if (any) detail::prune_or_max(t_, node);
     return any;
   }
 

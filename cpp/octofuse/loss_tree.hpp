@@ -1,11 +1,10 @@
 // octofuse: adding values into a scalar tree (accumulated information loss) along a walk.
 #pragma once
 
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/occupancy_map.hpp"
 #include "octofuse/tree_access.hpp"
 
-#include <algorithm>
-#include <limits>
 #include <mutex>
 
 namespace octofuse::detail {
@@ -80,12 +79,7 @@ class LossAdder {
 
   /// After the children of a cursor were visited: prune, or hold the max of the children.
   void finish(const LossCursor& c) {
-    if (c.node == nullptr || !ops_->nodeHasChildren(c.node)) return;
-    if (ops_->pruneNode(c.node)) return;
-    float mx = -std::numeric_limits<float>::infinity();
-    for (unsigned i = 0; i < 8; ++i)
-      if (ops_->nodeChildExists(c.node, i)) mx = std::max(mx, ops_->getNodeChild(c.node, i)->getValue());
-    c.node->setValue(mx);
+    if (c.node != nullptr) prune_or_max(*ops_, c.node);
   }
 
   /// Marks the tree's metric size stale (call once when done).

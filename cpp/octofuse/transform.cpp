@@ -1,6 +1,7 @@
 // octofuse: rigid transforms and resampling of occupancy maps (forward splatting).
 #include "octofuse/transform.hpp"
 
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/text.hpp"
 #include "octofuse/tree_access.hpp"
 
@@ -191,12 +192,7 @@ bool build(OccupancyTree& tree, OccupancyNode* node, unsigned depth, const Voxel
     build(tree, tree.createNodeChild(node, c), depth + 1, p, q);
     p = q;
   }
-  if (tree.isNodeCollapsible(node)) {
-    tree.pruneNode(node);
-    return true;
-  }
-  node->setLogOdds(node->getMaxChildLogOdds());
-  return false;
+  return detail::prune_or_max(tree, node);
 }
 
 }  // namespace
