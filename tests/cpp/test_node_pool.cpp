@@ -1,4 +1,5 @@
 // The pooled tree types: same trees and files as OctoMap's own, nodes safe across threads.
+#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/node_pool.hpp"
 #include "octofuse/occupancy_map.hpp"
 #include "test_trees.hpp"
@@ -6,7 +7,13 @@
 #include <gtest/gtest.h>
 #include <octomap/OcTree.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <cstring>
+#include <limits>
+#include <random>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -116,4 +123,77 @@ TEST(NodePool, FreedTreesAreReusedAndEmptySlabsTrimmed) {
   EXPECT_GT(freed, 0u);
   OccupancyMap after = random_map(12, 0.2);  // and the pool still works
   EXPECT_EQ(expand(after.tree()), expand(random_map(12, 0.2).tree()));
+}
+
+// A root with 8 random children: absent, a leaf or an inner node; values that often tie,
+// signed zeros and NaN included.
+template <class Tree>
+void random_children(Tree& t, std::mt19937& rng) {
+  using Node = typename detail::TreeAccess<Tree>::Node;
+  const float values[] = {-1.0f, 0.5f, 0.5f, 0.5f, -0.0f, 0.0f, std::nanf("")};
+  std::uniform_int_distribution<int> kind(0, 9), v(0, 6);
+  Node* root = detail::TreeAccess<Tree>::ensure_root(t);
+  const bool all_leaves = kind(rng) < 5;  // then pruning is likely
+  const float shared = values[v(rng)];
+  for (unsigned i = 0; i < 8; ++i) {
+    const int k = all_leaves ? 9 : kind(rng);
+    if (k == 0) continue;
+    Node* c = t.createNodeChild(root, i);
+    c->setValue(all_leaves && kind(rng) < 8 ? shared : values[v(rng)]);
+    if (k == 1) t.createNodeChild(c, 3)->setValue(values[v(rng)]);
+  }
+}
+
+template <class Tree>
+std::string bits_of(const Tree& t) {
+  std::ostringstream s;
+  s << t.size() << ':';
+  const auto* root = t.getRoot();
+  float rv = root->getValue();
+  std::uint32_t u;
+  std::memcpy(&u, &rv, 4);
+  s << u << (t.nodeHasChildren(root) ? "[" : "");
+  for (unsigned i = 0; i < 8 && t.nodeHasChildren(root); ++i) {
+    if (!t.nodeChildExists(root, i)) {
+      s << "-,";
+      continue;
+    }
+    float cv = t.getNodeChild(root, i)->getValue();
+    std::memcpy(&u, &cv, 4);
+    s << u << (t.nodeHasChildren(t.getNodeChild(root, i)) ? "+," : ",");
+  }
+  return s.str();
+}
+
+TEST(NodePool, PruneOrMaxIsOctomapsPruneThenMax) {
+  std::mt19937 rng(11);
+  int pruned = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    OccupancyTree a(0.1);
+    random_children(a, rng);
+    OccupancyTree b(a);
+    OccupancyNode* ra = a.getRoot();
+    const bool octomap_pruned = a.pruneNode(ra);
+    if (!octomap_pruned && a.nodeHasChildren(ra)) ra->setLogOdds(ra->getMaxChildLogOdds());
+    EXPECT_EQ(detail::prune_or_max(b, b.getRoot()), octomap_pruned);
+    EXPECT_EQ(bits_of(b), bits_of(a)) << "trial " << trial;
+    pruned += octomap_pruned;
+
+    // scalar trees: the max of the children from -inf, as the loss trees keep it
+    ScalarTree s(0.1);
+    random_children(s, rng);
+    ScalarTree s2(s);
+    ScalarNode* rs = s.getRoot();
+    const bool s_pruned = s.pruneNode(rs);
+    if (!s_pruned && s.nodeHasChildren(rs)) {
+      float mx = -std::numeric_limits<float>::infinity();
+      for (unsigned i = 0; i < 8; ++i)
+        if (s.nodeChildExists(rs, i)) mx = std::max(mx, s.getNodeChild(rs, i)->getValue());
+      rs->setValue(mx);
+    }
+    EXPECT_EQ(detail::prune_or_max(s2, s2.getRoot()), s_pruned);
+    EXPECT_EQ(bits_of(s2), bits_of(s)) << "trial " << trial;
+  }
+  EXPECT_GT(pruned, 300);  // both outcomes were tried
+  EXPECT_LT(pruned, 2700);
 }
