@@ -1,6 +1,8 @@
 // octofuse: leaves_with_values and scalar_values_and_depths.
 #include "octofuse/leaf_lookup.hpp"
 
+#include "octofuse/walk.hpp"
+
 #include <cmath>
 
 namespace octofuse {
@@ -46,17 +48,16 @@ bool leaf_at(const ScalarTree& t, double resolution, const double centre[3], uns
 LeafArrays leaves_with_values(const OccupancyMap& map, const ScalarTree& scalar, LeafClass which,
                               std::vector<float>& scalar_values) {
   std::uint32_t depths = 0;  // bit d: the scalar tree has leaves at depth d
-  for (auto it = scalar.begin_leafs(), end = scalar.end_leafs(); it != end; ++it)
-    depths |= std::uint32_t{1} << it.getDepth();
+  detail::for_each_leaf(scalar, [&](const ScalarNode&, const octomap::OcTreeKey&, unsigned d) {
+    depths |= std::uint32_t{1} << d;
+  });
   LeafArrays out;
   scalar_values.clear();
   const OccupancyTree& t = map.tree();
-  for (auto it = t.begin_leafs(), end = t.end_leafs(); it != end; ++it) {
-    const float lo = it->getLogOdds();
+  detail::for_each_leaf(t, [&](const OccupancyNode& node, const octomap::OcTreeKey& k, unsigned d) {
+    const float lo = node.getLogOdds();
     if ((which == LeafClass::Occupied && !(lo > 0)) || (which == LeafClass::Free && !(lo <= 0)))
-      continue;
-    const octomap::OcTreeKey& k = it.getKey();
-    const unsigned d = it.getDepth();
+      return;
     const double centre[3] = {t.keyToCoord(k[0], d), t.keyToCoord(k[1], d), t.keyToCoord(k[2], d)};
     float v = 0.0f;
     bool found = false;
@@ -67,24 +68,24 @@ LeafArrays leaves_with_values(const OccupancyMap& map, const ScalarTree& scalar,
         found = true;
       }
     }
-    if (!found || !std::isfinite(v)) continue;
-    detail::append_leaf(out, t, it);
+    if (!found || !std::isfinite(v)) return;
+    detail::append_leaf(out, t, k, d, lo);
     scalar_values.push_back(v);
-  }
+  });
   return out;
 }
 
 void scalar_values_and_depths(const ScalarTree& tree, std::vector<float>& values,
                               std::vector<std::uint8_t>& depths) {
-  const std::size_t n = tree.getNumLeafNodes();
+  const std::size_t n = tree.size();  // the node count the tree keeps: leaves and more
   values.clear();
   depths.clear();
   values.reserve(n);
   depths.reserve(n);
-  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
-    values.push_back(it->getValue());
-    depths.push_back(static_cast<std::uint8_t>(it.getDepth()));
-  }
+  detail::for_each_leaf(tree, [&](const ScalarNode& node, const octomap::OcTreeKey&, unsigned d) {
+    values.push_back(node.getValue());
+    depths.push_back(static_cast<std::uint8_t>(d));
+  });
 }
 
 }  // namespace octofuse

@@ -4,6 +4,7 @@
 #include "octofuse/detail/text.hpp"
 #include "octofuse/map_file.hpp"
 #include "octofuse/scan_check.hpp"
+#include "octofuse/walk.hpp"
 
 #include <octomap/Pointcloud.h>
 
@@ -19,13 +20,14 @@ namespace {
 template <class Tree>
 LeafArrays collect_leaves(const Tree& tree) {
   LeafArrays out;
-  const std::size_t n = tree.getNumLeafNodes();
+  const std::size_t n = tree.size();  // the node count the tree keeps: leaves and more
   out.centers.reserve(3 * n);
   out.sizes.reserve(n);
   out.values.reserve(n);
   out.depths.reserve(n);
-  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it)
-    detail::append_leaf(out, tree, it);
+  detail::for_each_leaf(tree, [&](const auto& node, const octomap::OcTreeKey& k, unsigned d) {
+    detail::append_leaf(out, tree, k, d, node.getValue());
+  });
   return out;
 }
 

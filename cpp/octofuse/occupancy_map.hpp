@@ -46,14 +46,14 @@ struct LeafArrays {
 
 namespace detail {
 
-/// Appends the leaf at iterator `it` of `tree` to `out`: its centre, edge length, value, depth.
-template <class Tree, class LeafIterator>
-void append_leaf(LeafArrays& out, const Tree& tree, const LeafIterator& it) {
-  const octomap::OcTreeKey& k = it.getKey();
-  const unsigned d = it.getDepth();
+/// Appends a leaf of `tree` (key and depth as OctoMap's leaf iterator gives them) to `out`:
+/// its centre, edge length, value, depth.
+template <class Tree>
+void append_leaf(LeafArrays& out, const Tree& tree, const octomap::OcTreeKey& k, unsigned d,
+                 float value) {
   for (int a = 0; a < 3; ++a) out.centers.push_back(tree.keyToCoord(k[a], d));
-  out.sizes.push_back(it.getSize());
-  out.values.push_back(it->getValue());
+  out.sizes.push_back(tree.getNodeSize(d));
+  out.values.push_back(value);
   out.depths.push_back(static_cast<std::uint8_t>(d));
 }
 

@@ -3,6 +3,8 @@
 
 #include "octofuse/tree_access.hpp"
 
+#include <octomap/OcTreeKey.h>
+
 namespace octofuse::detail {
 
 /// A real node, or a pruned leaf standing for the child it would have (a "virtual" node
@@ -31,5 +33,32 @@ struct WalkNode {
     return WalkNode{&t, r, r != nullptr && !t.nodeHasChildren(r)};
   }
 };
+
+namespace leaf_walk {
+template <class Tree, class Node, class F>
+void visit(const Tree& t, const Node* n, const octomap::OcTreeKey& key, unsigned depth, F& f) {
+  if (depth == t.getTreeDepth() || !t.nodeHasChildren(n)) {
+    f(*n, key, depth);
+    return;
+  }
+  const octomap::key_type offset = static_cast<octomap::key_type>((1u << (t.getTreeDepth() - 1)) >> (depth + 1));
+  octomap::OcTreeKey child;
+  for (unsigned i = 0; i < 8; ++i) {
+    if (!t.nodeChildExists(n, i)) continue;
+    octomap::computeChildKey(i, offset, key, child);
+    visit(t, t.getNodeChild(n, i), child, depth + 1, f);
+  }
+}
+}  // namespace leaf_walk
+
+/// Calls f(node, key, depth) for every leaf of `t`, in the order and with the keys of
+/// OctoMap's leaf iterator (depth first, child 0 first), without its stack of copies.
+template <class Tree, class F>
+void for_each_leaf(const Tree& t, F&& f) {
+  const auto* root = t.getRoot();
+  if (root == nullptr) return;
+  const auto mid = static_cast<octomap::key_type>(1u << (t.getTreeDepth() - 1));
+  leaf_walk::visit(t, root, octomap::OcTreeKey(mid, mid, mid), 0, f);
+}
 
 }  // namespace octofuse::detail

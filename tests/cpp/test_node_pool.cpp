@@ -2,6 +2,7 @@
 #include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/node_pool.hpp"
 #include "octofuse/occupancy_map.hpp"
+#include "octofuse/walk.hpp"
 #include "test_trees.hpp"
 
 #include <gtest/gtest.h>
@@ -17,6 +18,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 using namespace octofuse;
@@ -196,4 +198,23 @@ TEST(NodePool, PruneOrMaxIsOctomapsPruneThenMax) {
   }
   EXPECT_GT(pruned, 300);  // both outcomes were tried
   EXPECT_LT(pruned, 2700);
+}
+
+TEST(NodePool, LeafWalkIsOctomapsLeafIterator) {
+  // the same leaves in the same order with the same keys and depths, on both tree types
+  for (unsigned seed = 0; seed < 20; ++seed) {
+    const OccupancyMap m = random_map(seed, 0.5);
+    std::vector<std::tuple<unsigned, unsigned, unsigned, unsigned, float>> walked, iterated;
+    detail::for_each_leaf(m.tree(), [&](const OccupancyNode& n, const octomap::OcTreeKey& k, unsigned d) {
+      walked.emplace_back(k[0], k[1], k[2], d, n.getLogOdds());
+    });
+    for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it)
+      iterated.emplace_back(it.getKey()[0], it.getKey()[1], it.getKey()[2], it.getDepth(), it->getLogOdds());
+    EXPECT_EQ(walked, iterated);
+    EXPECT_GT(walked.size(), 100u);
+  }
+  ScalarTree empty(0.1);
+  int calls = 0;
+  detail::for_each_leaf(empty, [&](const ScalarNode&, const octomap::OcTreeKey&, unsigned) { ++calls; });
+  EXPECT_EQ(calls, 0);
 }
