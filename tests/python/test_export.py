@@ -301,3 +301,43 @@ def test_export_command_errors(files, tmp_path, capsys, args, message):
     lines = cap.err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0]
     assert cap.out == "" and os.listdir(tmp_path) == []
+
+
+def test_writers_on_threads_leave_stderr_as_it_was():
+    """fd 2 is the process's: writers silencing it on overlapping threads restore it when the
+    last one leaves (a writer restoring what another had silenced would lose stderr for good)."""
+    import os
+    import threading
+
+    from octofuse.outputs.export import _quiet_stderr
+
+    def target_of_fd2():
+        st = os.fstat(2)
+        return st.st_dev, st.st_ino
+
+    null = os.stat(os.devnull)
+    before = target_of_fd2()
+    assert before != (null.st_dev, null.st_ino)
+    first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def first():
+        with _quiet_stderr():
+            first_in.set()
+            second_in.wait(5)
+        first_out.set()
+
+    def second():
+        first_in.wait(5)
+        with _quiet_stderr():
+            second_in.set()
+            first_out.wait(5)
+            seen["while the other left"] = target_of_fd2()
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen["while the other left"] == (null.st_dev, null.st_ino)
+    assert target_of_fd2() == before

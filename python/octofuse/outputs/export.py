@@ -27,6 +27,7 @@ import os
 import re
 import secrets
 import sys
+import threading
 from pathlib import Path
 from typing import Mapping, NamedTuple
 
@@ -523,24 +524,52 @@ def _check_written(tmp: Path, p: Path, n: int) -> None:
                       f"data bytes for {points:,} of {n:,} points (disk full or write error?)")
 
 
-@contextlib.contextmanager
-def _quiet_stderr():
-    """Silence the C writers' own messages on fd 2 (RPly prints one per failed write); the
-    result is checked and reported by the caller."""
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):
-        yield
-        return
-    try:
-        null = os.open(os.devnull, os.O_WRONLY)
+class _QuietStderr:
+    """Silences the C writers' own messages on fd 2 (RPly prints one per failed write); the
+    result is checked and reported by the caller. fd 2 belongs to the process, so writers on
+    several threads share one silence: the first to enter redirects it, the last to leave
+    restores it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._saved = None
+
+    @contextlib.contextmanager
+    def __call__(self):
+        with self._lock:
+            if self._users == 0:
+                self._saved = self._redirect()
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0 and self._saved is not None:
+                    os.dup2(self._saved, 2)
+                    os.close(self._saved)
+                    self._saved = None
+
+    @staticmethod
+    def _redirect():
+        """fd 2 pointed at the null device; the saved fd 2 (None if fd 2 cannot be saved)."""
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError):
+            return None
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+        except OSError:
+            os.close(saved)
+            return None
         os.dup2(null, 2)
         os.close(null)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+        return saved
+
+
+_quiet_stderr = _QuietStderr()
 
 
 def _write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
