@@ -70,7 +70,10 @@ void define_maps(py::module_& m) {
            py::arg("resolution"))
       .def_property_readonly("resolution", &ScalarTree::getResolution)
       .def_property_readonly("num_leaves", &ScalarTree::getNumLeafNodes)
-      .def_property_readonly("memory_bytes", &ScalarTree::memoryUsage)
+      .def_property_readonly("memory_bytes", [](const ScalarTree& t) {
+        py::gil_scoped_release release;
+        return t.memoryUsage();
+      })
       .def("leaves", [](const ScalarTree& t) {
         LeafArrays l;
         {
@@ -164,7 +167,10 @@ void define_maps(py::module_& m) {
         return s.known_voxels();
       })
       .def_property_readonly("num_nodes", &OccupancyMap::num_nodes)
-      .def_property_readonly("memory_bytes", &OccupancyMap::memory_bytes)
+      .def_property_readonly("memory_bytes", [](const OccupancyMap& s) {
+        py::gil_scoped_release release;
+        return s.memory_bytes();
+      })
       .def_property_readonly("resolution", [](const OccupancyMap& s) { return s.params().resolution; })
       .def_property_readonly("prob_hit", [](const OccupancyMap& s) { return s.params().prob_hit; })
       .def_property_readonly("prob_miss", [](const OccupancyMap& s) { return s.params().prob_miss; })

@@ -194,6 +194,9 @@ def test_tree_agents_hold_exactly_the_scans_that_reached_them(team_bag, prefixes
     assert res.scores[CF]["a"].loss_mean is None
     assert res.memory[CF]["a"]["links"] > 0
     assert (res.memory["min-info-loss"]["a"]["links"] > 0) == delta
+    for a in res.agents:  # the maps as they were measured: the filter's unclamped
+        assert res.memory[CF][a]["map"] == res.unclamped[a].memory_bytes
+        assert res.memory["min-info-loss"][a]["map"] == res.fused["min-info-loss"][a].memory_bytes
 
 
 def test_a_spanning_tree_file(team_bag, prefixes, tmp_path):

@@ -261,17 +261,12 @@ class ChannelFilter:
         self.channel[link] = payload if is_open(payload) else unclamped_copy(payload)
 
     # -- accounting ----------------------------------------------------------------------
-    def link_memory(self, agent: str) -> int:
-        """Bytes of the per-link state an agent holds: its neighbours' contributions and, for
-        deltas, the contributions its own deltas are taken against (and unacknowledged ones)."""
-        total = sum(m.memory_bytes for (s, r), m in self.channel.items() if r == agent)
-        for (s, r), m in self.base.items():
-            if s == agent:
-                total += m.memory_bytes
-        for (s, r), pend in self.pending.items():
-            if s == agent:
-                total += sum(m.memory_bytes for m in pend.values())
-        return total
+    def link_maps(self, agent: str) -> list[OccupancyMap]:
+        """The per-link state an agent holds: its neighbours' contributions and, for deltas,
+        the contributions its own deltas are taken against (and unacknowledged ones)."""
+        return ([m for (s, r), m in self.channel.items() if r == agent]
+                + [m for (s, r), m in self.base.items() if s == agent]
+                + [m for (s, r), pend in self.pending.items() if s == agent for m in pend.values()])
 
 
 def tree_links(graph: Graph, how: str) -> tuple[tuple[int, int], ...]:

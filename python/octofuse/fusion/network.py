@@ -10,6 +10,7 @@ from typing import Callable, Optional, Sequence
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
+from ..threads import thread_map
 from .agent_frames import AgentFrames
 from .results import FusionEvent, Traffic
 from .schedule import Exchange
@@ -34,6 +35,7 @@ class Network:
         self.traffic = {r: Traffic() for r in rules}
         self.sent_snapshot: dict[tuple, OccupancyMap] = {}  # (rule, sender, receiver) -> map
         self.timings: dict[str, float] = defaultdict(float)
+        self.threads = threads
         self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
         self.fuse_threads = max(1, threads // max(1, len(rules)))  # threads of one fuse_into
         self._rule_seconds: dict[str, float] = defaultdict(float)  # each rule's last exchange
@@ -75,20 +77,23 @@ class Network:
                 dict(exact))
 
     def memory(self) -> dict[str, dict[str, dict[str, int]]]:
-        """Per rule and agent: bytes of the map and of the per-link state."""
-        out: dict[str, dict[str, dict[str, int]]] = {}
+        """Per rule and agent: bytes of the map and of the per-link state (each map measured
+        once, on the network's threads)."""
+        held = {}  # (rule, agent) -> the map, the per-link maps
         for r in self.rules:
-            out[r] = {}
             for a in self.agents:
                 if r == CHANNEL_FILTER:
-                    links = self.cf.link_memory(a)
+                    links = self.cf.link_maps(a)
                 else:
-                    links = sum(m.memory_bytes for (rr, s, _), m in self.sent_snapshot.items()
-                                if rr == r and s == a)
-                    links += sum(m.memory_bytes for (rr, s, _), pend in self._pending.items()
-                                 if rr == r and s == a for m in pend.values())
-                out[r][a] = {"map": self.fused[r][a].memory_bytes, "links": links}
-        return out
+                    links = [m for (rr, s, _), m in self.sent_snapshot.items() if rr == r and s == a]
+                    links += [m for (rr, s, _), pend in self._pending.items()
+                              if rr == r and s == a for m in pend.values()]
+                held[r, a] = (self.fused[r][a], links)
+        maps = list({id(m): m for own, links in held.values() for m in (own, *links)}.values())
+        size = dict(zip(map(id, maps), thread_map(lambda m: m.memory_bytes, maps, self.threads)))
+        return {r: {a: {"map": size[id(held[r, a][0])],
+                        "links": sum(size[id(m)] for m in held[r, a][1])}
+                    for a in self.agents} for r in self.rules}
 
     def exchange(self, group: Sequence[Exchange]) -> None:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
