@@ -64,9 +64,10 @@ inline ArrayStatus fuse_arrays_rule(const double* a, const double* b, std::size_
 }
 
 /// The Chernoff rule over log-odds arrays with prior log-odds 0: chernoff_pack() on
-/// kArrayLanes consecutive pairs at a time. A pack with a pair that chernoff_pack() does not
-/// take (infinite, NaN or beyond its range) and the last n % kArrayLanes pairs are done pair by
-/// pair by fuse_logodds(), which gives the pairs that chernoff_pack() takes the same bits.
+/// kArrayLanes consecutive pairs at a time, each pair lower first as fuse_logodds() fuses it.
+/// A pack with a pair that chernoff_pack() does not take (infinite, NaN or beyond its range)
+/// and the last n % kArrayLanes pairs are done pair by pair by fuse_logodds(), which gives the
+/// pairs that chernoff_pack() takes the same bits.
 inline ArrayStatus fuse_arrays_chernoff(const double* a, const double* b, std::size_t n,
                                         double* value, double* omega, double* info_loss) {
   ArrayStatus st;
@@ -77,7 +78,16 @@ inline ArrayStatus fuse_arrays_chernoff(const double* a, const double* b, std::s
       fits &= std::fabs(a[i + j]) <= kChernoffPackMax && std::fabs(b[i + j]) <= kChernoffPackMax;
     }
     if (fits) {
-      chernoff_pack<kArrayLanes>(a + i, b + i, value + i, omega + i, info_loss + i);
+      double lo[kArrayLanes], hi[kArrayLanes];
+      for (int j = 0; j < kArrayLanes; ++j) {
+        const bool swap = a[i + j] > b[i + j];
+        lo[j] = swap ? b[i + j] : a[i + j];
+        hi[j] = swap ? a[i + j] : b[i + j];
+      }
+      chernoff_pack<kArrayLanes>(lo, hi, value + i, omega + i, info_loss + i);
+      for (int j = 0; j < kArrayLanes; ++j) {
+        if (a[i + j] > b[i + j]) omega[i + j] = 1.0 - omega[i + j];  // the weight on a
+      }
       continue;
     }
     for (std::size_t j = i; j < i + kArrayLanes; ++j) {

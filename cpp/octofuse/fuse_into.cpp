@@ -263,8 +263,9 @@ struct MutualWalker {
     const MsgNode ma{&ta, da, a_leaf}, mb{&tb, db, b_leaf};
     if (a_leaf && b_leaf) {
       const float va = da->getLogOdds(), vb = db->getLogOdds();
-      a.set(da, a.fusion.both(va, vb), la, depth);
-      b.set(db, b.fusion.both(vb, va), lb, depth);
+      const VoxelValue fa = a.fusion.both(va, vb);
+      a.set(da, fa, la, depth);
+      b.set(db, Fusion::kOrderFree ? fa : b.fusion.both(vb, va), lb, depth);  // one fusion
       return;
     }
     if (a_leaf) ta.expandNode(da);

@@ -119,6 +119,18 @@ constexpr bool is_weighted_chernoff(Rule r) {
   return r == Rule::EntropyWeightedChernoff || r == Rule::KldWeightedChernoff;
 }
 
+/// Whether R fuses a pair in the order (lower, higher) whatever order it comes in: the rules
+/// whose arithmetic is not symmetric in a and b as written (a closed form or a root finding),
+/// so that fusing (a, b) and (b, a) gives the same bits.
+constexpr bool fuses_lower_first(Rule r) {
+  return r == Rule::Chernoff || is_weighted_chernoff(r);
+}
+
+/// Whether R's fused value and loss do not depend on the order of the pair, bit for bit:
+/// every rule but min-entropy (whose ties prefer a). Naive Bayes, Bhattacharyya and
+/// min-info-loss are symmetric as written; the others fuse lower first.
+constexpr bool is_order_free(Rule r) { return r != Rule::MinEntropy; }
+
 /// A weighted Chernoff rule's factor of one map's value: its entropy (entropy-weighted: the
 /// rule balances KL / H) or its KL from the prior (KLD-weighted: the rule balances c KL).
 template <Rule R>
@@ -162,6 +174,9 @@ template <Rule R>
 inline double wep_weight(double la, double lb, double l0) {
   using namespace detail;
   if (la == lb) return 0.5;  // every w gives the same value
+  if constexpr (fuses_lower_first(R)) {
+    if (la > lb) return 1.0 - wep_weight<R>(lb, la, l0);
+  }
   if constexpr (R == Rule::Bhattacharyya) {
     return 0.5;
   } else if constexpr (R == Rule::MinEntropy) {  // ties prefer a
@@ -188,6 +203,13 @@ inline Fused fuse_logodds(double la, double lb, double l0) {
     if (!fuse_certain(la, lb, f)) return {kNaN, kNaN, kNaN};
     if (R == Rule::NaiveBayes) f.omega = kNaN;
     return f;
+  }
+  if constexpr (fuses_lower_first(R)) {
+    if (la > lb) {  // fused as (lb, la): the same bits in either order
+      Fused f = fuse_logodds<R>(lb, la, l0);
+      f.omega = 1.0 - f.omega;
+      return f;
+    }
   }
   const double lnb = la + lb - l0;
   if constexpr (R == Rule::NaiveBayes) {

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
+#include <utility>
 
 namespace octofuse {
 
@@ -73,6 +74,8 @@ class VoxelFusion {
  public:
   static constexpr Rule kRule = R;
   static constexpr UnknownPolicy kUnknown = U;
+  /// both(a, b) and both(b, a) give the same bits (see detail::is_order_free).
+  static constexpr bool kOrderFree = detail::is_order_free(R);
 
   /// `clamp_min`, `clamp_max`: the maps' clamping thresholds in log-odds.
   VoxelFusion(float clamp_min, float clamp_max) : lmin_(clamp_min), lmax_(clamp_max) {
@@ -87,6 +90,9 @@ class VoxelFusion {
     if constexpr (R == Rule::NaiveBayes) {
       return compute(a, b);  // cheaper than a look-up
     } else {
+      if constexpr (kOrderFree) {
+        if (b < a) std::swap(a, b);  // one memo entry for both orders
+      }
       const Stored& s =
           memo_.get(a, b, [this](float x, float y, Stored& out) { out = stored(x, y); });
       return {s.value, s.loss, true};
@@ -122,6 +128,7 @@ class VoxelFusion {
   Fused fuse(float a, float b) {
     if constexpr (detail::is_weighted_chernoff(R)) {
       if (std::isfinite(a) && std::isfinite(b) && a != b) {
+        if (a > b) std::swap(a, b);  // lower first, as fuse_logodds fuses (the weight is on b)
         const auto factor = [](float x) { return detail::chernoff_factor<R>(x, 0.0); };
         const double ca = factors_->get(a, factor), cb = factors_->get(b, factor);
         return detail::wep_fuse(a, b, 0.0, detail::weighted_chernoff_weight<R>(a, b, ca, cb));

@@ -256,7 +256,8 @@ def test_in_place_fusion_accumulates_loss_over_messages(pair):
 
 
 @pytest.mark.parametrize("unknown", ["copy", "prior"])
-@pytest.mark.parametrize("rule", ["chernoff", "min-entropy", "naive-bayes"])
+@pytest.mark.parametrize("rule", ["chernoff", "min-entropy", "naive-bayes", "kld-weighted-chernoff",
+                                  "entropy-weighted-chernoff", "bhattacharyya", "min-info-loss"])
 def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unknown):
     a, b = pair
     ra, rb = a.copy(), b.copy()
