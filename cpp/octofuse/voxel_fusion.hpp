@@ -90,9 +90,6 @@ class VoxelFusion {
     if constexpr (R == Rule::NaiveBayes) {
       return compute(a, b);  // cheaper than a look-up
     } else {
-      if constexpr (kOrderFree) {
-        if (b < a) std::swap(a, b);  // one memo entry for both orders
-      }
       const Stored& s =
           memo_.get(a, b, [this](float x, float y, Stored& out) { out = stored(x, y); });
       return {s.value, s.loss, true};
