@@ -125,7 +125,7 @@ class VoxelFusion {
   Fused fuse(float a, float b) {
     if constexpr (detail::is_weighted_chernoff(R)) {
       if (std::isfinite(a) && std::isfinite(b) && a != b) {
-        if (a > b) std::swap(a, b);  // lower first, as fuse_logodds fuses (the weight is on b)
+        if (a > b) std::swap(a, b);  // lower first, as fuse_logodds fuses a pair
         const auto factor = [](float x) { return detail::chernoff_factor<R>(x, 0.0); };
         const double ca = factors_->get(a, factor), cb = factors_->get(b, factor);
         return detail::wep_fuse(a, b, 0.0, detail::weighted_chernoff_weight<R>(a, b, ca, cb));
