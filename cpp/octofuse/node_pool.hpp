@@ -6,13 +6,6 @@
 
 namespace octofuse::detail {
 
-/// Blocks of `kSize` bytes for octofuse's trees: nodes (16 bytes, which glibc stores in 32
-/// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
-/// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
-/// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
-/// side by side, however scattered the blocks freed before were), and frees onto a stack of
-/// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
-/// trim() gives empty slabs back to the system.
 /// The thread's cache of BlockPool<kSize> (null until its first use). Only a pointer is
 /// thread-local, in the initial-exec model: one load, not a call into the dynamic linker for
 /// every block (a module loaded at run time has room for a few such bytes). A variable
@@ -20,6 +13,13 @@ namespace octofuse::detail {
 template <std::size_t kSize>
 inline thread_local void* pool_cache __attribute__((tls_model("initial-exec"))) = nullptr;
 
+/// Blocks of `kSize` bytes for octofuse's trees: nodes (16 bytes, which glibc stores in 32
+/// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
+/// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
+/// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
+/// side by side, however scattered the blocks freed before were), and frees onto a stack of
+/// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
+/// trim() gives empty slabs back to the system.
 template <std::size_t kSize>
 class BlockPool {
  public:

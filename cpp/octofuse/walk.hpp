@@ -35,13 +35,16 @@ struct WalkNode {
 };
 
 namespace leaf_walk {
+// The leaves under n, whose key is `key` at `depth` (see for_each_leaf).
 template <class Tree, class Node, class F>
 void visit(const Tree& t, const Node* n, const octomap::OcTreeKey& key, unsigned depth, F& f) {
   if (depth == t.getTreeDepth() || !t.nodeHasChildren(n)) {
     f(*n, key, depth);
     return;
   }
-  const octomap::key_type offset = static_cast<octomap::key_type>((1u << (t.getTreeDepth() - 1)) >> (depth + 1));
+  // the iterator's child keys: the parent's key -/+ half the child's extent
+  const auto offset =
+      static_cast<octomap::key_type>((1u << (t.getTreeDepth() - 1)) >> (depth + 1));
   octomap::OcTreeKey child;
   for (unsigned i = 0; i < 8; ++i) {
     if (!t.nodeChildExists(n, i)) continue;

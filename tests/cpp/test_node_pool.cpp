@@ -201,20 +201,24 @@ TEST(NodePool, PruneOrMaxIsOctomapsPruneThenMax) {
 }
 
 TEST(NodePool, LeafWalkIsOctomapsLeafIterator) {
-  // the same leaves in the same order with the same keys and depths, on both tree types
+  // the same leaves in the same order with the same keys and depths (an empty tree: none)
   for (unsigned seed = 0; seed < 20; ++seed) {
     const OccupancyMap m = random_map(seed, 0.5);
     std::vector<std::tuple<unsigned, unsigned, unsigned, unsigned, float>> walked, iterated;
-    detail::for_each_leaf(m.tree(), [&](const OccupancyNode& n, const octomap::OcTreeKey& k, unsigned d) {
+    detail::for_each_leaf(m.tree(), [&](const OccupancyNode& n, const octomap::OcTreeKey& k,
+                                        unsigned d) {
       walked.emplace_back(k[0], k[1], k[2], d, n.getLogOdds());
     });
-    for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it)
-      iterated.emplace_back(it.getKey()[0], it.getKey()[1], it.getKey()[2], it.getDepth(), it->getLogOdds());
+    for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it) {
+      const octomap::OcTreeKey& k = it.getKey();
+      iterated.emplace_back(k[0], k[1], k[2], it.getDepth(), it->getLogOdds());
+    }
     EXPECT_EQ(walked, iterated);
     EXPECT_GT(walked.size(), 100u);
   }
   ScalarTree empty(0.1);
   int calls = 0;
-  detail::for_each_leaf(empty, [&](const ScalarNode&, const octomap::OcTreeKey&, unsigned) { ++calls; });
+  detail::for_each_leaf(empty,
+                        [&](const ScalarNode&, const octomap::OcTreeKey&, unsigned) { ++calls; });
   EXPECT_EQ(calls, 0);
 }

@@ -306,7 +306,6 @@ def test_export_command_errors(files, tmp_path, capsys, args, message):
 def test_writers_on_threads_leave_stderr_as_it_was():
     """fd 2 is the process's: writers silencing it on overlapping threads restore it when the
     last one leaves (a writer restoring what another had silenced would lose stderr for good)."""
-    import os
     import threading
 
     from octofuse.outputs.export import _quiet_stderr

@@ -85,7 +85,8 @@ class Network:
                 if r == CHANNEL_FILTER:
                     links = self.cf.link_maps(a)
                 else:
-                    links = [m for (rr, s, _), m in self.sent_snapshot.items() if rr == r and s == a]
+                    links = [m for (rr, s, _), m in self.sent_snapshot.items()
+                             if rr == r and s == a]
                     links += [m for (rr, s, _), pend in self._pending.items()
                               if rr == r and s == a for m in pend.values()]
                 held[r, a] = (self.fused[r][a], links)
