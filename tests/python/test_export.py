@@ -11,7 +11,8 @@ from conftest import random_map
 import octofuse
 from octofuse.outputs import export
 from octofuse.cli import main
-from octofuse.outputs.export import read_cloud, write_heatmap, write_map_cloud
+from octofuse.outputs.clouds import read_cloud
+from octofuse.outputs.export import write_heatmap, write_map_cloud
 
 SUFFIXES = [".ply", ".pcd"]
 
@@ -308,7 +309,7 @@ def test_writers_on_threads_leave_stderr_as_it_was():
     last one leaves (a writer restoring what another had silenced would lose stderr for good)."""
     import threading
 
-    from octofuse.outputs.export import _quiet_stderr
+    from octofuse.outputs.clouds import _quiet_stderr
 
     def target_of_fd2():
         st = os.fstat(2)

@@ -5,7 +5,8 @@ import pytest
 from test_frames import SENSORS, room_map
 
 from octofuse.maps.occupancy import fuse_maps
-from octofuse.outputs.export import read_cloud, shared_color_range, write_heatmap
+from octofuse.outputs.clouds import read_cloud
+from octofuse.outputs.export import shared_color_range, write_heatmap
 
 
 @pytest.fixture(scope="module")

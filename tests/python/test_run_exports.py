@@ -22,7 +22,8 @@ from octofuse import OccupancyMap  # noqa: E402
 from octofuse.fusion.results import FusionEvent  # noqa: E402
 from octofuse.outputs.event_loss import (MIN_EXPLAINED, counts_messages,  # noqa: E402
                                          event_loss_summary, messages_sentence)
-from octofuse.outputs.export import MapVoxelLoss, colorize, read_cloud  # noqa: E402
+from octofuse.outputs.clouds import read_cloud  # noqa: E402
+from octofuse.outputs.export import MapVoxelLoss, colorize  # noqa: E402
 from octofuse.outputs.rosbag_export import read_map_bag  # noqa: E402
 from octofuse.outputs.topview import above_floor, topview_grid  # noqa: E402
 
