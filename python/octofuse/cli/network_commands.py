@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import shutil
-from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -70,7 +69,7 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
     histogram values); the merged result and the :class:`MapExports` that wrote them.
     ``export_agents(agents)``: the agents whose maps are written."""
-    from ..fusion.results import merge_rule_results
+    from ..fusion.results import merge_rule_results, without_maps
     from ..outputs.map_exports import MapExports
     from ..threads import thread_map
 
@@ -84,7 +83,7 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
         rule_maps = [m for per in (*part.fused.values(), *part.loss.values(), part.unclamped)
                      for m in per.values()]
         thread_map(lambda m: m.clear(), rule_maps, cfg.build.workers)
-        parts.append(replace(part, fused={}, loss={}, unclamped={}))
+        parts.append(without_maps(part))
         del part, rule_maps
         return_freed_memory()
     return merge_rule_results(parts), written

@@ -133,6 +133,12 @@ def rule_groups(fuse_cfg: FuseConfig, size: int) -> list[list[str]]:
     return [rules[k:k + size] for k in range(0, len(rules), size)]
 
 
+def without_maps(res: SimResult) -> SimResult:
+    """``res`` without its rules' maps (``fused``, ``loss``, ``unclamped``): what a caller keeps
+    of a group of rules once its maps are written, so that they can be freed."""
+    return replace(res, fused={}, loss={}, unclamped={})
+
+
 def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
     """One result from the results of the same run with different rules (e.g.
     :func:`octofuse.fusion.rounds.fuse_finished_in_rule_groups`), without the rules' maps (``fused``,
@@ -148,10 +154,10 @@ def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:
     tree = next((p.tree for p in parts if p.tree is not None), None)
     exact = next((p.central_unclamped for p in parts if p.central_unclamped is not None), None)
     return replace(
-        first, rules=[r for p in parts for r in p.rules], fused={}, loss={},
+        without_maps(first), rules=[r for p in parts for r in p.rules],
         traffic={r: p.traffic[r] for p in parts for r in p.rules},
         # in time order, each time's samples in rule order: as in the run with every rule
         timeline=sorted((s for p in parts for s in p.timeline), key=lambda s: s["t"]),
         timings=timings, scores=scores,
-        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree, unclamped={},
+        memory={r: m for p in parts for r, m in p.memory.items()}, tree=tree,
         central_unclamped=exact)

@@ -19,13 +19,14 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-import secrets
 import sys
 import threading
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+
+from .staging import written_then_renamed
 
 CLOUD_SUFFIXES = (".ply", ".pcd")
 
@@ -242,9 +243,7 @@ def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
     for name, values in fields.items():
         pcd.point[name] = o3c.Tensor.from_numpy(
             np.ascontiguousarray(values, dtype=np.float32).reshape(n, 1))
-    # the writer picks the format from the suffix, so the temporary name keeps it
-    tmp = folder / f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp{p.suffix}"
-    try:
+    with written_then_renamed(p) as tmp:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), \
                 _quiet_stderr():
             ok = o3d.t.io.write_point_cloud(str(tmp), pcd, write_ascii=False, compressed=False,
@@ -252,9 +251,6 @@ def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
         if not ok:
             raise OSError(f"could not write point cloud '{p}' (disk full or folder not writable?)")
         _check_written(tmp, p, n)
-        os.replace(tmp, p)
-    finally:
-        tmp.unlink(missing_ok=True)
     return p
 
 

@@ -13,7 +13,6 @@ writer stores one, and its PCD reader rejects ``POINTS 0``.
 from __future__ import annotations
 
 import os
-import secrets
 from pathlib import Path
 from typing import NamedTuple
 
@@ -22,6 +21,7 @@ import numpy as np
 from ..maps.infoloss import InfoLossMap, Leaves, read_info_loss
 from ..maps.occupancy import OccupancyMap
 from .clouds import CLOUD_SUFFIXES, check_field, cloud_path, write_cloud
+from .staging import written_then_renamed
 
 MAP_SUFFIXES = (".ot", ".bt")
 LOSS_SUFFIX = ".npz"
@@ -204,13 +204,11 @@ def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
     norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
     fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=_colormap(cmap)), cax=ax,
                  orientation="horizontal", label=label)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp.png")
     try:
-        fig.savefig(tmp)
-        os.replace(tmp, p)
+        with written_then_renamed(p) as tmp:
+            fig.savefig(tmp)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
     return p
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 import tempfile
 from pathlib import Path
@@ -74,3 +75,16 @@ def _replace(stage: Path, final: Path) -> None:
     finally:
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def written_then_renamed(p: Path) -> Iterator[Path]:
+    """A temporary name beside the file ``p`` to write it under: renamed to ``p`` when the block
+    ends, removed if it fails, so ``p`` is never left half-written. It keeps ``p``'s suffix
+    (writers pick the format from it) and is unique to the call (writers on several threads)."""
+    tmp = p.with_name(f".{p.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp{p.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)

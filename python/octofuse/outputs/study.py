@@ -23,7 +23,7 @@ import hashlib
 import json
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
@@ -94,7 +94,7 @@ def run_cell(payload: tuple) -> dict:
     """Run one cell (in this process or in a Ray worker): its rows per rule and its timings.
     ``payload`` is ``(cfg, cell, truth, threads)``; ``threads`` (if not None) replaces the
     build threads (the numbers do not depend on it)."""
-    from ..fusion.results import merge_rule_results
+    from ..fusion.results import merge_rule_results, without_maps
     from ..fusion.simulate import simulate_in_rule_groups
 
     cfg, cell, truth, threads, source = (*payload, None)[:5]
@@ -103,7 +103,7 @@ def run_cell(payload: tuple) -> dict:
         c.build.threads = int(threads)
     # a few rules at a time with fuse.rules_per_pass: each group's maps dropped as it comes
     res = merge_rule_results([
-        replace(part, fused={}, loss={}, unclamped={})
+        without_maps(part)
         for part in simulate_in_rule_groups(c.build, c.fuse, samples=0, truth=truth,
                                             source=source)])
     rows = []

@@ -15,6 +15,7 @@ from typing import Optional
 import numpy as np
 
 from .export import MapVoxelLoss, _colormap
+from .staging import written_then_renamed
 
 
 def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
@@ -97,11 +98,9 @@ def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *
     if title:
         ax.set_title(title, fontsize=10)
     fig.colorbar(im, ax=ax, label=label, shrink=0.9)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp.png")
     try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, p)
+        with written_then_renamed(p) as tmp:
+            fig.savefig(tmp, dpi=dpi)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
     return p
