@@ -30,9 +30,10 @@
 // every method allocates from the same warm heap (no page faults, no deferred consolidation
 // work from the previous run's frees).
 //
-// Trees: octofuse's maps keep their nodes in its node pool (octofuse/node_pool.hpp); the
-// updateNode merge runs on plain octomap::OcTree copies of the same maps (glibc's heap), as
-// map mergers hold them.
+// Trees: octofuse's maps keep their nodes in its node pool (octofuse/node_pool.hpp), and
+// fuse_maps builds its two trees from these inputs in arenas of their own (octofuse/
+// tree_arena.hpp: freeing them gives back slabs); the updateNode merge runs on plain
+// octomap::OcTree copies of the same maps (glibc's heap), as map mergers hold them.
 //
 // Throughput unit ("voxels"): the leaf pairs of the two trees walked together, i.e. the
 // leaves of the union of both maps at the finer of the two trees' resolutions at each place

@@ -53,12 +53,13 @@ void define_maps(py::module_& m) {
   py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
 
   m.def("_node_pool_bytes", [] {
-    return detail::NodePool::stats().slab_bytes + detail::ChildrenPool::stats().slab_bytes;
-  }, "Bytes the pools of tree nodes and child arrays hold (in use or free).");
+    return detail::NodePool::stats().slab_bytes + detail::ChildrenPool::stats().slab_bytes +
+           detail::arena_bytes() + detail::spare_slab_bytes();
+  }, "Bytes the tree nodes' slabs take: the pools' and arenas' (in use or free), and spares.");
   m.def("_trim_node_pools", [] {
     py::gil_scoped_release release;
-    return detail::NodePool::trim() + detail::ChildrenPool::trim();
-  }, "Gives the pools' empty slabs back to the system; returns the bytes given back.");
+    return detail::NodePool::trim() + detail::ChildrenPool::trim() + detail::trim_spare_slabs();
+  }, "Gives the pools' empty slabs and the spare ones back to the system; returns the bytes.");
 
   py::class_<ScalarTree>(m, "_ScalarTree")
       .def(py::init([](double res) {

@@ -28,8 +28,7 @@ struct Lazy {
 
   Node* get(Tree& t) {
     if (node == nullptr) {
-      node = parent == nullptr ? detail::TreeAccess<Tree>::ensure_root(t)
-                               : t.createNodeChild(parent->get(t), index);
+      node = parent == nullptr ? t.create_root() : t.create_child(parent->get(t), index);
     }
     return node;
   }
@@ -58,7 +57,7 @@ struct Kids {
     float mx = -std::numeric_limits<float>::infinity();
     for (unsigned i = 0; i < 8; ++i) {
       if (!(present & (1u << i))) continue;
-      if (!(inner & (1u << i))) set(t.createNodeChild(n, i), value[i]);
+      if (!(inner & (1u << i))) set(t.create_child(n, i), value[i]);
       if (value[i] > mx) mx = value[i];
     }
     set(n, mx);
@@ -162,12 +161,17 @@ struct Walker {
 }  // namespace
 
 FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
-                       UnknownPolicy unknown) {
+                       UnknownPolicy unknown, std::size_t arena_min_nodes) {
   check_compatible(a, b);
   FusionResult res;
   res.map = std::make_unique<OccupancyMap>(a.params());
   res.info_loss = std::make_unique<ScalarTree>(a.params().resolution);
   if (a.tree().getRoot() != nullptr || b.tree().getRoot() != nullptr) {
+    // the new trees have at most the nodes of both inputs: large ones get arenas of their own
+    if (a.num_nodes() + b.num_nodes() >= arena_min_nodes) {
+      res.map->tree().start_arena();
+      res.info_loss->start_arena();
+    }
     with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
                       [&](auto& fusion) {
                         Walker<std::decay_t<decltype(fusion)>> w{

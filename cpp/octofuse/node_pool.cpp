@@ -11,20 +11,19 @@ namespace octofuse::detail {
 
 namespace {
 
-constexpr std::size_t kSlabBytes = std::size_t(1) << 20;  // slabs are aligned to their size
-
-// The start of every slab: its free blocks (bit set = free) and where to look first. The
-// header occupies the slab's first blocks, which are never free.
+// The start of every slab of a pool: its free blocks (bit set = free) and where to look
+// first. The header occupies the slab's first blocks, which are never free.
 template <std::size_t kSize>
 struct SlabHeader {
   static constexpr std::size_t kBlocks = kSlabBytes / kSize;
   static constexpr std::size_t kWords = kBlocks / 64;
+  TreeArena* arena;        // always null (arena_of())
   std::size_t index;       // in Shared::slabs
   std::size_t free;        // free blocks
   std::size_t first_word;  // no free block before this bitmap word
   std::uint64_t bits[kWords];
 
-  static constexpr std::size_t kHeaderBlocks = (sizeof(std::size_t) * 3 + 8 * kWords + kSize - 1) / kSize;
+  static constexpr std::size_t kHeaderBlocks = (sizeof(TreeArena*) + sizeof(std::size_t) * 3 + 8 * kWords + kSize - 1) / kSize;
   static constexpr std::size_t kUsable = kBlocks - kHeaderBlocks;
 
   static SlabHeader* of(const void* p) {
@@ -52,9 +51,8 @@ template <std::size_t kSize>
 void new_slab(Shared<kSize>& s) {
   using H = SlabHeader<kSize>;
   s.slabs.reserve(s.slabs.size() + 1);  // may throw before anything changes
-  void* mem = std::aligned_alloc(kSlabBytes, kSlabBytes);
-  if (mem == nullptr) throw std::bad_alloc();
-  auto* h = static_cast<H*>(mem);
+  auto* h = static_cast<H*>(take_slab());
+  h->arena = nullptr;
   h->index = s.slabs.size();
   h->free = H::kUsable;
   h->first_word = 0;
@@ -65,7 +63,58 @@ void new_slab(Shared<kSize>& s) {
   s.free_blocks += H::kUsable;
 }
 
+struct SpareSlabs {
+  std::mutex mutex;
+  std::vector<void*> slabs;
+};
+
+SpareSlabs& spare() {  // never destroyed, like the pools
+  static SpareSlabs* s = new SpareSlabs;
+  return *s;
+}
+
 }  // namespace
+
+void* take_slab() {
+  {
+    SpareSlabs& s = spare();
+    std::lock_guard<std::mutex> lock(s.mutex);
+    if (!s.slabs.empty()) {
+      void* slab = s.slabs.back();
+      s.slabs.pop_back();
+      return slab;
+    }
+  }
+  void* mem = std::aligned_alloc(kSlabBytes, kSlabBytes);
+  if (mem == nullptr) throw std::bad_alloc();
+  return mem;
+}
+
+void give_slab(void* slab) noexcept {
+  SpareSlabs& s = spare();
+  std::lock_guard<std::mutex> lock(s.mutex);
+  try {
+    s.slabs.push_back(slab);
+  } catch (...) {  // no room to keep it: give it back now
+    std::free(slab);
+  }
+}
+
+std::size_t trim_spare_slabs() {
+  SpareSlabs& s = spare();
+  std::lock_guard<std::mutex> lock(s.mutex);
+  for (void* slab : s.slabs) std::free(slab);
+  const std::size_t freed = s.slabs.size() * kSlabBytes;
+  s.slabs.clear();
+  s.slabs.shrink_to_fit();
+  return freed;
+}
+
+std::size_t spare_slab_bytes() {
+  SpareSlabs& s = spare();
+  std::lock_guard<std::mutex> lock(s.mutex);
+  return s.slabs.size() * kSlabBytes;
+}
 
 template <std::size_t kSize>
 void BlockPool<kSize>::Cache::refill() {
@@ -153,7 +202,8 @@ template <std::size_t kSize>
 typename BlockPool<kSize>::Stats BlockPool<kSize>::stats() {
   Shared<kSize>& s = shared<kSize>();
   std::lock_guard<std::mutex> lock(s.mutex);
-  return {s.slabs.size() * kSlabBytes, s.free_blocks};
+  return {s.slabs.size() * kSlabBytes, s.free_blocks,
+          s.slabs.size() * SlabHeader<kSize>::kUsable - s.free_blocks};
 }
 
 template <std::size_t kSize>

@@ -2,9 +2,42 @@
 // thread-local free lists).
 #pragma once
 
+#include <atomic>
 #include <cstddef>
+#include <cstdint>
 
 namespace octofuse::detail {
+
+/// Blocks come from slabs of this size, aligned to it. A slab's first word names the
+/// TreeArena (tree_arena.hpp) it belongs to, or is null for the pools' own slabs.
+inline constexpr std::size_t kSlabBytes = std::size_t(1) << 20;
+
+class TreeArena;
+
+/// The arena whose slab holds block `p`, or null if a pool's slab does.
+inline TreeArena* arena_of(const void* p) {
+  return *reinterpret_cast<TreeArena* const*>(reinterpret_cast<std::uintptr_t>(p) &
+                                              ~(kSlabBytes - 1));
+}
+
+/// Arenas alive in the process: while there are none, freeing a block reads nothing but the
+/// freeing thread's list (not its slab's first word). On a cache line of its own.
+struct alignas(64) LiveArenas {
+  std::atomic<std::size_t> count{0};
+};
+inline LiveArenas live_arenas;
+
+/// Counts a node of an arena as freed (its block stays with the arena until it goes).
+void arena_node_freed(TreeArena* arena) noexcept;
+
+/// A slab of kSlabBytes, aligned to its size: a spare one if any, else from the system.
+void* take_slab();
+/// Keeps a slab no longer used as a spare, for take_slab().
+void give_slab(void* slab) noexcept;
+/// Gives the spare slabs back to the system; returns the bytes freed.
+std::size_t trim_spare_slabs();
+/// Bytes of the spare slabs.
+std::size_t spare_slab_bytes();
 
 /// The thread's cache of BlockPool<kSize> (null until its first use). Only a pointer is
 /// thread-local, in the initial-exec model: one load, not a call into the dynamic linker for
@@ -13,7 +46,7 @@ namespace octofuse::detail {
 template <std::size_t kSize>
 inline thread_local void* pool_cache __attribute__((tls_model("initial-exec"))) = nullptr;
 
-/// Blocks of `kSize` bytes for octofuse's trees: nodes (16 bytes, which glibc stores in 32
+/// Blocks of `kSize` bytes for octofuse's trees (outside tree arenas): nodes (16 bytes, which glibc stores in 32
 /// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
 /// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
 /// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
@@ -31,7 +64,19 @@ class BlockPool {
     return c.blocks[--c.count];
   }
 
+  /// Frees a block; an arena's block is only counted (its arena frees it).
   static void release(void* p) noexcept {
+    if (__builtin_expect(live_arenas.count.load(std::memory_order_relaxed) != 0, 0)) {
+      if (TreeArena* a = arena_of(p)) {
+        if constexpr (kSize == 16) arena_node_freed(a);  // NodePool: a node
+        return;
+      }
+    }
+    release_to_pool(p);
+  }
+
+  /// Frees a block known not to be an arena's (a block of a tree that has no arena).
+  static void release_to_pool(void* p) noexcept {
     Cache& c = cache();
     if (c.count == 2 * kBatch) c.spill(kBatch);
     c.blocks[c.count++] = p;
@@ -40,6 +85,7 @@ class BlockPool {
   struct Stats {
     std::size_t slab_bytes;  ///< bytes taken from the system
     std::size_t free_blocks;  ///< free blocks in the slabs (not counting threads' lists)
+    std::size_t blocks_in_use;  ///< handed out and not back in the slabs (threads' lists count)
   };
   static Stats stats();
 

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "octofuse/node_pool.hpp"
+#include "octofuse/tree_arena.hpp"
 
 #include <octomap/OcTreeBase.h>
 #include <octomap/OcTreeDataNode.h>
@@ -16,7 +17,8 @@
 namespace octofuse {
 
 /// An OctoMap node type `Base` (value and children) whose nodes and arrays of children live
-/// in octofuse's pools; `Derived` is the node type itself.
+/// in octofuse's pools (or in their tree's arena: ArenaTree); `Derived` is the node type
+/// itself.
 template <class Base, class Derived>
 class PooledTreeNode : public Base {
  public:
@@ -37,6 +39,9 @@ class PooledTreeNode : public Base {
                               : new Derived(*static_cast<const Derived*>(rhs.children[i]));
     }
   }
+
+  /// The array of child pointers, for trees that make and free nodes themselves (ArenaTree).
+  octomap::AbstractOcTreeNode**& children_array() { return this->children; }
 };
 
 /// octomap::OcTreeNode (log-odds and children), pooled.
@@ -86,18 +91,20 @@ OCTOFUSE_POOLED_CHILDREN(octofuse::ScalarNode, octomap::AbstractOcTree)
 
 namespace octofuse {
 
-/// An occupancy tree as octomap::OcTree, with pooled nodes; it calls itself "OcTree" in
-/// file headers, which OctoMap's tools read as theirs.
-class OccupancyTree : public octomap::OccupancyOcTreeBase<OccupancyNode> {
+/// An occupancy tree as octomap::OcTree, with pooled nodes (or an arena's); it calls itself
+/// "OcTree" in file headers, which OctoMap's tools read as theirs.
+class OccupancyTree : public ArenaTree<octomap::OccupancyOcTreeBase<OccupancyNode>> {
  public:
-  explicit OccupancyTree(double resolution)
-      : octomap::OccupancyOcTreeBase<OccupancyNode>(resolution) {}
+  explicit OccupancyTree(double resolution) : ArenaTree(resolution) {}
   OccupancyTree(const OccupancyTree&) = default;
   OccupancyTree* create() const override { return new OccupancyTree(resolution); }
   std::string getTreeType() const override { return "OcTree"; }
 };
 
 /// Per-voxel scalar tree (e.g. the information loss of a fusion), same key grid as the maps.
-using ScalarTree = octomap::OcTreeBase<ScalarNode>;
+class ScalarTree : public ArenaTree<octomap::OcTreeBase<ScalarNode>> {
+ public:
+  explicit ScalarTree(double resolution) : ArenaTree(resolution) {}
+};
 
 }  // namespace octofuse

@@ -22,6 +22,7 @@
 #include <vector>
 
 using namespace octofuse;
+using octofuse_test::dense_map;
 using octofuse_test::expand;
 using octofuse_test::random_map;
 
@@ -88,17 +89,6 @@ TEST(NodePool, TreesBuiltOnOneThreadFreedOnAnother) {
     std::thread([] { OccupancyMap m = random_map(7, 0.2); }).join();
   }
   EXPECT_EQ(detail::NodePool::stats().slab_bytes, before);
-}
-
-// A map of n^3 finest voxels with distinct values (no pruning): about 1.15 n^3 nodes.
-OccupancyMap dense_map(unsigned n) {
-  OccupancyMap m(MapParams{});
-  for (unsigned x = 0; x < n; ++x)
-    for (unsigned y = 0; y < n; ++y)
-      for (unsigned z = 0; z < n; ++z)
-        m.tree().setNodeValue(octomap::OcTreeKey(32768 + x, 32768 + y, 32768 + z),
-                              0.01f * static_cast<float>((x * 7 + y * 13 + z) % 300) - 1.5f, true);
-  return m;
 }
 
 TEST(NodePool, FreedTreesAreReusedAndEmptySlabsTrimmed) {
