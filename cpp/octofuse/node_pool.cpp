@@ -23,7 +23,8 @@ struct SlabHeader {
   std::size_t first_word;  // no free block before this bitmap word
   std::uint64_t bits[kWords];
 
-  static constexpr std::size_t kHeaderBlocks = (sizeof(TreeArena*) + sizeof(std::size_t) * 3 + 8 * kWords + kSize - 1) / kSize;
+  static constexpr std::size_t kHeaderBlocks =
+      (sizeof(TreeArena*) + sizeof(std::size_t) * 3 + 8 * kWords + kSize - 1) / kSize;
   static constexpr std::size_t kUsable = kBlocks - kHeaderBlocks;
 
   static SlabHeader* of(const void* p) {

@@ -46,13 +46,13 @@ std::size_t spare_slab_bytes();
 template <std::size_t kSize>
 inline thread_local void* pool_cache __attribute__((tls_model("initial-exec"))) = nullptr;
 
-/// Blocks of `kSize` bytes for octofuse's trees (outside tree arenas): nodes (16 bytes, which glibc stores in 32
-/// and frees one by one with coalescing) and arrays of 8 child pointers (64 bytes, 80 in
-/// glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A thread takes
-/// blocks in batches, lowest address first (a tree built in depth-first order gets its nodes
-/// side by side, however scattered the blocks freed before were), and frees onto a stack of
-/// its own that goes back to the bitmaps in batches; a block may be freed on any thread.
-/// trim() gives empty slabs back to the system.
+/// Blocks of `kSize` bytes for octofuse's trees (outside arenas): nodes (16 bytes, which
+/// glibc stores in 32 and frees one by one with coalescing) and arrays of 8 child pointers (64
+/// bytes, 80 in glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A
+/// thread takes blocks in batches, lowest address first (a tree built in depth-first order
+/// gets its nodes side by side, however scattered the blocks freed before were), and frees
+/// onto a stack of its own that goes back to the bitmaps in batches; a block may be freed on
+/// any thread. trim() gives empty slabs back to the system.
 template <std::size_t kSize>
 class BlockPool {
  public:
@@ -85,7 +85,7 @@ class BlockPool {
   struct Stats {
     std::size_t slab_bytes;  ///< bytes taken from the system
     std::size_t free_blocks;  ///< free blocks in the slabs (not counting threads' lists)
-    std::size_t blocks_in_use;  ///< handed out and not back in the slabs (threads' lists count)
+    std::size_t blocks_in_use;  ///< not free in the slabs (blocks on threads' lists included)
   };
   static Stats stats();
 

@@ -30,7 +30,9 @@ class TreeArena {
   void* take_children() { return take(children_, 64); }
 
   /// Nodes handed out and not freed.
-  std::size_t live_nodes() const { return nodes_.taken - freed_nodes_.load(std::memory_order_acquire); }
+  std::size_t live_nodes() const {
+    return nodes_.taken - freed_nodes_.load(std::memory_order_acquire);
+  }
   /// Bytes of the slabs held.
   std::size_t bytes() const { return slabs_.size() * kSlabBytes; }
 

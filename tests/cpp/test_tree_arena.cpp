@@ -101,7 +101,8 @@ TEST(TreeArena, ChangedTreesAreFreedNodeByNode) {
       r->map->insert_scan(xyz, 2, origin, -1.0);
       r->map->tree().expand();
       r->map->tree().prune();
-      accumulate_loss(*r->info_loss, *fuse_maps(far, far, Rule::NaiveBayes, UnknownPolicy::Copy).info_loss);
+      const FusionResult far_loss = fuse_maps(far, far, Rule::NaiveBayes, UnknownPolicy::Copy);
+      accumulate_loss(*r->info_loss, *far_loss.info_loss);
     }
     EXPECT_EQ(expand(in_arena.map->tree()), expand(pooled.map->tree()));
     EXPECT_EQ(expand(*in_arena.info_loss), expand(*pooled.info_loss));

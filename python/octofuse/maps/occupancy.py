@@ -320,6 +320,10 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     (``unknown="copy"``: it carries no common information, so that is the exact fusion) or
     is fused with the prior p = 0.5 (``unknown="prior"``). The GIL is released while fusing.
 
+    The two new trees of large inputs (2^18 nodes or more together) keep their nodes in
+    slabs of their own, given back at once when the result is freed (unless nodes were
+    added to it since: then it is freed node by node).
+
     Raises ``ValueError`` if the maps differ in resolution or clamping, or for an unknown
     rule or policy.
     """
