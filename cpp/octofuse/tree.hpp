@@ -68,21 +68,14 @@ static_assert(sizeof(OccupancyNode) == detail::NodePool::kBlock &&
   template <>                                                                            \
   inline bool octomap::OcTreeBaseImpl<NODE, BASE>::pruneNode(NODE* node) {               \
     if (!isNodeCollapsible(node)) return false;                                          \
-    node->copyData(*(getNodeChild(node, 0)));                                            \
-    for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);                           \
-    octofuse::detail::ChildrenPool::release(node->children);                             \
-    node->children = nullptr;                                                            \
+    octofuse::detail::collapse_children<NODE, true>(node);                               \
+    tree_size -= 8;                                                                      \
+    size_changed = true;                                                                 \
     return true;                                                                         \
   }                                                                                      \
   template <>                                                                            \
   inline void octomap::OcTreeBaseImpl<NODE, BASE>::deleteNodeRecurs(NODE* node) {        \
-    if (node->children != nullptr) {                                                     \
-      for (unsigned i = 0; i < 8; ++i)                                                   \
-        if (node->children[i] != nullptr) deleteNodeRecurs(static_cast<NODE*>(node->children[i])); \
-      octofuse::detail::ChildrenPool::release(node->children);                           \
-      node->children = nullptr;                                                          \
-    }                                                                                    \
-    delete node;                                                                         \
+    octofuse::detail::free_subtree<NODE, true>(node);                                    \
   }
 
 OCTOFUSE_POOLED_CHILDREN(octofuse::OccupancyNode, octomap::AbstractOccupancyOcTree)

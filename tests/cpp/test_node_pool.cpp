@@ -162,10 +162,16 @@ TEST(NodePool, PruneOrMaxIsOctomapsPruneThenMax) {
   int pruned = 0;
   for (int trial = 0; trial < 3000; ++trial) {
     OccupancyTree a(0.1);
+    octomap::OcTree plain(0.1);  // the same node, in OctoMap's own tree
+    std::mt19937 same = rng;
     random_children(a, rng);
+    random_children(plain, same);
     OccupancyTree b(a);
     OccupancyNode* ra = a.getRoot();
-    const bool octomap_pruned = a.pruneNode(ra);
+    const bool octomap_pruned = plain.pruneNode(plain.getRoot());
+    EXPECT_EQ(a.pruneNode(ra), octomap_pruned);  // octofuse's pruneNode is OctoMap's
+    EXPECT_EQ(bits_of(a), bits_of(plain));
+    EXPECT_EQ(a.size(), plain.size());
     if (!octomap_pruned && a.nodeHasChildren(ra)) ra->setLogOdds(ra->getMaxChildLogOdds());
     EXPECT_EQ(detail::prune_or_max(b, b.getRoot()), octomap_pruned);
     EXPECT_EQ(bits_of(b), bits_of(a)) << "trial " << trial;
