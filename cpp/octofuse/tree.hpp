@@ -68,14 +68,21 @@ static_assert(sizeof(OccupancyNode) == detail::NodePool::kBlock &&
   template <>                                                                            \
   inline bool octomap::OcTreeBaseImpl<NODE, BASE>::pruneNode(NODE* node) {               \
     if (!isNodeCollapsible(node)) return false;                                          \
-    octofuse::detail::collapse_children<NODE, true>(node);                               \
-    tree_size -= 8;                                                                      \
-    size_changed = true;                                                                 \
+    node->copyData(*(getNodeChild(node, 0)));                                            \
+    for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);                           \
+    octofuse::detail::ChildrenPool::release(node->children);                             \
+    node->children = nullptr;                                                            \
     return true;                                                                         \
   }                                                                                      \
   template <>                                                                            \
   inline void octomap::OcTreeBaseImpl<NODE, BASE>::deleteNodeRecurs(NODE* node) {        \
-    octofuse::detail::free_subtree<NODE, true>(node);                                    \
+    if (node->children != nullptr) {                                                     \
+      for (unsigned i = 0; i < 8; ++i)                                                   \
+        if (node->children[i] != nullptr) deleteNodeRecurs(static_cast<NODE*>(node->children[i])); \
+      octofuse::detail::ChildrenPool::release(node->children);                           \
+      node->children = nullptr;                                                          \
+    }                                                                                    \
+    delete node;                                                                         \
   }
 
 OCTOFUSE_POOLED_CHILDREN(octofuse::OccupancyNode, octomap::AbstractOccupancyOcTree)

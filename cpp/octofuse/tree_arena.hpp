@@ -62,43 +62,6 @@ class TreeArena {
 /// Total bytes of all arenas' slabs.
 std::size_t arena_bytes();
 
-/// Frees a block of `Pool`: asking its slab whether it is an arena's (kAsk), or straight to
-/// the pool, for the blocks of a tree without an arena (none of them can be an arena's).
-template <class Pool, bool kAsk>
-void free_block(void* p) noexcept {
-  if constexpr (kAsk) {
-    Pool::release(p);
-  } else {
-    Pool::release_to_pool(p);
-  }
-}
-
-/// Frees node `n`, the nodes below it and their arrays of children (OctoMap's
-/// deleteNodeRecurs). `Node` is a PooledTreeNode.
-template <class Node, bool kAsk>
-void free_subtree(Node* n) noexcept {
-  octomap::AbstractOcTreeNode**& kids = n->children_array();
-  if (kids != nullptr) {
-    for (unsigned i = 0; i < 8; ++i)
-      if (kids[i] != nullptr) free_subtree<Node, kAsk>(static_cast<Node*>(kids[i]));
-    free_block<ChildrenPool, kAsk>(kids);
-    kids = nullptr;
-  }
-  n->~Node();
-  free_block<NodePool, kAsk>(n);
-}
-
-/// The end of OctoMap's pruneNode() for a node whose 8 children are equal leaves: the node
-/// takes their value; they and their array are freed. The tree has 8 nodes fewer.
-template <class Node, bool kAsk>
-void collapse_children(Node* n) noexcept {
-  octomap::AbstractOcTreeNode**& kids = n->children_array();
-  n->copyData(*static_cast<Node*>(kids[0]));
-  for (unsigned i = 0; i < 8; ++i) free_subtree<Node, kAsk>(static_cast<Node*>(kids[i]));
-  free_block<ChildrenPool, kAsk>(kids);
-  kids = nullptr;
-}
-
 }  // namespace octofuse::detail
 
 namespace octofuse {
@@ -151,27 +114,31 @@ class ArenaTree : public Base {
 
   /// Removes every node, and the arena with them.
   void clear() {
-    if (this->root != nullptr) {
-      if (arena_ == nullptr) {
-        detail::free_subtree<Node, false>(this->root);
-      } else if (arena_->live_nodes() != this->tree_size) {
-        detail::free_subtree<Node, true>(this->root);  // the arena's nodes are only counted
-      }  // else every node is the arena's: its slabs go at once
-    }
+    if (arena_ == nullptr) {
+      if (this->root != nullptr) free_pool_nodes(this->root);
+    } else if (arena_->live_nodes() != this->tree_size) {
+      Base::clear();  // the pools' nodes go back one by one; the arena's are only counted
+    }  // else every node is the arena's: its slabs go at once
     this->root = nullptr;
     this->tree_size = 0;
     this->size_changed = true;
     arena_.reset();
   }
 
-  /// OctoMap's pruneNode().
+  /// OctoMap's pruneNode(); in a tree with no arena, the children go back to the pools
+  /// without asking their slabs (none can be an arena's).
   bool pruneNode(Node* node) final {
+    if (arena_ != nullptr) return Base::pruneNode(node);
     if (!this->isNodeCollapsible(node)) return false;
-    if (arena_ != nullptr) {
-      detail::collapse_children<Node, true>(node);
-    } else {
-      detail::collapse_children<Node, false>(node);
+    node->copyData(*this->getNodeChild(node, 0));
+    octomap::AbstractOcTreeNode**& kids = node->children_array();
+    for (unsigned i = 0; i < 8; ++i) {
+      auto* child = static_cast<Node*>(kids[i]);
+      child->~Node();
+      detail::NodePool::release_to_pool(child);
     }
+    detail::ChildrenPool::release_to_pool(kids);
+    kids = nullptr;
     this->tree_size -= 8;
     this->size_changed = true;
     return true;
@@ -180,6 +147,18 @@ class ArenaTree : public Base {
   void swap(ArenaTree&) = delete;
 
  private:
+  static void free_pool_nodes(Node* n) {
+    octomap::AbstractOcTreeNode**& kids = n->children_array();
+    if (kids != nullptr) {
+      for (unsigned i = 0; i < 8; ++i)
+        if (kids[i] != nullptr) free_pool_nodes(static_cast<Node*>(kids[i]));
+      detail::ChildrenPool::release_to_pool(kids);
+      kids = nullptr;
+    }
+    n->~Node();
+    detail::NodePool::release_to_pool(n);
+  }
+
   std::unique_ptr<detail::TreeArena> arena_;
 };
 
