@@ -27,12 +27,15 @@ class TreeArena {
   TreeArena& operator=(const TreeArena&) = delete;
   ~TreeArena();
 
-  void* take_node() { return take(nodes_, 16); }
-  void* take_children() { return take(children_, 64); }
+  void* take_node() {
+    ++nodes_taken_;
+    return take(nodes_, NodePool::kBlock);
+  }
+  void* take_children() { return take(children_, ChildrenPool::kBlock); }
 
   /// Nodes handed out and not freed.
   std::size_t live_nodes() const {
-    return nodes_.taken - freed_nodes_.load(std::memory_order_acquire);
+    return nodes_taken_ - freed_nodes_.load(std::memory_order_acquire);
   }
   /// Bytes of the slabs held.
   std::size_t bytes() const { return slabs_.size() * kSlabBytes; }
@@ -43,19 +46,18 @@ class TreeArena {
   struct Bump {  // blocks of one size, handed out from the newest slab
     char* next = nullptr;
     char* end = nullptr;
-    std::size_t taken = 0;
   };
   void* take(Bump& b, std::size_t size) {
     if (b.next == b.end) new_slab(b, size);
     void* p = b.next;
     b.next += size;
-    ++b.taken;
     return p;
   }
   void new_slab(Bump& b, std::size_t size);
 
   std::vector<void*> slabs_;
   Bump nodes_, children_;
+  std::size_t nodes_taken_ = 0;
   std::atomic<std::size_t> freed_nodes_{0};
 };
 
