@@ -17,67 +17,78 @@ namespace octofuse {
 namespace {
 
 using W = detail::WalkNode<OccupancyTree>;
+using OcNode = OccupancyNode;
 
-// Walks the reference and several maps at once: each map follows the walk it would have
-// alone (down to where both it and the reference are leaves or unknown), so its sums are
-// added in the same order; the reference is read once for all of them.
+// Walks the reference and one map at once, down to where both are leaves or unknown (a
+// coarse leaf stands for the voxels below it): only the children that either tree has are
+// visited, found from a mask of each node's children.
 struct Comparer {
+  // a node of one tree in the walk (null when unknown) and the mask of its children (none:
+  // a leaf, which stands for all 8)
+  struct Side {
+    const OcNode* node;
+    unsigned kids;
+  };
+
+  const OccupancyTree &rt, &mt;
   double tol, thr;
-  std::vector<Comparison> out;
-  // the maps still being walked below the current node, per depth: (index, walk node)
-  std::vector<std::vector<std::pair<std::size_t, W>>> active;
+  Comparison out;
   // KL of a voxel from its two stored values (the absent map's as +0): exact, memoized
-  detail::PairMemo<double> kl{detail::kl_logodds(0.0, 0.0)};
+  detail::PairMemo<double>& kl;
   static void kl_of(float lr, float lm, double& out) { out = detail::kl_logodds(lr, lm); }
 
-  Comparer(double tol_, double thr_, std::size_t n)
-      : tol(tol_), thr(thr_), out(n), active(18) {
-    for (auto& level : active) level.reserve(n);
-  }
-
-  int cls(const W& n) const {
-    if (!n.present()) return kUnknown;
+  int cls(const Side& n) const {
+    if (n.node == nullptr) return kUnknown;
     return n.node->getLogOdds() > thr ? kOccupied : kFree;
   }
 
-  void count(Comparison& c, const W& r, const W& m, double weight) {
-    c.confusion[cls(r)][cls(m)] += weight;
-    if (!r.present()) return;
+  void count(const Side& r, const Side& m, double weight) {
+    out.confusion[cls(r)][cls(m)] += weight;
+    if (r.node == nullptr) return;
     const float stored_r = r.node->getLogOdds();
-    const float stored_m = m.present() ? m.node->getLogOdds() : 0.0f;
-    c.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
+    const float stored_m = m.node != nullptr ? m.node->getLogOdds() : 0.0f;
+    out.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
     const double lr = stored_r, lm = stored_m;
-    if (m.present()) {
-      c.both_known += weight;
-      c.abs_diff_sum += weight * std::fabs(lm - lr);
-      if (std::fabs(lm) > std::fabs(lr) + tol) c.overconfident += weight;
+    if (m.node != nullptr) {
+      out.both_known += weight;
+      out.abs_diff_sum += weight * std::fabs(lm - lr);
+      if (std::fabs(lm) > std::fabs(lr) + tol) out.overconfident += weight;
     }
   }
 
-  // `active[depth]` holds the maps to walk at reference node `r`.
-  void walk(const W& r, unsigned depth, double weight) {
-    auto& here = active[depth];
-    const bool r_done = !r.present() || r.leaf;
-    std::size_t left = 0;  // maps that go on below, moved to the front
-    for (const auto& [i, m] : here) {
-      if (r_done && (!m.present() || m.leaf)) {
-        count(out[i], r, m, weight);
-      } else {
-        here[left++] = {i, m};
-      }
+  static Side side(const OccupancyTree& t, const OcNode* n) {
+    unsigned kids = 0;
+    if (t.nodeHasChildren(n))
+      for (unsigned i = 0; i < 8; ++i) kids |= unsigned{t.nodeChildExists(n, i)} << i;
+    return {n, kids};
+  }
+
+  // The children a side has in the walk: all 8 for a leaf, none when unknown.
+  static unsigned mask(const Side& s) {
+    if (s.node == nullptr) return 0;
+    return s.kids == 0 ? 0xFFu : s.kids;
+  }
+
+  static Side child(const OccupancyTree& t, const Side& s, unsigned i) {
+    if (s.kids == 0) return s;  // unknown, or a leaf standing for its child
+    if (!((s.kids >> i) & 1u)) return {nullptr, 0};
+    return side(t, t.getNodeChild(s.node, i));
+  }
+
+  void walk(const Side& r, const Side& m, double weight) {
+    if (r.kids == 0 && m.kids == 0) {
+      count(r, m, weight);
+      return;
     }
-    here.resize(left);
-    if (left == 0) return;
-    auto& below = active[depth + 1];
-    for (unsigned c = 0; c < 8; ++c) {
-      const W cr = r.child(c);
-      below.clear();
-      for (const auto& [i, m] : here) {
-        const W cm = m.child(c);
-        if (cr.present() || cm.present()) below.push_back({i, cm});
-      }
-      if (!below.empty()) walk(cr, depth + 1, weight / 8.0);
+    const double w = weight / 8.0;
+    for (unsigned both = mask(r) | mask(m); both != 0; both &= both - 1) {
+      const unsigned i = static_cast<unsigned>(__builtin_ctz(both));
+      walk(child(rt, r, i), child(mt, m, i), w);
     }
+  }
+
+  static Side root(const OccupancyTree& t) {
+    return t.getRoot() == nullptr ? Side{nullptr, 0} : side(t, t.getRoot());
   }
 };
 
@@ -143,15 +154,17 @@ void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
 std::vector<Comparison> compare_maps(const OccupancyMap& ref,
                                      const std::vector<const OccupancyMap*>& maps, double tol,
                                      double occ_threshold) {
-  Comparer cmp(tol, occ_threshold, maps.size());
-  const W r = W::root(ref.tree());
-  for (std::size_t i = 0; i < maps.size(); ++i) {
-    const W m = W::root(maps[i]->tree());
-    if (r.present() || m.present()) cmp.active[0].push_back({i, m});
+  detail::PairMemo<double> kl(detail::kl_logodds(0.0, 0.0));
+  std::vector<Comparison> out;
+  out.reserve(maps.size());
+  for (const OccupancyMap* map : maps) {
+    Comparer cmp{ref.tree(), map->tree(), tol, occ_threshold, {}, kl};
+    const Comparer::Side r = Comparer::root(ref.tree()), m = Comparer::root(map->tree());
+    // weight 8^16: the root stands for all finest voxels
+    if (r.node != nullptr || m.node != nullptr) cmp.walk(r, m, std::pow(8.0, 16));
+    out.push_back(cmp.out);
   }
-  // weight 8^16: the root stands for all finest voxels
-  if (!cmp.active[0].empty()) cmp.walk(r, 0, std::pow(8.0, 16));
-  return std::move(cmp.out);
+  return out;
 }
 
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,

@@ -27,8 +27,9 @@ struct Comparison {
 };
 
 /// Compares each of `maps` with the reference `ref` (e.g. the agents' maps with the
-/// centralized map) in one walk of `ref`: out[i] is the comparison of maps[i], the same
-/// numbers, summed in the same order, as when it is compared alone. `tol` is the
+/// centralized map): out[i] is the comparison of maps[i], the same numbers as when it is
+/// compared alone. Each map is walked together with `ref`, through the children either of the
+/// two has. `tol` is the
 /// over-confidence tolerance in log-odds; `occ_threshold` the occupancy threshold in log-odds
 /// (OctoMap's default: 0).
 std::vector<Comparison> compare_maps(const OccupancyMap& ref,

@@ -62,18 +62,10 @@ def compare(central: OccupancyMap, agent: OccupancyMap, tol: float = 0.1) -> Sco
 
 def compare_many(central: OccupancyMap, agents: Sequence[OccupancyMap], tol: float = 0.1,
                  threads: int = 1) -> list[Score]:
-    """:func:`compare` of each of ``agents``, reading ``central`` once per thread (the maps
-    are shared out among ``threads`` threads; the scores do not depend on how)."""
-    agents = list(agents)
-    threads = max(1, min(threads, len(agents)))
-    shares = [list(range(k, len(agents), threads)) for k in range(threads)]  # sizes mixed
-    counts = thread_map(lambda idx: class_counts_of(central, [agents[i] for i in idx], tol),
-                        shares, threads)
-    out: list[Optional[Score]] = [None] * len(agents)
-    for idx, share in zip(shares, counts):
-        for i, d in zip(idx, share):
-            out[i] = _score_of_counts(d)
-    return out
+    """:func:`compare` of each of ``agents``, on up to ``threads`` threads (a map at a time, to
+    whichever thread is free)."""
+    counts = thread_map(lambda m: class_counts_of(central, [m], tol)[0], agents, threads)
+    return [_score_of_counts(d) for d in counts]
 
 
 def _score_of_counts(d: dict) -> Score:

@@ -425,6 +425,6 @@ def _points(points) -> np.ndarray:
 
 
 def class_counts_of(reference: OccupancyMap, maps: Sequence[OccupancyMap], tol: float) -> list[dict]:
-    """:meth:`OccupancyMap.class_counts` of each of ``maps`` against ``reference``, in one walk
-    of ``reference`` (the same numbers as one by one)."""
+    """:meth:`OccupancyMap.class_counts` of each of ``maps`` against ``reference``, in one call
+    into the core (the same numbers as one by one)."""
     return _core._compare_maps(reference._m, [m._m for m in maps], float(tol), 0.0)
