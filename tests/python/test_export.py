@@ -341,3 +341,19 @@ def test_writers_on_threads_leave_stderr_as_it_was():
         t.join()
     assert seen["while the other left"] == (null.st_dev, null.st_ino)
     assert target_of_fd2() == before
+
+
+def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
+    import subprocess
+    import sys
+
+    code = ("import sys; from octofuse.outputs.preload import import_output_libraries\n"
+            "t = import_output_libraries(); assert t.daemon and t.name == 'octofuse-imports'\n"
+            "t.join(120)\n"
+            "import matplotlib\n"
+            "print('open3d' in sys.modules, 'matplotlib.pyplot' in sys.modules, "
+            "matplotlib.get_backend().lower())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180,
+                         env={**os.environ, "MPLBACKEND": ""})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "True", "agg"]

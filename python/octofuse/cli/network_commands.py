@@ -28,12 +28,14 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                     export_bag: Optional[Path] = None) -> None:
     from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
+    from ..outputs.preload import import_output_libraries
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
     from ..outputs.tables import scores_table
 
     out = check_replaceable(cfg.out)
     truth = Scene.find(cfg.truth, cfg.build.bags)
+    import_output_libraries()
     bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
     try:
         with staged_folder(out, command) as stage:
