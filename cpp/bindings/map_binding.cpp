@@ -22,6 +22,13 @@ py::dict leaves_to_dict(LeafArrays&& l) {
   return d;
 }
 
+LeafClass leaf_class(const std::string& voxels) {
+  if (voxels == "occupied") return LeafClass::Occupied;
+  if (voxels == "free") return LeafClass::Free;
+  if (voxels == "all") return LeafClass::All;
+  throw py::value_error("voxels = '" + voxels + "': expected 'occupied', 'free' or 'all'");
+}
+
 template <class Real>
 void insert_impl(OccupancyMap& self, py::array_t<Real, py::array::c_style> points,
                  py::array_t<double, py::array::c_style | py::array::forcecast> origin_or_pose,
@@ -127,21 +134,17 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         return OccupancyMap::load(path);
       })
-      .def("leaves", [](const OccupancyMap& self) {
+      .def("leaves", [](const OccupancyMap& self, const std::string& voxels) {
+        const LeafClass which = leaf_class(voxels);
         LeafArrays l;
         {
           py::gil_scoped_release release;
-          l = self.leaves();
+          l = self.leaves(which);
         }
         return leaves_to_dict(std::move(l));
-      })
+      }, py::arg("voxels") = "all")
       .def("leaves_with", [](const OccupancyMap& self, const ScalarTree& scalar, const std::string& voxels) {
-        const LeafClass which = voxels == "occupied" ? LeafClass::Occupied
-                                : voxels == "free"   ? LeafClass::Free
-                                : voxels == "all"    ? LeafClass::All
-                                                     : throw py::value_error(
-                                                           "voxels = '" + voxels +
-                                                           "': expected 'occupied', 'free' or 'all'");
+        const LeafClass which = leaf_class(voxels);
         LeafArrays l;
         std::vector<float> values;
         {

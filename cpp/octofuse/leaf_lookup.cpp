@@ -56,8 +56,7 @@ LeafArrays leaves_with_values(const OccupancyMap& map, const ScalarTree& scalar,
   const OccupancyTree& t = map.tree();
   detail::for_each_leaf(t, [&](const OccupancyNode& node, const octomap::OcTreeKey& k, unsigned d) {
     const float lo = node.getLogOdds();
-    if ((which == LeafClass::Occupied && !(lo > 0)) || (which == LeafClass::Free && !(lo <= 0)))
-      return;
+    if (!of_class(lo, which)) return;
     const double centre[3] = {t.keyToCoord(k[0], d), t.keyToCoord(k[1], d), t.keyToCoord(k[2], d)};
     float v = 0.0f;
     bool found = false;

@@ -9,9 +9,6 @@
 
 namespace octofuse {
 
-/// Which leaves of a map: log-odds > 0, <= 0, or every leaf.
-enum class LeafClass { Occupied, Free, All };
-
 /// The leaves of `map` of class `which` (in OctoMap's leaf order) for which a leaf of `scalar`
 /// contains the leaf's centre, and that leaf's value in `scalar_values`. The containing leaf
 /// is found depth by depth from the centre's coordinates (the cell floor(centre / size) at

@@ -17,16 +17,16 @@ namespace octofuse {
 
 namespace {
 
-template <class Tree>
-LeafArrays collect_leaves(const Tree& tree) {
+// The leaves whose value `keep` accepts; room is made for `expected` of them.
+template <class Tree, class Keep>
+LeafArrays collect_leaves(const Tree& tree, Keep keep, std::size_t expected) {
   LeafArrays out;
-  const std::size_t n = tree.size();  // the node count the tree keeps: leaves and more
-  out.centers.reserve(3 * n);
-  out.sizes.reserve(n);
-  out.values.reserve(n);
-  out.depths.reserve(n);
+  out.centers.reserve(3 * expected);
+  out.sizes.reserve(expected);
+  out.values.reserve(expected);
+  out.depths.reserve(expected);
   detail::for_each_leaf(tree, [&](const auto& node, const octomap::OcTreeKey& k, unsigned d) {
-    detail::append_leaf(out, tree, k, d, node.getValue());
+    if (keep(node.getValue())) detail::append_leaf(out, tree, k, d, node.getValue());
   });
   return out;
 }
@@ -119,7 +119,11 @@ template void OccupancyMap::insert_scan_from_sensor<float>(const float*, std::si
 template void OccupancyMap::insert_scan_from_sensor<double>(const double*, std::size_t,
                                                             const double*, double);
 
-LeafArrays OccupancyMap::leaves() const { return collect_leaves(*tree_); }
+LeafArrays OccupancyMap::leaves(LeafClass which) const {
+  // all: the node count the tree keeps (leaves and more); a class: grown as found
+  return collect_leaves(*tree_, [which](float v) { return of_class(v, which); },
+                        which == LeafClass::All ? tree_->size() : 0);
+}
 
 std::uint64_t OccupancyMap::known_voxels() const {
   std::uint64_t n = 0;
@@ -127,7 +131,9 @@ std::uint64_t OccupancyMap::known_voxels() const {
     n += std::uint64_t{1} << (3 * (tree_->getTreeDepth() - it.getDepth()));
   return n;
 }
-LeafArrays scalar_leaves(const ScalarTree& tree) { return collect_leaves(tree); }
+LeafArrays scalar_leaves(const ScalarTree& tree) {
+  return collect_leaves(tree, [](float) { return true; }, tree.size());
+}
 
 void check_same_grid(const OccupancyMap& a, const OccupancyMap& b) {
   const MapParams &pa = a.params(), &pb = b.params();

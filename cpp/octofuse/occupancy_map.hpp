@@ -37,6 +37,14 @@ struct MapParams {
 };
 
 /// Leaves of a tree as flat arrays (structure of arrays).
+/// Which leaves of a map: log-odds > 0, <= 0, or every leaf.
+enum class LeafClass { Occupied, Free, All };
+
+/// Whether a leaf of value `log_odds` is of class `which`.
+inline bool of_class(float log_odds, LeafClass which) {
+  return which == LeafClass::All || (which == LeafClass::Occupied ? log_odds > 0 : log_odds <= 0);
+}
+
 struct LeafArrays {
   std::vector<double> centers;  ///< 3 * n, x y z interleaved
   std::vector<double> sizes;    ///< n, edge length in metres
@@ -88,8 +96,8 @@ class OccupancyMap {
   /// Reads a ".ot" or ".bt" file (read_map_file()). Throws MapFileError naming the file.
   static std::unique_ptr<OccupancyMap> load(const std::string& path);
 
-  /// Leaf centres, sizes and log-odds.
-  LeafArrays leaves() const;
+  /// Centres, sizes and log-odds of the leaves of class `which`.
+  LeafArrays leaves(LeafClass which = LeafClass::All) const;
 
   const MapParams& params() const { return params_; }
   std::size_t num_leaves() const { return tree_->getNumLeafNodes(); }

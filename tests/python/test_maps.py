@@ -433,3 +433,18 @@ def test_large_results_are_the_same_maps_before_and_after_changes(rule):
     copy = fused.copy()
     del fused, loss
     _same_leaves(copy, ref)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_leaves_of_a_class_are_those_leaves_of_all(seed):
+    m = random_map(seed, 20)
+    every = m.leaves()
+    occupied = every.values > 0
+    assert 0 < occupied.sum() < len(every.values) and (every.depths < 16).any()  # coarse leaves too
+    for voxels, sel in (("occupied", occupied), ("free", ~occupied),
+                        ("all", np.ones(len(occupied), bool))):
+        got = m.leaves(voxels)
+        for name in ("centers", "sizes", "values", "depths"):
+            assert np.array_equal(getattr(got, name), getattr(every, name)[sel]), (voxels, name)
+    with pytest.raises(ValueError, match="voxels = 'walls': expected 'occupied', 'free' or 'all'"):
+        m.leaves("walls")

@@ -100,9 +100,8 @@ def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
         s.loss_mean, s.loss_p95 = loss_stats(loss)
     s.bytes_sent, s.bytes_received, s.bytes_sent_32b = bytes_sent, bytes_received, bytes_sent_32b
     if truth is not None:
-        lv = agent.leaves()
-        occ = lv.values > 0
-        centers = finest_centers(lv.centers[occ], lv.sizes[occ], agent.resolution)
+        lv = agent.leaves("occupied")
+        centers = finest_centers(lv.centers, lv.sizes, agent.resolution)
         s.occupied_accuracy = truth.occupied_accuracy(centers, agent.resolution)
     return s
 

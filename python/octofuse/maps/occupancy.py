@@ -215,9 +215,10 @@ class OccupancyMap:
         return OccupancyMap._wrap(raw)
 
     # -- contents ----------------------------------------------------------------------
-    def leaves(self) -> Leaves:
-        """Leaf centres (N, 3), sizes (N,), log-odds (N,) and depths (N,)."""
-        return leaves_from_core(self._m.leaves())
+    def leaves(self, voxels: str = "all") -> Leaves:
+        """Leaf centres (N, 3), sizes (N,), log-odds (N,) and depths (N,) of the leaves of
+        class ``voxels``: "all", "occupied" (log-odds > 0) or "free"."""
+        return leaves_from_core(self._m.leaves(voxels))
 
     def copy(self) -> "OccupancyMap":
         """A deep copy of the map."""

@@ -161,11 +161,8 @@ def map_voxel_loss(loss: InfoLossMap | Leaves, map: OccupancyMap,
         ml, values = loss.on_leaves(map, voxels)
         return MapVoxelLoss(ml.centers, ml.sizes, ml.values, values)
     lv = _as_leaves(loss)
-    ml = map.leaves()
-    logodds = np.asarray(ml.values, dtype=np.float32)
-    sel = (logodds > 0 if voxels == "occupied" else logodds <= 0 if voxels == "free"
-           else np.ones(len(logodds), bool))
-    centers, sizes, logodds = ml.centers[sel], ml.sizes[sel], logodds[sel]
+    ml = map.leaves(voxels)
+    centers, sizes, logodds = ml.centers, ml.sizes, np.asarray(ml.values, dtype=np.float32)
     values = lv.values_at(centers, map.resolution)
     known = np.isfinite(values)
     return MapVoxelLoss(centers[known], sizes[known], logodds[known], values[known])
