@@ -76,30 +76,20 @@ SpareSlabs& spare() {  // never destroyed, like the pools
   return *s;
 }
 
-// Slabs are mapped from the system kChunkSlabs at a time (fewer calls that lock the process's
-// address space while other threads fault pages in), aligned to their size, and asked to be
-// backed by huge pages where the system allows it: a walk over millions of nodes scattered over
-// gigabytes then misses the TLB far less. A chunk's slabs not yet taken are only reserved.
-constexpr std::size_t kChunkSlabs = 16;
-
+// Slabs are mapped from the system one by one, aligned to their size, and asked to be backed
+// by huge pages where the system allows it: a walk over millions of nodes scattered over
+// gigabytes then misses the TLB far less.
 void* map_slab() {
-  static std::mutex mutex;
-  static std::uintptr_t next = 0, end = 0;  // the slabs of the current chunk not yet taken
-  std::lock_guard<std::mutex> lock(mutex);
-  if (next == end) {
-    const std::size_t bytes = kChunkSlabs * kSlabBytes, span = bytes + kSlabBytes;
-    void* p = mmap(nullptr, span, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-    if (p == MAP_FAILED) throw std::bad_alloc();
-    const auto base = reinterpret_cast<std::uintptr_t>(p);
-    next = (base + kSlabBytes - 1) & ~(kSlabBytes - 1);
-    end = next + bytes;
-    if (next > base) munmap(p, next - base);
-    if (base + span > end) munmap(reinterpret_cast<void*>(end), base + span - end);
-    madvise(reinterpret_cast<void*>(next), bytes, MADV_HUGEPAGE);
-  }
-  void* slab = reinterpret_cast<void*>(next);
-  next += kSlabBytes;
-  return slab;
+  const std::size_t span = 2 * kSlabBytes;
+  void* p = mmap(nullptr, span, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (p == MAP_FAILED) throw std::bad_alloc();
+  const auto base = reinterpret_cast<std::uintptr_t>(p);
+  const std::uintptr_t slab = (base + kSlabBytes - 1) & ~(kSlabBytes - 1);
+  if (slab > base) munmap(p, slab - base);
+  if (base + span > slab + kSlabBytes)
+    munmap(reinterpret_cast<void*>(slab + kSlabBytes), base + span - slab - kSlabBytes);
+  madvise(reinterpret_cast<void*>(slab), kSlabBytes, MADV_HUGEPAGE);
+  return reinterpret_cast<void*>(slab);
 }
 
 void unmap_slab(void* slab) noexcept { munmap(slab, kSlabBytes); }
