@@ -29,7 +29,7 @@ struct FusionResult {
 ///
 /// If the inputs have `arena_min_nodes` nodes or more together, the two new trees are built
 /// in arenas of their own (TreeArena): freeing them then gives back slabs, not nodes one by
-/// one, for as long as nothing was added to them since. An arena keeps up to two 2 MiB slabs
+/// one, for as long as nothing was added to them since. An arena keeps up to two 1 MiB slabs
 /// partly unused, hence the threshold.
 FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
                        UnknownPolicy unknown, std::size_t arena_min_nodes = kArenaMinNodes);

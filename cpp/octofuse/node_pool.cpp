@@ -1,8 +1,6 @@
 // octofuse: BlockPool, the shared side (slabs with free-block bitmaps).
 #include "octofuse/node_pool.hpp"
 
-#include <sys/mman.h>
-
 #include <cstdint>
 #include <cstdlib>
 #include <mutex>
@@ -76,24 +74,6 @@ SpareSlabs& spare() {  // never destroyed, like the pools
   return *s;
 }
 
-// Slabs are mapped from the system one by one, aligned to their size, and asked to be backed
-// by huge pages where the system allows it: a walk over millions of nodes scattered over
-// gigabytes then misses the TLB far less.
-void* map_slab() {
-  const std::size_t span = 2 * kSlabBytes;
-  void* p = mmap(nullptr, span, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-  if (p == MAP_FAILED) throw std::bad_alloc();
-  const auto base = reinterpret_cast<std::uintptr_t>(p);
-  const std::uintptr_t slab = (base + kSlabBytes - 1) & ~(kSlabBytes - 1);
-  if (slab > base) munmap(p, slab - base);
-  if (base + span > slab + kSlabBytes)
-    munmap(reinterpret_cast<void*>(slab + kSlabBytes), base + span - slab - kSlabBytes);
-  madvise(reinterpret_cast<void*>(slab), kSlabBytes, MADV_HUGEPAGE);
-  return reinterpret_cast<void*>(slab);
-}
-
-void unmap_slab(void* slab) noexcept { munmap(slab, kSlabBytes); }
-
 }  // namespace
 
 void* take_slab() {
@@ -106,7 +86,9 @@ void* take_slab() {
       return slab;
     }
   }
-  return map_slab();
+  void* mem = std::aligned_alloc(kSlabBytes, kSlabBytes);
+  if (mem == nullptr) throw std::bad_alloc();
+  return mem;
 }
 
 void give_slab(void* slab) noexcept {
@@ -115,14 +97,14 @@ void give_slab(void* slab) noexcept {
   try {
     s.slabs.push_back(slab);
   } catch (...) {  // no room to keep it: give it back now
-    unmap_slab(slab);
+    std::free(slab);
   }
 }
 
 std::size_t trim_spare_slabs() {
   SpareSlabs& s = spare();
   std::lock_guard<std::mutex> lock(s.mutex);
-  for (void* slab : s.slabs) unmap_slab(slab);
+  for (void* slab : s.slabs) std::free(slab);
   const std::size_t freed = s.slabs.size() * kSlabBytes;
   s.slabs.clear();
   s.slabs.shrink_to_fit();
@@ -234,7 +216,7 @@ std::size_t BlockPool<kSize>::trim() {
   for (H* h : s.slabs) {
     if (h->free == H::kUsable) {
       s.free_blocks -= H::kUsable;
-      unmap_slab(h);
+      std::free(h);
       freed += kSlabBytes;
     } else {
       h->index = kept;

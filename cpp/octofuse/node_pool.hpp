@@ -10,7 +10,7 @@ namespace octofuse::detail {
 
 /// Blocks come from slabs of this size, aligned to it. A slab's first word names the
 /// TreeArena (tree_arena.hpp) it belongs to, or is null for the pools' own slabs.
-inline constexpr std::size_t kSlabBytes = std::size_t(2) << 20;
+inline constexpr std::size_t kSlabBytes = std::size_t(1) << 20;
 
 class TreeArena;
 
@@ -48,12 +48,11 @@ inline thread_local void* pool_cache __attribute__((tls_model("initial-exec"))) 
 
 /// Blocks of `kSize` bytes for octofuse's trees (outside arenas): nodes (16 bytes, which
 /// glibc stores in 32 and frees one by one with coalescing) and arrays of 8 child pointers (64
-/// bytes, 80 in glibc). Blocks come from 2 MiB slabs, each with a bitmap of its free blocks
-/// (backed by huge pages where the system allows). A thread takes blocks in batches, lowest
-/// address first (a tree built in depth-first order gets its nodes side by side, however
-/// scattered the blocks freed before were), and frees onto a stack of its own that goes back
-/// to the bitmaps in batches; a block may be freed on any thread. trim() gives empty slabs
-/// back to the system.
+/// bytes, 80 in glibc). Blocks come from 1 MiB slabs, each with a bitmap of its free blocks. A
+/// thread takes blocks in batches, lowest address first (a tree built in depth-first order
+/// gets its nodes side by side, however scattered the blocks freed before were), and frees
+/// onto a stack of its own that goes back to the bitmaps in batches; a block may be freed on
+/// any thread. trim() gives empty slabs back to the system.
 template <std::size_t kSize>
 class BlockPool {
  public:
