@@ -225,7 +225,8 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
     updates[i] = compute_items(s.targets.front()->tree(), pts.data(), s.n, origin, s.max_range,
                                "scan " + std::to_string(i) + ": ");
   });
-  // every map gets its scans in order; distinct maps go to threads by amount of work
+  // every map gets its scans in order; distinct maps go to whichever thread is free, the
+  // most work first
   std::map<OccupancyMap*, std::vector<std::size_t>> per_map;
   std::map<OccupancyMap*, std::size_t> work;
   for (std::size_t i = 0; i < scans.size(); ++i) {
@@ -237,17 +238,8 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
   std::vector<OccupancyMap*> maps;
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
-  const unsigned nt = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(maps.size(), 1)));
-  std::vector<std::vector<OccupancyMap*>> lanes(nt);
-  std::vector<std::size_t> load(nt, 0);
-  for (OccupancyMap* m : maps) {
-    const auto t = std::min_element(load.begin(), load.end()) - load.begin();
-    lanes[t].push_back(m);
-    load[t] += work[m];
-  }
-  detail::parallel_for(nt, nt, [&](std::size_t t) {
-    for (OccupancyMap* m : lanes[t])
-      for (std::size_t i : per_map[m]) apply_items(m->tree(), updates[i]);
+  detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
+    for (std::size_t i : per_map[maps[k]]) apply_items(maps[k]->tree(), updates[i]);
   });
 }
 
