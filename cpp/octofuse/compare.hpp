@@ -29,9 +29,8 @@ struct Comparison {
 /// Compares each of `maps` with the reference `ref` (e.g. the agents' maps with the
 /// centralized map): out[i] is the comparison of maps[i], the same numbers as when it is
 /// compared alone. Each map is walked together with `ref`, through the children either of the
-/// two has. `tol` is the
-/// over-confidence tolerance in log-odds; `occ_threshold` the occupancy threshold in log-odds
-/// (OctoMap's default: 0).
+/// two has. `tol` is the over-confidence tolerance in log-odds; `occ_threshold` the occupancy
+/// threshold in log-odds (OctoMap's default: 0).
 std::vector<Comparison> compare_maps(const OccupancyMap& ref,
                                      const std::vector<const OccupancyMap*>& maps, double tol,
                                      double occ_threshold = 0.0);

@@ -36,15 +36,16 @@ struct MapParams {
   void validate() const;
 };
 
-/// Leaves of a tree as flat arrays (structure of arrays).
 /// Which leaves of a map: log-odds > 0, <= 0, or every leaf.
 enum class LeafClass { Occupied, Free, All };
 
 /// Whether a leaf of value `log_odds` is of class `which`.
 inline bool of_class(float log_odds, LeafClass which) {
-  return which == LeafClass::All || (which == LeafClass::Occupied ? log_odds > 0 : log_odds <= 0);
+  if (which == LeafClass::All) return true;
+  return which == LeafClass::Occupied ? log_odds > 0 : log_odds <= 0;
 }
 
+/// Leaves of a tree as flat arrays (structure of arrays).
 struct LeafArrays {
   std::vector<double> centers;  ///< 3 * n, x y z interleaved
   std::vector<double> sizes;    ///< n, edge length in metres
