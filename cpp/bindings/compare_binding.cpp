@@ -3,41 +3,29 @@
 
 #include "octofuse/compare.hpp"
 
-#include <pybind11/stl.h>
-
-#include <vector>
-
 namespace octofuse::bindings {
 
 void define_compare(py::module_& m) {
   m.def(
       "_compare_maps",
-      [](const OccupancyMap& ref, const std::vector<const OccupancyMap*>& maps, double tol,
-         double thr) {
-        for (const OccupancyMap* map : maps) {
-          if (map == nullptr) throw py::type_error("_compare_maps: a map is None");
-          check_compatible(ref, *map);
-        }
-        std::vector<Comparison> cs;
+      [](const OccupancyMap& ref, const OccupancyMap& map, double tol, double thr) {
+        check_compatible(ref, map);
+        Comparison c;
         {
           py::gil_scoped_release release;
-          cs = compare_maps(ref, maps, tol, thr);
+          c = compare_maps(ref, map, tol, thr);
         }
-        py::list out;
-        for (const Comparison& c : cs) {
-          py::list conf;
-          for (auto& row : c.confusion) conf.append(py::make_tuple(row[0], row[1], row[2]));
-          py::dict d;
-          d["confusion"] = conf;
-          d["kl_sum"] = c.kl_sum;
-          d["both_known"] = c.both_known;
-          d["overconfident"] = c.overconfident;
-          d["abs_diff_sum"] = c.abs_diff_sum;
-          out.append(d);
-        }
-        return out;
+        py::list conf;
+        for (auto& row : c.confusion) conf.append(py::make_tuple(row[0], row[1], row[2]));
+        py::dict d;
+        d["confusion"] = conf;
+        d["kl_sum"] = c.kl_sum;
+        d["both_known"] = c.both_known;
+        d["overconfident"] = c.overconfident;
+        d["abs_diff_sum"] = c.abs_diff_sum;
+        return d;
       },
-      py::arg("ref"), py::arg("maps"), py::arg("tol"), py::arg("occ_threshold") = 0.0);
+      py::arg("ref"), py::arg("map"), py::arg("tol"), py::arg("occ_threshold") = 0.0);
   m.def("_changed_voxels", [](const OccupancyMap& cur, const OccupancyMap& prev) {
     check_compatible(cur, prev);
     py::gil_scoped_release release;

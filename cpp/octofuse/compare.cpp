@@ -32,9 +32,9 @@ struct Comparer {
 
   const OccupancyTree &rt, &mt;
   double tol, thr;
-  Comparison out;
+  Comparison out{};
   // KL of a voxel from its two stored values (the absent map's as +0): exact, memoized
-  detail::PairMemo<double>& kl;
+  detail::PairMemo<double> kl{detail::kl_logodds(0.0, 0.0)};
   static void kl_of(float lr, float lm, double& out) { out = detail::kl_logodds(lr, lm); }
 
   int cls(const Side& n) const {
@@ -151,25 +151,13 @@ void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
 
 }  // namespace
 
-std::vector<Comparison> compare_maps(const OccupancyMap& ref,
-                                     const std::vector<const OccupancyMap*>& maps, double tol,
-                                     double occ_threshold) {
-  detail::PairMemo<double> kl(detail::kl_logodds(0.0, 0.0));
-  std::vector<Comparison> out;
-  out.reserve(maps.size());
-  for (const OccupancyMap* map : maps) {
-    Comparer cmp{ref.tree(), map->tree(), tol, occ_threshold, {}, kl};
-    const Comparer::Side r = Comparer::root(ref.tree()), m = Comparer::root(map->tree());
-    // weight 8^16: the root stands for all finest voxels
-    if (r.node != nullptr || m.node != nullptr) cmp.walk(r, m, std::pow(8.0, 16));
-    out.push_back(cmp.out);
-  }
-  return out;
-}
-
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold) {
-  return compare_maps(ref, {&map}, tol, occ_threshold)[0];
+  Comparer cmp{ref.tree(), map.tree(), tol, occ_threshold};
+  const Comparer::Side r = Comparer::root(ref.tree()), m = Comparer::root(map.tree());
+  // weight 8^16: the root stands for all finest voxels
+  if (r.node != nullptr || m.node != nullptr) cmp.walk(r, m, std::pow(8.0, 16));
+  return cmp.out;
 }
 
 std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,

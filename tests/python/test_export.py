@@ -347,7 +347,7 @@ def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
     import subprocess
     import sys
 
-    code = ("import sys; from octofuse.outputs.preload import import_output_libraries\n"
+    code = ("import sys; from octofuse.outputs.libraries import import_output_libraries\n"
             "t = import_output_libraries(); assert t.daemon and t.name == 'octofuse-imports'\n"
             "t.join(120)\n"
             "import matplotlib\n"

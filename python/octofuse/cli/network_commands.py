@@ -28,7 +28,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                     export_bag: Optional[Path] = None) -> None:
     from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
-    from ..outputs.preload import import_output_libraries
+    from ..outputs.libraries import import_output_libraries
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable, staged_folder
     from ..outputs.tables import scores_table

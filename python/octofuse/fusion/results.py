@@ -98,7 +98,7 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
     jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
         [(r, a) for r in res.rules for a in res.agents]
     agent_map = lambda r, a: res.local[a] if r == LOCAL else res.fused[r][a]  # noqa: E731
-    # maps in the common frame: compared in one walk of the centralized map
+    # maps in the common frame: compared as they are, on both threads
     compared = dict(compared or {})
     as_is = [j for j in jobs if res.frames.get(j[1]) is None and j not in compared]
     compared.update(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,

@@ -84,7 +84,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             jobs = [(r, a, maps[a]) for r, maps in ([(LOCAL, own)] if local else [])
                     + [(r, net.fused[r]) for r in rules] for a in agents]
             tol = fuse_cfg.overconfidence_tol
-            # maps scored as they are: one walk of the centralized map for all of them
+            # maps scored as they are, on both threads, each walked with the centralized map
             as_is = [i for i, (r, a, _) in enumerate(jobs)
                      if r != CHANNEL_FILTER and frames.frames.get(a) is None]
             scores = dict(zip(as_is, compare_many(central, [jobs[i][2] for i in as_is], tol,

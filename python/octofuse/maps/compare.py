@@ -9,7 +9,7 @@ import numpy as np
 
 from ..threads import thread_map
 from .infoloss import InfoLossMap, voxels_per_leaf
-from .occupancy import OccupancyMap, class_counts_of
+from .occupancy import OccupancyMap
 
 
 @dataclass
@@ -64,7 +64,7 @@ def compare_many(central: OccupancyMap, agents: Sequence[OccupancyMap], tol: flo
                  threads: int = 1) -> list[Score]:
     """:func:`compare` of each of ``agents``, on up to ``threads`` threads (a map at a time, to
     whichever thread is free)."""
-    counts = thread_map(lambda m: class_counts_of(central, [m], tol)[0], agents, threads)
+    counts = thread_map(lambda m: m.class_counts(central, tol), agents, threads)
     return [_score_of_counts(d) for d in counts]
 
 

@@ -258,7 +258,7 @@ class OccupancyMap:
         """Voxel counts of this map against ``reference`` over finest voxels: the class
         confusion (occupied/free/unknown), KL(reference || self) and |l| differences summed,
         and voxels where this map is more certain than the reference by more than ``tol``."""
-        return class_counts_of(reference, [self], tol)[0]
+        return _core._compare_maps(reference._m, self._m, float(tol), 0.0)
 
     @property
     def num_leaves(self) -> int:
@@ -424,8 +424,3 @@ def _points(points) -> np.ndarray:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
     return np.ascontiguousarray(pts)
 
-
-def class_counts_of(reference: OccupancyMap, maps: Sequence[OccupancyMap], tol: float) -> list[dict]:
-    """:meth:`OccupancyMap.class_counts` of each of ``maps`` against ``reference``, in one call
-    into the core (the same numbers as one by one)."""
-    return _core._compare_maps(reference._m, [m._m for m in maps], float(tol), 0.0)

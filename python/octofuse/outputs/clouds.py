@@ -26,6 +26,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .libraries import open3d
 from .staging import written_then_renamed
 
 CLOUD_SUFFIXES = (".ply", ".pcd")
@@ -54,7 +55,7 @@ def read_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if p.is_dir():
         raise IsADirectoryError(f"point cloud '{p}' is a directory")
     _check_ply_length(p)
-    o3d = _open3d()
+    o3d = open3d()
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         pcd = o3d.t.io.read_point_cloud(str(p))
     names = set(pcd.point)
@@ -234,7 +235,7 @@ def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
     if not np.isfinite(pos32).all():
         raise ValueError(f"cannot write '{p}': voxel coordinates beyond the float32 range of "
                          f"point clouds (largest {np.abs(np.asarray(centers)).max():.3g} m)")
-    o3d = _open3d()
+    o3d = open3d()
     o3c = o3d.core
     pcd = o3d.t.geometry.PointCloud()
     pcd.point["positions"] = o3c.Tensor.from_numpy(
@@ -253,8 +254,3 @@ def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
         _check_written(tmp, p, n)
     return p
 
-
-def _open3d():
-    import open3d  # slow (about a second): imported only when a cloud is written or read
-
-    return open3d

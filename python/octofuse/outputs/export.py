@@ -22,6 +22,7 @@ from ..maps.infoloss import InfoLossMap, Leaves, read_info_loss
 from ..maps.occupancy import OccupancyMap
 from .clouds import CLOUD_SUFFIXES, check_field, cloud_path, write_cloud
 from .staging import written_then_renamed
+from .libraries import pyplot
 
 MAP_SUFFIXES = (".ot", ".bt")
 LOSS_SUFFIX = ".npz"
@@ -190,16 +191,14 @@ def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
     p = Path(path)
     if p.suffix.lower() != ".png":
         raise ValueError(f"cannot write colour bar '{p}': expected a .png file name")
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
     fig, ax = plt.subplots(figsize=(5.0, 0.8), dpi=150)
     fig.subplots_adjust(left=0.05, right=0.95, bottom=0.55, top=0.9)
     norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
-    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=_colormap(cmap)), cax=ax,
+    fig.colorbar(ScalarMappable(norm=norm, cmap=_colormap(cmap)), cax=ax,
                  orientation="horizontal", label=label)
     try:
         with written_then_renamed(p) as tmp:
@@ -262,7 +261,7 @@ def _write_map_cloud(m, path, occupied_only, threshold, cmap) -> tuple[Path, int
     z = centers[:, 2]
     colors = colorize(z, cmap, float(z.min()), float(z.max()))
     path = write_cloud(p, centers, colors,
-                        {"log_odds": logodds, "probability": prob, "voxel_size": sizes})
+                       {"log_odds": logodds, "probability": prob, "voxel_size": sizes})
     return path, len(logodds)
 
 

@@ -17,6 +17,7 @@ from ..maps.frames import matrix_pose
 from ..maps.infoloss import voxels_per_leaf
 from ..threads import thread_map
 from .map_exports import MapExports
+from .libraries import pyplot
 
 #: columns of the results tables: (key, header, format)
 COLUMNS = [
@@ -163,10 +164,7 @@ def memory_table(res: SimResult) -> list[str]:
 def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
     if not res.timeline:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rules = [LOCAL] + res.rules
     ncol = min(4, len(rules))
@@ -202,10 +200,7 @@ def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
     histograms are counted on ``threads`` threads."""
     if not data:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rules = [r for r, (v, _) in data.items() if len(v)]
     tops = thread_map(lambda r: float(np.percentile(data[r][0], 99.5)), rules, threads)

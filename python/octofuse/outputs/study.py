@@ -31,6 +31,7 @@ from ..config import RunConfig, to_dict
 from ..fusion.executors import Executor, SerialExecutor, make_executor
 from ..fusion.graph import make_graph
 from .report import COLUMNS, mean_scores
+from .libraries import pyplot
 
 #: per-cell results inside a study's output folder
 CELLS_DIR = "cells"
@@ -398,10 +399,7 @@ def _write_tables(cfg: RunConfig, rows: list[dict], ok: list, failed: list[dict]
 
 
 def _plots(rows: list[dict], groups: list[str], axes: Sequence[str], out: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     rules = list(dict.fromkeys(r["rule"] for r in rows))

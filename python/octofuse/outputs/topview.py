@@ -16,6 +16,7 @@ import numpy as np
 
 from .export import MapVoxelLoss, _colormap
 from .staging import written_then_renamed
+from .libraries import pyplot
 
 
 def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
@@ -75,10 +76,7 @@ def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *
     """A PNG of exactly ``size_px`` pixels: the top view of ``v`` (:func:`topview_grid`, the
     floor left out by :func:`above_floor`) over the colour range [vmin, vmax], axes in metres
     and a colour bar. Pass the same range for every rule so that the images compare."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import Normalize
 
     p = Path(path)

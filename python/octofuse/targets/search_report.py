@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .search import BASELINES, DEFAULT_RULES, TargetSearchResult, simulate
+from ..outputs.libraries import pyplot
 
 EXTREME = 0.1  # omega within this of 0 or 1 counts as a 'winner takes all' choice
 EARLY_STEP = 30  # the paper's 'initial stages' end near k = 30
@@ -139,10 +140,7 @@ def _report_md(res: TargetSearchResult, found: dict, figures: list[str]) -> str:
 
 
 def _plot(res: TargetSearchResult, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ext = res.params["grid_extent"]
     xs, ys = np.linspace(ext[0], ext[1], 241), np.linspace(ext[2], ext[3], 141)

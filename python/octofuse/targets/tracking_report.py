@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .tracking import SENSORS, TrackingConfig, TrackingResult, simulate_tracking
+from ..outputs.libraries import pyplot
 
 BURN_IN_S = 1.0  #: errors are summarised after this time (the prior dominates before)
 
@@ -97,10 +98,7 @@ def _markdown(summary: dict) -> str:
 
 
 def _plots(result: TrackingResult, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     families = list(dict.fromkeys(r["family"] for r in result.records))
     fig, ax = plt.subplots(figsize=(8, 4))
