@@ -12,6 +12,62 @@
 
 namespace octofuse::bindings {
 
+namespace {
+
+using Poses = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+void check_thread_count(int threads) {
+  if (threads < 1 || threads > static_cast<int>(kMaxThreads)) {
+    throw py::value_error("threads = " + std::to_string(threads) + ": expected 1 to " +
+                          std::to_string(kMaxThreads));
+  }
+}
+
+/// The scans of a batch, checked (targets left empty); `keep` holds their point arrays.
+std::vector<ScanInput> scan_inputs(const py::list& points, const Poses& poses,
+                                   const Poses& max_ranges, const std::vector<bool>& map_frame,
+                                   std::vector<py::array>& keep) {
+  const std::size_t n = points.size();
+  if (poses.ndim() != 3 || static_cast<std::size_t>(poses.shape(0)) != n || poses.shape(1) != 4 ||
+      poses.shape(2) != 4 || static_cast<std::size_t>(max_ranges.size()) != n) {
+    throw py::value_error("insert batch: points, poses (S,4,4) and max_ranges (S,) must agree");
+  }
+  if (!map_frame.empty() && map_frame.size() != n) {
+    throw py::value_error("insert batch: map_frame must have one flag per scan");
+  }
+  std::vector<ScanInput> scans(n);
+  keep.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    py::array a = py::reinterpret_borrow<py::array>(points[i]);
+    const bool dbl = py::isinstance<py::array_t<double>>(a);
+    if (!(dbl || py::isinstance<py::array_t<float>>(a)) || a.ndim() != 2 || a.shape(1) != 3 ||
+        !(a.flags() & py::array::c_style)) {
+      throw py::value_error("insert batch: scan " + std::to_string(i) +
+                            " points must be a C-contiguous (N, 3) float32/float64 array");
+    }
+    ScanInput& s = scans[i];
+    s.xyz = a.data();
+    s.is_double = dbl;
+    s.n = static_cast<std::size_t>(a.shape(0));
+    std::copy(poses.data() + 16 * i, poses.data() + 16 * (i + 1), s.pose);
+    s.max_range = max_ranges.data()[i];
+    s.map_frame = !map_frame.empty() && map_frame[i];
+    keep.push_back(a);
+  }
+  return scans;
+}
+
+/// Checks that every map of a scan's targets is on the grid of the first (clamping and
+/// sensor model: per map).
+void check_targets(const std::vector<OccupancyMap*>& maps) {
+  for (OccupancyMap* m : maps) {
+    if (m == nullptr) throw py::value_error("insert batch: a target map is None");
+    check_same_grid(*m, *maps.front());
+  }
+}
+
+}  // namespace
+
 void define_insert(py::module_& m) {
   m.attr("MAX_THREADS") = kMaxThreads;
   m.def("default_threads", &default_threads,
@@ -19,46 +75,17 @@ void define_insert(py::module_& m) {
   m.def(
       "_insert_batch",
       [](const std::vector<std::vector<OccupancyMap*>>& targets, const py::list& points,
-         py::array_t<double, py::array::c_style | py::array::forcecast> poses,
-         py::array_t<double, py::array::c_style | py::array::forcecast> max_ranges,
-         int threads, const std::vector<bool>& map_frame) {
-        if (threads < 1 || threads > static_cast<int>(kMaxThreads)) {
-          throw py::value_error("threads = " + std::to_string(threads) + ": expected 1 to " +
-                                std::to_string(kMaxThreads));
+         const Poses& poses, const Poses& max_ranges, int threads,
+         const std::vector<bool>& map_frame) {
+        check_thread_count(threads);
+        if (points.size() != targets.size()) {
+          throw py::value_error("insert batch: targets and points must agree");
         }
-        const std::size_t n = targets.size();
-        if (points.size() != n || poses.ndim() != 3 || static_cast<std::size_t>(poses.shape(0)) != n ||
-            poses.shape(1) != 4 || poses.shape(2) != 4 ||
-            static_cast<std::size_t>(max_ranges.size()) != n) {
-          throw py::value_error("insert batch: targets, points, poses (S,4,4) and max_ranges (S,) must agree");
-        }
-        if (!map_frame.empty() && map_frame.size() != n) {
-          throw py::value_error("insert batch: map_frame must have one flag per scan");
-        }
-        std::vector<ScanInput> scans(n);
         std::vector<py::array> keep;
-        keep.reserve(n);
-        for (std::size_t i = 0; i < n; ++i) {
-          py::array a = py::reinterpret_borrow<py::array>(points[i]);
-          const bool dbl = py::isinstance<py::array_t<double>>(a);
-          if (!(dbl || py::isinstance<py::array_t<float>>(a)) || a.ndim() != 2 || a.shape(1) != 3 ||
-              !(a.flags() & py::array::c_style)) {
-            throw py::value_error("insert batch: scan " + std::to_string(i) +
-                                  " points must be a C-contiguous (N, 3) float32/float64 array");
-          }
-          ScanInput& s = scans[i];
-          s.xyz = a.data();
-          s.is_double = dbl;
-          s.n = static_cast<std::size_t>(a.shape(0));
-          std::copy(poses.data() + 16 * i, poses.data() + 16 * (i + 1), s.pose);
-          s.max_range = max_ranges.data()[i];
-          s.targets = targets[i];
-          s.map_frame = !map_frame.empty() && map_frame[i];
-          for (OccupancyMap* m : s.targets) {
-            if (m == nullptr) throw py::value_error("insert batch: a target map is None");
-            check_same_grid(*m, *s.targets.front());  // clamping and sensor model: per map
-          }
-          keep.push_back(a);
+        std::vector<ScanInput> scans = scan_inputs(points, poses, max_ranges, map_frame, keep);
+        for (std::size_t i = 0; i < scans.size(); ++i) {
+          scans[i].targets = targets[i];
+          check_targets(targets[i]);
         }
         py::gil_scoped_release release;
         insert_batch(scans, static_cast<unsigned>(threads));
@@ -72,6 +99,57 @@ void define_insert(py::module_& m) {
       "cannot be traced (non-finite, outside the map's extent, or too long); no map changes "
       "then. map_frame: per scan, True if its points are in the map frame (the pose's "
       "translation is then the sensor origin and its rotation is not used).");
+
+  py::class_<RayItems>(m, "_RayItems",
+                       "A batch's ray updates, traced once (see _trace_rays, _apply_rays).")
+      .def_property_readonly("scans", [](const RayItems& r) { return r.per_scan.size(); })
+      .def_property_readonly("resolution", [](const RayItems& r) { return r.resolution; })
+      .def_property_readonly("nbytes", [](const RayItems& r) {
+        std::size_t n = 0;
+        for (const auto& v : r.per_scan) n += v.capacity() * sizeof(std::uint64_t);
+        return n;
+      });
+  m.def(
+      "_trace_rays",
+      [](const OccupancyMap& grid, const py::list& points, const Poses& poses,
+         const Poses& max_ranges, int threads, const std::vector<bool>& map_frame) {
+        check_thread_count(threads);
+        std::vector<py::array> keep;
+        const std::vector<ScanInput> scans =
+            scan_inputs(points, poses, max_ranges, map_frame, keep);
+        py::gil_scoped_release release;
+        return trace_rays(scans, grid, static_cast<unsigned>(threads));
+      },
+      py::arg("grid"), py::arg("points"), py::arg("poses"), py::arg("max_ranges"),
+      py::arg("threads"), py::arg("map_frame") = std::vector<bool>{},
+      "Trace a batch of scans' rays on the grid of map `grid` once (arguments and errors as "
+      "_insert_batch; no map changes); the GIL is released.");
+  m.def(
+      "_apply_rays",
+      [](const RayItems& items, const std::vector<std::vector<OccupancyMap*>>& targets,
+         int threads) {
+        check_thread_count(threads);
+        if (targets.size() != items.per_scan.size()) {
+          throw py::value_error("apply rays: " + std::to_string(targets.size()) +
+                                " target lists for " + std::to_string(items.per_scan.size()) +
+                                " scans");
+        }
+        for (const auto& per_scan : targets) {
+          for (OccupancyMap* t : per_scan) {
+            if (t == nullptr) throw py::value_error("apply rays: a target map is None");
+            if (std::fabs(t->params().resolution - items.resolution) > 1e-9 * items.resolution) {
+              throw py::value_error("apply rays: a map of " + std::to_string(t->params().resolution) +
+                                    " m for rays traced at " + std::to_string(items.resolution) +
+                                    " m");
+            }
+          }
+        }
+        py::gil_scoped_release release;
+        apply_rays(items, targets, static_cast<unsigned>(threads));
+      },
+      py::arg("items"), py::arg("targets"), py::arg("threads"),
+      "Apply traced rays to maps (targets[i]: the maps of scan i; each map gets its scans in "
+      "order, maps in parallel); the GIL is released.");
 
   m.def(
       "_insert_scan_batched",

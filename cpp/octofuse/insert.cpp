@@ -206,15 +206,26 @@ unsigned default_threads() {
   return std::min(kMaxThreads, std::max(1u, hw));
 }
 
-void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
+namespace {
+
+void check_threads(unsigned threads) {
   if (threads < 1 || threads > kMaxThreads) {
     throw std::invalid_argument("threads = " + std::to_string(threads) + ": expected 1 to " +
                                 std::to_string(kMaxThreads));
   }
-  std::vector<std::vector<std::uint64_t>> updates(scans.size());
+}
+
+}  // namespace
+
+RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
+                    unsigned threads, bool targeted_only) {
+  check_threads(threads);
+  RayItems out;
+  out.resolution = grid.params().resolution;
+  out.per_scan.resize(scans.size());
   detail::parallel_for(scans.size(), threads, [&](std::size_t i) {
     const ScanInput& s = scans[i];
-    if (s.targets.empty()) return;
+    if (targeted_only && s.targets.empty()) return;
     const std::vector<float> pts =
         s.map_frame ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
                                    : as_float(static_cast<const float*>(s.xyz), s.n))
@@ -222,25 +233,47 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
                       : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
-    updates[i] = compute_items(s.targets.front()->tree(), pts.data(), s.n, origin, s.max_range,
-                               "scan " + std::to_string(i) + ": ");
+    out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range,
+                                    "scan " + std::to_string(i) + ": ");
   });
+  return out;
+}
+
+void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMap*>>& targets,
+                unsigned threads) {
+  check_threads(threads);
+  if (targets.size() != items.per_scan.size()) {
+    throw std::invalid_argument("apply_rays: " + std::to_string(targets.size()) +
+                                " target lists for " + std::to_string(items.per_scan.size()) +
+                                " scans");
+  }
   // every map gets its scans in order; distinct maps go to whichever thread is free, the
   // most work first
   std::map<OccupancyMap*, std::vector<std::size_t>> per_map;
   std::map<OccupancyMap*, std::size_t> work;
-  for (std::size_t i = 0; i < scans.size(); ++i) {
-    for (OccupancyMap* m : scans[i].targets) {
+  for (std::size_t i = 0; i < targets.size(); ++i) {
+    for (OccupancyMap* m : targets[i]) {
       per_map[m].push_back(i);
-      work[m] += updates[i].size();
+      work[m] += items.per_scan[i].size();
     }
   }
   std::vector<OccupancyMap*> maps;
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
   detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
-    for (std::size_t i : per_map[maps[k]]) apply_items(maps[k]->tree(), updates[i]);
+    for (std::size_t i : per_map[maps[k]]) apply_items(maps[k]->tree(), items.per_scan[i]);
   });
+}
+
+void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
+  std::vector<std::vector<OccupancyMap*>> targets;
+  const OccupancyMap* grid = nullptr;
+  for (const ScanInput& s : scans) {
+    targets.push_back(s.targets);
+    if (grid == nullptr && !s.targets.empty()) grid = s.targets.front();
+  }
+  if (grid == nullptr) return check_threads(threads);
+  apply_rays(trace_rays(scans, *grid, threads, true), targets, threads);
 }
 
 template <class Real>

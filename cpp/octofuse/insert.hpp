@@ -31,13 +31,30 @@ inline constexpr unsigned kMaxThreads = 256;
 /// The machine's hardware threads, within 1..kMaxThreads: the default thread count.
 unsigned default_threads();
 
-/// Inserts a batch of scans: ray keys of the scans are computed on `threads` threads, then
-/// every target map receives its scans in batch order, different maps in parallel. The
-/// result equals inserting each scan with insertPointCloud() into each of its targets.
-/// Every scan is checked (ScanCheck) before any map changes: throws std::invalid_argument
-/// naming the scan and point row if a ray cannot be traced, or if threads is not in
-/// 1..kMaxThreads. An exception of a worker thread (std::bad_alloc included) is rethrown on
-/// the calling thread; if it happens while maps are updated, they may hold part of the batch.
+/// The update of each scan of a batch, traced once on a grid, to apply to any maps of that
+/// grid (items in ascending code order, as OctoMap's computeUpdate() would update).
+struct RayItems {
+  double resolution = 0.0;                           ///< the grid's voxel size
+  std::vector<std::vector<std::uint64_t>> per_scan;  ///< one scan's items each
+};
+
+/// Traces the rays of `scans` on `grid`'s grid, scans in parallel on `threads` threads (with
+/// `targeted_only`, a scan without targets is skipped: no items). Every scan is checked (ScanCheck) first: throws
+/// std::invalid_argument naming the scan and point row if a ray cannot be traced, or if
+/// threads is not in 1..kMaxThreads.
+RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
+                    unsigned threads, bool targeted_only = false);
+
+/// Applies `items.per_scan[i]` to every map of `targets[i]`: each map receives its scans in
+/// batch order, different maps in parallel (the most work first). The maps must be on the
+/// items' grid (the caller checks). An exception of a worker thread (std::bad_alloc) is
+/// rethrown on the calling thread; the maps may then hold part of the batch.
+void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMap*>>& targets,
+                unsigned threads);
+
+/// Inserts a batch of scans: trace_rays() on the grid of the scans' targets, then
+/// apply_rays() to the targets. The result equals inserting each scan with
+/// insertPointCloud() into each of its targets. Exceptions as in those two.
 void insert_batch(const std::vector<ScanInput>& scans, unsigned threads);
 
 /// One scan in the map frame into one map by the depth-first batch path of insert_batch():

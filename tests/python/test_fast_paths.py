@@ -142,6 +142,39 @@ def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
         insert_batch(points[:1], poses[:1], np.full(1, -1.0), [[OccupancyMap(0.1), OccupancyMap(0.2)]], 1)
 
 
+def test_rays_traced_once_feed_maps_apart_as_one_batch():
+    """Rays traced once and applied to groups of maps in separate calls (as a run's lanes
+    do) leave every map as one batch into all of them; a wrong call changes no map."""
+    from octofuse.maps.occupancy import apply_rays, insert_batch, trace_rays
+
+    scans = random_scans(7, 10)
+    poses = np.stack([np.eye(4)] * len(scans))
+    poses[:, :3, 3] = [origin for _, origin in scans]
+    points = [np.ascontiguousarray(pts - origin) for pts, origin in scans]
+    ranges = np.full(len(scans), 2.5)
+    # scan k goes into map k % 3 and into the last map
+    together = [OccupancyMap(0.1) for _ in range(4)]
+    insert_batch(points, poses, ranges, [[together[k % 3], together[3]] for k in range(len(scans))], 2)
+    apart = [OccupancyMap(0.1) for _ in range(4)]
+    rays = trace_rays(apart[0], points, poses, ranges, 2)
+    assert rays.scans == len(scans) and rays.nbytes > 0
+    for group in ([0, 1], [2, 3]):
+        apply_rays(rays, [[apart[i] for i in group if i in (k % 3, 3)] for k in range(len(scans))], 1)
+    for got, want in zip(apart, together):
+        assert got.to_bytes() == want.to_bytes()
+    before = apart[0].to_bytes()
+    with pytest.raises(ValueError, match="3 target lists for 10 scans"):
+        apply_rays(rays, [[apart[0]]] * 3, 1)
+    with pytest.raises(ValueError, match="for rays traced at 0.1"):
+        apply_rays(rays, [[OccupancyMap(0.2)]] + [[]] * 9, 1)
+    with pytest.raises(ValueError, match="threads = 0"):
+        apply_rays(rays, [[apart[0]]] * 10, 0)
+    assert apart[0].to_bytes() == before
+    with pytest.raises(ValueError, match="scan 1.*non-finite"):
+        bad = [points[0], np.array([[np.nan, 0.0, 0.0]])]
+        trace_rays(apart[0], bad, poses[:2], ranges[:2], 1)
+
+
 def test_insert_errors_name_the_row_and_leave_the_map():
     m = OccupancyMap(0.1)
     with pytest.raises(ValueError, match="non-finite coordinate at row 1"):

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..config import AgentSpec, BuildConfig
 from ..scans.source import AgentStats, Scan, ScanSource, batched, prefetch
-from .occupancy import OccupancyMap, insert_batch
+from .occupancy import OccupancyMap, insert_batch, trace_rays
 
 
 def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]],
@@ -20,6 +20,12 @@ def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]
     if scans:
         insert_batch([s.points for s in scans], np.stack([s.pose for s in scans]),
                      np.array([s.max_range for s in scans]), targets, threads)
+
+
+def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int):
+    """The posed scans' rays traced once on ``grid``'s grid, for :func:`apply_rays`."""
+    return trace_rays(grid, [s.points for s in scans], np.stack([s.pose for s in scans]),
+                      np.array([s.max_range for s in scans]), threads)
 
 
 @dataclass

@@ -400,6 +400,22 @@ def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np
                         np.ascontiguousarray(max_ranges, dtype=np.float64), int(threads))
 
 
+def trace_rays(grid: OccupancyMap, points: Sequence[np.ndarray], poses: np.ndarray,
+               max_ranges: np.ndarray, threads: int):
+    """Trace scans' rays once on ``grid``'s grid (as :func:`insert_batch`, no map changes):
+    the updates, to apply to any maps of that grid with :func:`apply_rays`. The GIL is
+    released."""
+    return _core._trace_rays(grid._m, [np.ascontiguousarray(p) for p in points],
+                             np.ascontiguousarray(poses, dtype=np.float64),
+                             np.ascontiguousarray(max_ranges, dtype=np.float64), int(threads))
+
+
+def apply_rays(rays, targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:
+    """Apply traced rays (:func:`trace_rays`) to maps: ``targets[k]`` receive scan ``k``; each
+    map its scans in order, maps in parallel. The GIL is released."""
+    _core._apply_rays(rays, [[m._m for m in t] for t in targets], int(threads))
+
+
 def _threads(threads) -> int:
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
         raise ValueError(f"threads must be a whole number, got {threads!r}")
