@@ -394,6 +394,30 @@ def whole_and_delta(team_bag):
     return out
 
 
+def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
+    """simulate on 2 and 3 threads (each rule's maps a lane of their own, the common frame's
+    maps another, meeting where a score needs the centralized map of its time) gives the
+    maps, losses, traffic, timeline and scores of the run on one thread."""
+    from dataclasses import replace
+
+    rules = [*SOME_RULES, "channel-filter"]
+    cfg = FuseConfig(topology="ring", schedule=PERIOD, rules=rules)
+    one = simulate(replace(run_config(team_bag), threads=1), cfg, samples=4)
+    assert len(one.timeline) == 4 * (len(rules) + 1) * len(one.agents)
+    for threads in (2, 3):
+        got = simulate(replace(run_config(team_bag), threads=threads), cfg, samples=4)
+        assert_same_map(got.central, one.central, "central")
+        for a in one.agents:
+            assert_same_map(got.local[a], one.local[a], a)
+            for r in rules:
+                assert_same_map(got.fused[r][a], one.fused[r][a], (r, a))
+                assert got.loss[r][a].loss_sum == one.loss[r][a].loss_sum
+        assert got.traffic == one.traffic
+        assert got.timeline == one.timeline
+        assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in got.scores.items()} \
+            == {r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()}
+
+
 @pytest.mark.parametrize("per_pass", [1, 2])
 def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, whole_and_delta,
                                                                       per_pass):

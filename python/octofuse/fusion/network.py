@@ -73,8 +73,8 @@ class Network:
         from .channel_filter import clamped
 
         exact = self.fused[CHANNEL_FILTER]
-        return ({**self.fused, CHANNEL_FILTER: {a: clamped(m) for a, m in exact.items()}},
-                dict(exact))
+        scored = dict(zip(exact, thread_map(clamped, exact.values(), self.threads)))
+        return {**self.fused, CHANNEL_FILTER: scored}, dict(exact)
 
     def memory(self) -> dict[str, dict[str, dict[str, int]]]:
         """Per rule and agent: bytes of the map and of the per-link state (each map measured
@@ -99,19 +99,25 @@ class Network:
     def exchange(self, group: Sequence[Exchange]) -> None:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
         t0 = time.perf_counter()
-        self.frames.align_links([(self.agents[e.sender], self.agents[e.receiver], e.lost, e.time_s)
-                                 for e in group], self.fused[self.rules[0]])
+        self.align(group)
         if self.pool is None or len(self.rules) == 1:
             for r in self.rules:
-                self._exchange_rule(r, group)
+                self.exchange_rule(r, group)
         else:
             # the slowest rules first (as they were in the last group): the threads finish
             # the group together
             order = sorted(self.rules, key=lambda r: -self._rule_seconds[r])
-            list(self.pool.map(lambda r: self._timed_exchange(r, group), order))
+            list(self.pool.map(lambda r: self.exchange_rule(r, group), order))
         self.timings["exchange + fusion (wall)"] += time.perf_counter() - t0
 
-    def _timed_exchange(self, r: str, group: Sequence[Exchange]) -> None:
+    def align(self, group: Sequence[Exchange]) -> None:
+        """Align the links of a group's messages that have not aligned yet (with
+        ``fuse.align``), on the first rule's maps; before any rule exchanges the group."""
+        self.frames.align_links([(self.agents[e.sender], self.agents[e.receiver], e.lost, e.time_s)
+                                 for e in group], self.fused[self.rules[0]])
+
+    def exchange_rule(self, r: str, group: Sequence[Exchange]) -> None:
+        """One rule's messages of a group (after :meth:`align`); rules may run in parallel."""
         t0 = time.perf_counter()
         self._exchange_rule(r, group)
         self._rule_seconds[r] = time.perf_counter() - t0

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import contextlib
+import threading
 import time
 from dataclasses import replace
 from itertools import groupby
 from typing import Callable, Iterator, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
-from ..maps.build import insert_scans
+from ..lanes import Lanes
+from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
-from ..maps.occupancy import OccupancyMap
+from ..maps.occupancy import OccupancyMap, apply_rays
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
@@ -19,6 +21,9 @@ from .graph import make_graph
 from .network import Network
 from .results import LOCAL, SimResult, rule_groups, score_result
 from .schedule import mission_events, parse_schedule
+
+#: the lane of the maps in the common frame (centralized) and the agents' own maps
+COMMON = "common frame"
 
 
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
@@ -30,6 +35,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
     in one pass over the scans: each scan's rays are cast once and applied to every map.
+    Each rule's maps are a lane of their own on ``build_cfg.workers`` threads (:mod:`..lanes`),
+    so that no rule waits for the others at every exchange; the result is that of one thread.
 
     ``fuse_cfg.schedule`` is ``aperiodic:MEAN_S`` or ``periodic:PERIOD_S`` over the bags'
     duration. The result holds the final maps, accumulated losses, traffic, a timeline of
@@ -54,7 +61,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         raise ValueError("schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
                          "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S")
     t_all = time.perf_counter()
-    with _opened(source, build_cfg) as src:
+    with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
         done = [0]
         agents = [a.name for a in src.agents]
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
@@ -71,43 +78,61 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
         own = {a: mk() for a in agents} if local else {}
         central = mk()
+        common = [central] + ([exact] if exact is not None else [])
         inserted: dict[str, int] = {a: 0 for a in agents}
         sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
-        timeline: list[dict] = []
         timings = net.timings
-        #: the last sample's comparisons of maps in the common frame, until a map changes:
-        #: after the last scan and exchange they are the final scores' comparisons
-        final: dict = {}
+        clock = threading.Lock()  # timings are added to on the lanes' threads
+
+        # Each rule's maps are a lane of their own (inserted into, fused, scored, in order),
+        # and so are the maps of the common frame with the agents' own maps: the lanes meet
+        # only where a score needs the centralized map as it was at that time.
+        lane_maps = {r: {id(m) for m in net.fused[r].values()} for r in rules}
+        lane_maps[COMMON] = {id(m) for m in [*common, *own.values()]}
+        last: dict = {}  # lane -> its last task
+        samples_due: list = []  # the scores the common lane waits for before it inserts again
+        sampled: dict = {}  # lane -> its last scores, while its maps are unchanged since
+        taken: list = []  # (time, the scores of every lane)
+
+        def submit(lane, fn, after=(), key: Optional[str] = None):
+            def run():
+                t0 = time.perf_counter()
+                try:
+                    return fn()
+                finally:
+                    if key is not None:
+                        with clock:
+                            timings[key] += time.perf_counter() - t0
+
+            last[lane] = lanes.submit(lane, run, after)
+            return last[lane]
+
+        tol = fuse_cfg.overconfidence_tol
+
+        def scores_of(r: str, maps: dict) -> list:
+            """The agents' maps ``maps`` of rule ``r`` scored against the centralized map."""
+            as_is = [a for a in agents if r != CHANNEL_FILTER and frames.frames.get(a) is None]
+            scores = dict(zip(as_is, compare_many(central, [maps[a] for a in as_is], tol)))
+            for a in agents:
+                if a not in scores:  # a copy scored: moved into the common frame, or clamped
+                    m = frames.to_common(a, maps[a])
+                    if r == CHANNEL_FILTER:
+                        from .channel_filter import clamped
+
+                        m = clamped(m)
+                    scores[a] = compare(central, m, tol)
+            return [scores[a] for a in agents]
 
         def sample(t):
-            t0 = time.perf_counter()
-            jobs = [(r, a, maps[a]) for r, maps in ([(LOCAL, own)] if local else [])
-                    + [(r, net.fused[r]) for r in rules] for a in agents]
-            tol = fuse_cfg.overconfidence_tol
-            # maps scored as they are, on both threads, each walked with the centralized map
-            as_is = [i for i, (r, a, _) in enumerate(jobs)
-                     if r != CHANNEL_FILTER and frames.frames.get(a) is None]
-            scores = dict(zip(as_is, compare_many(central, [jobs[i][2] for i in as_is], tol,
-                                                  build_cfg.workers)))
-
-            def one(j):  # a copy scored: moved into the common frame, or clamped
-                m = frames.to_common(j[1], j[2])
-                if j[0] == CHANNEL_FILTER:
-                    from .channel_filter import clamped
-
-                    m = clamped(m)
-                return compare(central, m, tol)
-
-            rest = [i for i in range(len(jobs)) if i not in scores]
-            run = net.pool.map if net.pool else map
-            scores.update(zip(rest, run(one, [jobs[i] for i in rest])))
-            for i, (r, a, _) in enumerate(jobs):
-                s = scores[i]
-                timeline.append({"t": t, "rule": r, "agent": a, "kl": s.kl_mean,
-                                 "overconfidence": s.overconfidence, "coverage": s.coverage})
-            final.update({(r, a): scores[i] for i, (r, a, _) in enumerate(jobs)
-                          if frames.frames.get(a) is None})
-            timings["scoring"] += time.perf_counter() - t0
+            central_now = [last[COMMON]] if COMMON in last else []
+            scored = []
+            for lane, maps in ([(COMMON, own)] if local else []) + [(r, net.fused[r]) for r in rules]:
+                r = LOCAL if lane == COMMON else lane
+                sampled[lane] = submit(lane, lambda r=r, maps=maps: scores_of(r, maps),
+                                       after=() if lane == COMMON else central_now, key="scoring")
+                scored.append((r, sampled[lane]))
+            samples_due.extend(f for _, f in scored)
+            taken.append((t, scored))
 
         # exchange groups and KL samples, merged in time order: (time, kind, payload)
         timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
@@ -122,17 +147,23 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             if not batch:
                 return
             t0 = time.perf_counter()
-            # every map a scan goes into, its rays cast once (the channel filter's with open
-            # clamping); the centralized maps in the common frame: scans of agents with a
-            # frame moved there
+            # every map a scan goes into, its rays traced once (the channel filter's with
+            # open clamping); the centralized maps in the common frame: scans of agents with
+            # a frame moved there
             targets = [[net.fused[r][agents[s.agent]] for r in rules]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
-            common = [central] + ([exact] if exact is not None else [])
-            insert_scans(*frames.scan_targets(batch, targets, common), build_cfg.workers)
-            final.clear()
+            scans, per_scan = frames.scan_targets(batch, targets, common)
+            rays = trace_scans(scans, central, build_cfg.workers)
+            with clock:
+                timings["insertion"] += time.perf_counter() - t0
+            for lane, ids in lane_maps.items():
+                into = [[m for m in t if id(m) in ids] for t in per_scan]
+                sampled.pop(lane, None)
+                submit(lane, lambda into=into: apply_rays(rays, into, 1),
+                       after=list(samples_due) if lane == COMMON else (), key="insertion")
+            samples_due.clear()
             for s in batch:
                 inserted[agents[s.agent]] += 1
-            timings["insertion"] += time.perf_counter() - t0
             done[0] += len(batch)
             if progress:
                 progress(done[0], src.total_scans)
@@ -144,21 +175,27 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
                 if kind == -1:
-                    vote.append(_vote(own, graph, fuse_cfg, t))
+                    vote.append(submit(COMMON, lambda t=t: _vote(own, graph, fuse_cfg, t)).result())
                 elif kind == 0:
                     if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
                         out = set(vote[0].excluded) if vote else set()
                         held = fuse_cfg.robust.hold and not vote
                         group = [] if held else [e for e in group if agents[e.sender] not in out]
                     if group:
-                        net.exchange(group)
-                        final.clear()
+                        if frames.align != "off":  # on the maps as they are at this time
+                            lanes.wait()
+                            net.align(group)
+                        for r in rules:
+                            sampled.pop(r, None)
+                            submit(r, lambda r=r, group=group: net.exchange_rule(r, group))
                         if observer is not None:
+                            lanes.wait()
                             observer(t, group, net, dict(inserted))
                 else:
                     sample(t)
                 next_i += 1
 
+        t_run = time.perf_counter()
         batch: list = []
         for scan in prefetch(src.scans()):
             t = (scan.stamp_ns - start) / 1e9
@@ -172,9 +209,18 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 batch = []
         flush(batch)
         advance(float("inf"))
+        lanes.wait()
+        timings["mapping + fusion (wall)"] += time.perf_counter() - t_run
         net.close()
         src.check_placed()
         stats, notes = src.stats, src.notes()
+    timeline = [{"t": t, "rule": r, "agent": a, "kl": s.kl_mean, "overconfidence": s.overconfidence,
+                 "coverage": s.coverage}
+                for t, scored in taken for r, fut in scored for a, s in zip(agents, fut.result())]
+    # the last scores of maps in the common frame that did not change since: the final
+    # scores' comparisons
+    final = {(LOCAL if lane == COMMON else lane, a): s for lane, fut in sampled.items()
+             for a, s in zip(agents, fut.result()) if frames.frames.get(a) is None}
     fused, unclamped = net.result_maps()
     res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
