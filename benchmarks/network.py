@@ -4,12 +4,14 @@
    schedule aperiodic:20, every rule, 8 samples of the KL over time, scores against the
    centralized map and the scene's ground truth, and the outputs (fused maps and heat maps of
    the first agent, plots, summary.json, report.md). The run is
-   ``octofuse.fusion.simulate.simulate`` + ``octofuse.outputs.report.write_outputs``; its time is split into
-   insertion (the scans into every rule's maps, the local-only maps and the centralized map),
-   exchange + fusion (wall time of the communication events), scoring (KL samples during the
-   run and the final scores), export (writing maps and heat maps), the rest of
-   ``write_outputs`` (plots, summary, report) and the rest of ``simulate`` (reading and
-   decoding the bag as far as insertion does not hide it, and bookkeeping).
+   ``octofuse.fusion.simulate.simulate`` + ``octofuse.outputs.report.write_outputs``. Its
+   wall time and CPU time are measured (CPU / wall: the cores kept busy). Inside ``simulate``
+   each rule's maps are a lane of their own, and the lanes overlap on the threads, so the
+   parts are thread-seconds (summed over the threads): insertion (tracing each batch's rays,
+   then applying them to every rule's maps, the local-only maps and the centralized map),
+   exchange + fusion (the messages of the communication events), scoring (KL samples during
+   the run; the final scores are wall time after it), export (writing maps and heat maps) and
+   the rest of ``write_outputs`` (plots, summary, report).
 
 2. Growth with the number of agents: datasets of 4, 8, 16, 32 and 64 robots generated with
    ``data/generate_lab.py --robots N --duration D`` into build/bench-data/ (kept there and
@@ -48,9 +50,9 @@ SCHEDULE = "aperiodic:20"
 SAMPLES = 8
 GROWTH_RULES = ("min-info-loss", "naive-bayes")
 
-#: the parts of a run, in the order they are printed
+#: the parts of a run, in the order they are printed (thread-seconds inside simulate's lanes)
 PARTS = ("insertion", "exchange + fusion", "scoring: KL samples during the run", "scoring: final scores",
-         "export", "outputs (plots, summary, report)", "rest of simulate (decode, bookkeeping)")
+         "export", "outputs (plots, summary, report)")
 
 
 # -- one run (in its own process) --------------------------------------------------------------
@@ -84,9 +86,9 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
     cfg.fuse.rules = list(rules)
     scene = Scene.beside(bag)
     truth = Scene.load(scene) if scene is not None else None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = simulate(cfg.build, cfg.fuse, samples=SAMPLES, truth=truth)
-    t_sim = time.perf_counter() - t0
+    t_sim, cpu_sim = time.perf_counter() - t0, time.process_time() - c0
     t_out = 0.0
     if out is not None:
         cfg.out = out
@@ -101,19 +103,18 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
     export = tm.get("export", 0.0)
     parts = {
         "insertion": tm.get("insertion", 0.0),
-        "exchange + fusion": tm.get("exchange + fusion (wall)", 0.0),
+        "exchange + fusion": tm.get("exchange", 0.0) + tm.get("fusion", 0.0),
         "scoring: KL samples during the run": max(tm.get("scoring", 0.0) - final_scoring[0], 0.0),
         "scoring: final scores": final_scoring[0],
         "export": export,
         "outputs (plots, summary, report)": max(t_out - export, 0.0) if out is not None else 0.0,
     }
-    parts["rest of simulate (decode, bookkeeping)"] = max(
-        t_sim - parts["insertion"] - parts["exchange + fusion"] - tm.get("scoring", 0.0), 0.0)
     return {
         "bag": bag, "rules": list(res.rules), "agents": len(res.agents), "scans": scans,
         "points": points, "events": len(res.events), "messages_per_rule": messages,
         "messages": sum(messages.values()), "bytes_sent_per_rule": sent,
-        "links": len(res.graph.edges), "simulate_s": t_sim, "outputs_s": t_out,
+        "links": len(res.graph.edges), "simulate_s": t_sim, "simulate_cpu_s": cpu_sim,
+        "outputs_s": t_out,
         "wall_s": t_sim + t_out, "parts_s": parts, "timings_raw": tm,
         "fusion_summed_s": tm.get("fusion", 0.0), "exchange_summed_s": tm.get("exchange", 0.0),
         "central_leaves": res.central.num_leaves,
@@ -139,7 +140,8 @@ def median_run(runs: list[dict]) -> dict:
     runs = sorted(runs, key=lambda r: r["wall_s"])
     mid = dict(runs[len(runs) // 2])
     mid["parts_s"] = {k: statistics.median(r["parts_s"][k] for r in runs) for k in PARTS}
-    for k in ("simulate_s", "outputs_s", "wall_s", "fusion_summed_s", "exchange_summed_s"):
+    for k in ("simulate_s", "simulate_cpu_s", "outputs_s", "wall_s", "fusion_summed_s",
+              "exchange_summed_s"):
         mid[k] = statistics.median(r[k] for r in runs)
     mid["peak_rss_mib"] = max(r["peak_rss_mib"] for r in runs)
     mid["ru_maxrss_mib"] = max(r.get("ru_maxrss_mib", 0.0) for r in runs)
@@ -220,16 +222,19 @@ def print_demo(res: dict, out=sys.stdout) -> None:
     p(f"machine: {res['machine']}")
     p(f"   {d['scans']:,} scans, {d['points']:,} points, {d['events']} messages per rule ({d['messages']:,} "
       f"over {len(d['rules'])} rules); wall {fmt_s(d['wall_s'])} s "
-      f"(simulate {fmt_s(d['simulate_s'])} s + write_outputs {fmt_s(d['outputs_s'])} s), "
-      f"peak memory {d['peak_rss_mib']:.0f} MiB")
-    p(f"   {'part':42s} {'s':>7s} {'share':>7s}")
+      f"(simulate {fmt_s(d['simulate_s'])} s on {cores(d):.2f} cores + write_outputs "
+      f"{fmt_s(d['outputs_s'])} s), peak memory {d['peak_rss_mib']:.0f} MiB")
+    p(f"   {'part':42s} {'thread-s':>8s}")
     for k in PARTS:
-        v = d["parts_s"][k]
-        p(f"   {k:42s} {fmt_s(v):>7s} {100 * v / d['wall_s']:6.1f}%")
-    p(f"   exchange + fusion per message: {1e3 * d['parts_s']['exchange + fusion'] / max(d['messages'], 1):.1f} ms "
-      f"(wall; the rules run on 2 threads: fusion calls {fmt_s(d['fusion_summed_s'])} s, building messages "
-      f"{fmt_s(d['exchange_summed_s'])} s, summed over threads)")
+        p(f"   {k:42s} {fmt_s(d['parts_s'][k]):>8s}")
+    p(f"   exchange + fusion per message: {1e3 * d['parts_s']['exchange + fusion'] / max(d['messages'], 1):.1f} "
+      "thread-ms (each rule's maps a lane of their own, the lanes on 2 threads)")
     p()
+
+
+def cores(run: dict) -> float:
+    """Cores kept busy by simulate: its CPU time over its wall time."""
+    return run.get("simulate_cpu_s", 0.0) / max(run["simulate_s"], 1e-9)
 
 
 def print_growth(res: dict, out=sys.stdout) -> None:
@@ -241,22 +246,22 @@ def print_growth(res: dict, out=sys.stdout) -> None:
     p(f"Growth with the number of agents: generated labN bags of {res['growth_duration_s']:g} s, rules "
       f"{' + '.join(res['growth_rules'])}, {res['topology']}, {res['schedule']}, {res['samples']} samples, "
       f"no outputs; median of {res['repeats']} runs")
-    head = (f"   {'agents':>6s} {'scans':>7s} {'points':>10s} {'msgs':>6s} {'wall s':>7s} {'insert':>7s} "
-            f"{'exch+fus':>8s} {'KL samp':>7s} {'scores':>7s} {'rest':>6s} {'ms/msg':>7s} {'us/point':>8s} "
-            f"{'peak MiB':>8s}")
+    head = (f"   {'agents':>6s} {'scans':>7s} {'points':>10s} {'msgs':>6s} {'wall s':>7s} {'cores':>5s} "
+            f"{'insert':>7s} {'exch+fus':>8s} {'KL samp':>7s} {'scores':>7s} {'ms/msg':>7s} "
+            f"{'us/point':>8s} {'peak MiB':>8s}")
     p(head)
     for r in g:
         pt = r["parts_s"]
         p(f"   {r['agents']:6d} {r['scans']:7,d} {r['points']:10,d} {r['messages']:6,d} "
-          f"{fmt_s(r['simulate_s']):>7s} {fmt_s(pt['insertion']):>7s} {fmt_s(pt['exchange + fusion']):>8s} "
-          f"{fmt_s(pt['scoring: KL samples during the run']):>7s} {fmt_s(pt['scoring: final scores']):>7s} "
-          f"{fmt_s(pt['rest of simulate (decode, bookkeeping)']):>6s} "
+          f"{fmt_s(r['simulate_s']):>7s} {cores(r):5.2f} {fmt_s(pt['insertion']):>7s} "
+          f"{fmt_s(pt['exchange + fusion']):>8s} {fmt_s(pt['scoring: KL samples during the run']):>7s} "
+          f"{fmt_s(pt['scoring: final scores']):>7s} "
           f"{1e3 * pt['exchange + fusion'] / max(r['messages'], 1):7.1f} "
           f"{1e6 * pt['insertion'] / max(r['points'], 1):8.2f} {r['peak_rss_mib']:8.0f}")
-    p("   msgs: messages over both rules; KL samp / scores: scoring during the run / at the end; "
-      "ms/msg: exchange + fusion wall time per message;")
-    p("   us/point: insertion time per scan point (each point goes into 4 maps: 2 rules, local-only, "
-      "centralized)")
+    p("   msgs: messages over both rules; insert, exch+fus, KL samp: thread-seconds in the lanes; "
+      "scores: the final scores (wall);")
+    p("   ms/msg: exchange + fusion thread-ms per message; us/point: insertion thread-us per scan "
+      "point (each point goes into 4 maps: 2 rules, local-only, centralized)")
 
 
 def main(argv=None) -> int:
