@@ -128,12 +128,7 @@ void define_insert(py::module_& m) {
       "_apply_rays",
       [](const RayItems& items, const std::vector<std::vector<OccupancyMap*>>& targets,
          int threads) {
-        check_thread_count(threads);
-        if (targets.size() != items.per_scan.size()) {
-          throw py::value_error("apply rays: " + std::to_string(targets.size()) +
-                                " target lists for " + std::to_string(items.per_scan.size()) +
-                                " scans");
-        }
+        check_thread_count(threads);  // apply_rays checks the count of target lists
         for (const auto& per_scan : targets) {
           for (OccupancyMap* t : per_scan) {
             if (t == nullptr) throw py::value_error("apply rays: a target map is None");
