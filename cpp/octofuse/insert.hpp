@@ -39,9 +39,9 @@ struct RayItems {
 };
 
 /// Traces the rays of `scans` on `grid`'s grid, scans in parallel on `threads` threads (with
-/// `targeted_only`, a scan without targets is skipped: no items). Every scan is checked (ScanCheck) first: throws
-/// std::invalid_argument naming the scan and point row if a ray cannot be traced, or if
-/// threads is not in 1..kMaxThreads.
+/// `targeted_only`, a scan without targets is skipped: no items). Every scan is checked
+/// (ScanCheck) first: throws std::invalid_argument naming the scan and point row if a ray
+/// cannot be traced, or if threads is not in 1..kMaxThreads.
 RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
                     unsigned threads, bool targeted_only = false);
 

@@ -35,8 +35,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
     in one pass over the scans: each scan's rays are cast once and applied to every map.
-    Each rule's maps are a lane of their own on ``build_cfg.workers`` threads (:mod:`..lanes`),
-    so that no rule waits for the others at every exchange; the result is that of one thread.
+    Each rule's maps are a lane of their own on ``build_cfg.workers`` threads
+    (:mod:`octofuse.lanes`), so that no rule waits for the others at every exchange; the
+    result is that of one thread.
 
     ``fuse_cfg.schedule`` is ``aperiodic:MEAN_S`` or ``periodic:PERIOD_S`` over the bags'
     duration. The result holds the final maps, accumulated losses, traffic, a timeline of
@@ -153,7 +154,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             targets = [[net.fused[r][agents[s.agent]] for r in rules]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             scans, per_scan = frames.scan_targets(batch, targets, common)
-            rays = trace_scans(scans, central, build_cfg.workers)
+            rays = trace_scans(scans, central, build_cfg.workers)  # its grid only, not its nodes
             with clock:
                 timings["insertion"] += time.perf_counter() - t0
             for lane, ids in lane_maps.items():

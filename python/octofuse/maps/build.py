@@ -18,14 +18,19 @@ def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]
                  threads: int) -> None:
     """Insert posed scans into their target maps (``targets[k]`` for ``scans[k]``)."""
     if scans:
-        insert_batch([s.points for s in scans], np.stack([s.pose for s in scans]),
-                     np.array([s.max_range for s in scans]), targets, threads)
+        insert_batch(*_scan_arrays(scans), targets, threads)
 
 
 def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int):
-    """The posed scans' rays traced once on ``grid``'s grid, for :func:`apply_rays`."""
-    return trace_rays(grid, [s.points for s in scans], np.stack([s.pose for s in scans]),
-                      np.array([s.max_range for s in scans]), threads)
+    """The posed scans' rays traced once on ``grid``'s grid, to apply to maps with
+    :func:`~octofuse.maps.occupancy.apply_rays`."""
+    return trace_rays(grid, *_scan_arrays(scans), threads)
+
+
+def _scan_arrays(scans: Sequence[Scan]) -> tuple[list, np.ndarray, np.ndarray]:
+    """Points, poses and maximum ranges of posed scans, as the core takes them."""
+    return ([s.points for s in scans], np.stack([s.pose for s in scans]),
+            np.array([s.max_range for s in scans]))
 
 
 @dataclass
