@@ -348,7 +348,7 @@ def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
     import sys
 
     code = ("import sys; from octofuse.outputs.libraries import import_output_libraries\n"
-            "t = import_output_libraries(); assert t.daemon and t.name == 'octofuse-imports'\n"
+            "t = import_output_libraries(); assert t.name == 'octofuse-imports'\n"
             "t.join(120)\n"
             "import matplotlib\n"
             "print('open3d' in sys.modules, 'matplotlib.pyplot' in sys.modules, "
@@ -357,3 +357,18 @@ def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
                          env={**os.environ, "MPLBACKEND": ""})
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "True", "agg"]
+
+
+def test_an_interpreter_leaving_while_the_libraries_import_exits_as_asked():
+    """A command that ends while the imports ahead run (an interrupted run, bad input found
+    early) waits for them: an interpreter torn down in the middle of Open3D's import can end
+    in a segmentation fault instead of its exit code."""
+    import subprocess
+    import sys
+
+    for delay in (0.1, 0.2, 0.3, 0.4):
+        code = ("import time; from octofuse.outputs.libraries import import_output_libraries\n"
+                f"import_output_libraries(); time.sleep({delay}); raise SystemExit(3)")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             timeout=180)
+        assert out.returncode == 3, (delay, out.returncode, out.stderr[-500:])

@@ -80,6 +80,9 @@ def _limits(fsize: int | None) -> Callable[[], None]:
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
         os.setsid()
+        # as a user's shell would start it: a suite started in the background inherits an
+        # ignored SIGINT, and Python then installs no KeyboardInterrupt for it
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
     return apply
 
 
@@ -607,7 +610,9 @@ def test_hostile_configs(work):
 
 
 def test_sigint_keeps_outputs(work, ran):
-    case = Case("SIGINT in run", ["run", str(work["team"]), "--topology", "ring", "--samples", "2",
+    # the bundled lab: a run of many seconds, so that the interruption lands inside it
+    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    case = Case("SIGINT in run", ["run", str(lab8), "--topology", "ring", "--samples", "2",
                                   "--resolution", "0.1", "--out", str(ran)],
                 out=ran, sigint_after=0.3, exit_code=130)
     outcome = run_case(case, work["root"])

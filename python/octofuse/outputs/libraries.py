@@ -35,6 +35,8 @@ def import_output_libraries() -> threading.Thread:
         except Exception:  # imported again where needed, which says what is wrong
             pass
 
-    thread = threading.Thread(target=load, name="octofuse-imports", daemon=True)
+    # not a daemon: an interpreter that exits early (an interrupted run) waits for the
+    # imports instead of tearing down a half-initialised extension module
+    thread = threading.Thread(target=load, name="octofuse-imports")
     thread.start()
     return thread
