@@ -283,3 +283,19 @@ def test_import_octofuse_loads_no_heavy_module():
     light, after = p.stdout.splitlines()
     assert light == "[]"
     assert after == "['rosbags']"  # the check above can see a module that was imported
+
+
+@pytest.mark.parametrize("code", [0, 130])
+def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
+    """Once the command is over (done, or interrupted and reported), a Ctrl-C while the
+    interpreter exits is ignored: no traceback, no death by signal, the command's code."""
+    script = ("import atexit, os, signal\n"
+              "import octofuse.cli as c\n"
+              f"c.main = lambda: {code}\n"
+              "atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))\n"
+              "c.entry()\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, env=ENV)
+    assert (out.returncode, out.stderr) == (code, "")
+    installed = OCTOFUSE.read_text()
+    assert "from octofuse.cli import entry" in installed, installed

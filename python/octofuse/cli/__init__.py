@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from typing import Optional
 
@@ -19,9 +20,18 @@ import click
 from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
-__all__ = ["cli", "main", "run_config", "CliError"]
+__all__ = ["cli", "entry", "main", "run_config", "CliError"]
 
 
+
+
+def entry() -> None:
+    """The ``octofuse`` program: :func:`main`, then the interpreter's exit, which a late Ctrl-C
+    (the command is over, its outputs written or left as they were) no longer interrupts with
+    a traceback or a death by signal."""
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
 
 
 def main(argv: Optional[list[str]] = None) -> int:

@@ -1,7 +1,5 @@
 """``python -m octofuse.cli``: the ``octofuse`` command."""
 
-import sys
+from . import entry
 
-from . import main
-
-sys.exit(main())
+entry()
