@@ -23,8 +23,6 @@ from .options import CliError, cli, run_config
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]
 
 
-
-
 def entry() -> None:
     """The ``octofuse`` program: :func:`main`, then the interpreter's exit, which a late Ctrl-C
     (the command is over, its outputs written or left as they were) no longer interrupts with

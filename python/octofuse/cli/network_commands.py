@@ -35,8 +35,8 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 
     out = check_replaceable(cfg.out)
     truth = Scene.find(cfg.truth, cfg.build.bags)
-    import_output_libraries()
     bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
+    import_output_libraries()  # once the inputs are checked: an exit waits for the imports
     try:
         with staged_folder(out, command) as stage:
             with contextlib.ExitStack() as stack:
