@@ -37,6 +37,6 @@ void define_rules(py::module_& m);    // Rule, UnknownPolicy, names, element-wis
 void define_maps(py::module_& m);     // MapFileError, _OccupancyMap, _ScalarTree
 void define_insert(py::module_& m);   // _insert_batch, thread limits
 void define_fusion(py::module_& m);   // _fuse_maps, _fuse_into, _fuse_mutual
-void define_compare(py::module_& m);  // _compare_maps, _changed_voxels
+void define_compare(py::module_& m);  // _ReferenceMap, _compare_maps, _changed_voxels
 
 }  // namespace octofuse::bindings

@@ -6,10 +6,20 @@
 namespace octofuse::bindings {
 
 void define_compare(py::module_& m) {
+  py::class_<ReferenceMap>(m, "_ReferenceMap",
+                           "A map read once for comparisons (see _compare_maps); it holds "
+                           "nothing of the map it was read from.")
+      .def(py::init([](const OccupancyMap& ref) {
+             py::gil_scoped_release release;
+             return std::make_unique<ReferenceMap>(ref);
+           }),
+           py::arg("ref"))
+      .def_property_readonly("num_nodes", [](const ReferenceMap& r) { return r.nodes().size(); })
+      .def_property_readonly("nbytes", &ReferenceMap::memory_bytes);
   m.def(
       "_compare_maps",
-      [](const OccupancyMap& ref, const OccupancyMap& map, double tol, double thr) {
-        check_compatible(ref, map);
+      [](const ReferenceMap& ref, const OccupancyMap& map, double tol, double thr) {
+        check_compatible(ref.grid(), map);
         Comparison c;
         {
           py::gil_scoped_release release;
@@ -25,7 +35,9 @@ void define_compare(py::module_& m) {
         d["abs_diff_sum"] = c.abs_diff_sum;
         return d;
       },
-      py::arg("ref"), py::arg("map"), py::arg("tol"), py::arg("occ_threshold") = 0.0);
+      py::arg("ref"), py::arg("map"), py::arg("tol"), py::arg("occ_threshold") = 0.0,
+      "Counts of `map` against the reference `ref` (a _ReferenceMap): class confusion, KL, "
+      "|l| differences and over-confidence over finest voxels; the GIL is released.");
   m.def("_changed_voxels", [](const OccupancyMap& cur, const OccupancyMap& prev) {
     check_compatible(cur, prev);
     py::gil_scoped_release release;

@@ -9,6 +9,8 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
+#include <stdexcept>
 #include <utility>
 #include <vector>
 
@@ -23,29 +25,37 @@ using OcNode = OccupancyNode;
 // coarse leaf stands for the voxels below it): only the children that either tree has are
 // visited, found from a mask of each node's children.
 struct Comparer {
-  // a node of one tree in the walk (null when unknown) and the mask of its children (none:
+  // a node of one side in the walk (null when unknown) and the mask of its children (none:
   // a leaf, which stands for all 8)
+  template <class Node>
   struct Side {
-    const OcNode* node;
+    const Node* node;
     unsigned kids;
   };
+  using RefSide = Side<ReferenceMap::Node>;
+  using MapSide = Side<OcNode>;
 
-  const OccupancyTree &rt, &mt;
+  const std::vector<ReferenceMap::Node>& ref;
+  const OccupancyTree& mt;
   double tol, thr;
   Comparison out{};
   // KL of a voxel from its two stored values (the absent map's as +0): exact, memoized
   detail::PairMemo<double> kl{detail::kl_logodds(0.0, 0.0)};
   static void kl_of(float lr, float lm, double& out) { out = detail::kl_logodds(lr, lm); }
 
-  int cls(const Side& n) const {
+  static float value(const ReferenceMap::Node* n) { return n->value; }
+  static float value(const OcNode* n) { return n->getLogOdds(); }
+
+  template <class Node>
+  int cls(const Side<Node>& n) const {
     if (n.node == nullptr) return kUnknown;
-    return n.node->getLogOdds() > thr ? kOccupied : kFree;
+    return value(n.node) > thr ? kOccupied : kFree;
   }
 
-  void count(const Side& r, const Side& m, double weight) {
+  void count(const RefSide& r, const MapSide& m, double weight) {
     out.confusion[cls(r)][cls(m)] += weight;
     if (r.node == nullptr) return;
-    const float stored_r = r.node->getLogOdds();
+    const float stored_r = r.node->value;
     const float stored_m = m.node != nullptr ? m.node->getLogOdds() : 0.0f;
     out.kl_sum += weight * kl.get(stored_r, stored_m, kl_of);
     const double lr = stored_r, lm = stored_m;
@@ -56,26 +66,35 @@ struct Comparer {
     }
   }
 
-  static Side side(const OccupancyTree& t, const OcNode* n) {
+  MapSide map_side(const OcNode* n) const {
     unsigned kids = 0;
-    if (t.nodeHasChildren(n))
-      for (unsigned i = 0; i < 8; ++i) kids |= unsigned{t.nodeChildExists(n, i)} << i;
+    if (mt.nodeHasChildren(n))
+      for (unsigned i = 0; i < 8; ++i) kids |= unsigned{mt.nodeChildExists(n, i)} << i;
     return {n, kids};
   }
 
   // The children a side has in the walk: all 8 for a leaf, none when unknown.
-  static unsigned mask(const Side& s) {
+  template <class Node>
+  static unsigned mask(const Side<Node>& s) {
     if (s.node == nullptr) return 0;
     return s.kids == 0 ? 0xFFu : s.kids;
   }
 
-  static Side child(const OccupancyTree& t, const Side& s, unsigned i) {
+  RefSide child(const RefSide& s, unsigned i) const {
     if (s.kids == 0) return s;  // unknown, or a leaf standing for its child
     if (!((s.kids >> i) & 1u)) return {nullptr, 0};
-    return side(t, t.getNodeChild(s.node, i));
+    const ReferenceMap::Node& c =
+        ref[s.node->first + static_cast<unsigned>(__builtin_popcount(s.kids & ((1u << i) - 1)))];
+    return {&c, c.kids};
   }
 
-  void walk(const Side& r, const Side& m, double weight) {
+  MapSide child(const MapSide& s, unsigned i) const {
+    if (s.kids == 0) return s;
+    if (!((s.kids >> i) & 1u)) return {nullptr, 0};
+    return map_side(mt.getNodeChild(s.node, i));
+  }
+
+  void walk(const RefSide& r, const MapSide& m, double weight) {
     if (r.kids == 0 && m.kids == 0) {
       count(r, m, weight);
       return;
@@ -83,14 +102,33 @@ struct Comparer {
     const double w = weight / 8.0;
     for (unsigned both = mask(r) | mask(m); both != 0; both &= both - 1) {
       const unsigned i = static_cast<unsigned>(__builtin_ctz(both));
-      walk(child(rt, r, i), child(mt, m, i), w);
+      walk(child(r, i), child(m, i), w);
     }
   }
 
-  static Side root(const OccupancyTree& t) {
-    return t.getRoot() == nullptr ? Side{nullptr, 0} : side(t, t.getRoot());
+  void run() {
+    const RefSide r = ref.empty() ? RefSide{nullptr, 0} : RefSide{&ref[0], ref[0].kids};
+    const MapSide m = mt.getRoot() == nullptr ? MapSide{nullptr, 0} : map_side(mt.getRoot());
+    // weight 8^16: the root stands for all finest voxels
+    if (r.node != nullptr || m.node != nullptr) walk(r, m, std::pow(8.0, 16));
   }
 };
+
+// Appends the children of `n` (the node at `at`) to `out`, side by side, then theirs.
+void read_children(const OccupancyTree& t, const OcNode* n, std::size_t at,
+                   std::vector<ReferenceMap::Node>& out) {
+  if (!t.nodeHasChildren(n)) return;
+  unsigned kids = 0;
+  for (unsigned i = 0; i < 8; ++i) kids |= unsigned{t.nodeChildExists(n, i)} << i;
+  const std::size_t first = out.size();
+  out[at].first = static_cast<std::uint32_t>(first);
+  out[at].kids = kids;
+  for (unsigned b = kids; b != 0; b &= b - 1)
+    out.push_back({t.getNodeChild(n, static_cast<unsigned>(__builtin_ctz(b)))->getLogOdds(), 0, 0});
+  std::size_t k = first;
+  for (unsigned b = kids; b != 0; b &= b - 1, ++k)
+    read_children(t, t.getNodeChild(n, static_cast<unsigned>(__builtin_ctz(b))), k, out);
+}
 
 struct LeafRec {
   std::uint16_t k[3];  // lower corner key of the leaf
@@ -151,13 +189,26 @@ void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
 
 }  // namespace
 
+ReferenceMap::ReferenceMap(const OccupancyMap& ref) : grid_(ref.params()) {
+  const OccupancyTree& t = ref.tree();
+  if (t.getRoot() == nullptr) return;
+  nodes_.reserve(t.size());
+  nodes_.push_back({t.getRoot()->getLogOdds(), 0, 0});
+  read_children(t, t.getRoot(), 0, nodes_);
+  if (nodes_.size() > std::numeric_limits<std::uint32_t>::max())
+    throw std::length_error("a reference map of more than 2^32 nodes");
+}
+
+Comparison compare_maps(const ReferenceMap& ref, const OccupancyMap& map, double tol,
+                        double occ_threshold) {
+  Comparer cmp{ref.nodes(), map.tree(), tol, occ_threshold};
+  cmp.run();
+  return cmp.out;
+}
+
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold) {
-  Comparer cmp{ref.tree(), map.tree(), tol, occ_threshold};
-  const Comparer::Side r = Comparer::root(ref.tree()), m = Comparer::root(map.tree());
-  // weight 8^16: the root stands for all finest voxels
-  if (r.node != nullptr || m.node != nullptr) cmp.walk(r, m, std::pow(8.0, 16));
-  return cmp.out;
+  return compare_maps(ReferenceMap(ref), map, tol, occ_threshold);
 }
 
 std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,

@@ -6,7 +6,9 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <memory>
+#include <vector>
 
 namespace octofuse {
 
@@ -25,10 +27,38 @@ struct Comparison {
   double abs_diff_sum = 0.0;     ///< sum of |l_map - l_ref| over voxels both know
 };
 
+/// A reference map as compare_maps reads it: its nodes' values and children in one array,
+/// each node's children side by side, depth first. Made once (one walk of the map) and
+/// compared with many maps; it holds nothing of the map it was made from, which may change
+/// or go while it is read.
+class ReferenceMap {
+ public:
+  struct Node {
+    float value;          ///< stored log-odds
+    std::uint32_t first;  ///< index of the first child (children in child order)
+    std::uint32_t kids;   ///< mask of the children (none: a leaf)
+  };
+
+  explicit ReferenceMap(const OccupancyMap& ref);
+
+  /// The nodes, the root first; empty for an empty map.
+  const std::vector<Node>& nodes() const { return nodes_; }
+  /// An empty map of the reference's parameters (for the compatibility check).
+  const OccupancyMap& grid() const { return grid_; }
+  std::size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node); }
+
+ private:
+  OccupancyMap grid_;
+  std::vector<Node> nodes_;
+};
+
 /// Compares `map` with the reference `ref` (e.g. an agent's map with the centralized map),
 /// walking both together through the children either of the two has. `tol` is the
 /// over-confidence tolerance in log-odds; `occ_threshold` the occupancy threshold in log-odds
 /// (OctoMap's default: 0).
+Comparison compare_maps(const ReferenceMap& ref, const OccupancyMap& map, double tol,
+                        double occ_threshold = 0.0);
+/// The same with a reference map read for this one comparison.
 Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold = 0.0);
 

@@ -15,8 +15,9 @@ import pytest
 from conftest import expand, random_map
 
 import octofuse
-from octofuse import OccupancyMap, fuse_maps
+from octofuse import OccupancyMap, fuse_into, fuse_maps
 from octofuse.maps.compare import compare, compare_many, finest_centers, loss_stats, score, weighted_percentile
+from octofuse.maps.occupancy import ReferenceMap
 from octofuse.maps.truth import Scene
 
 RES = 0.1
@@ -238,6 +239,30 @@ def test_compare_many_gives_each_map_its_own_comparison(threads):
         np.testing.assert_equal(s.to_dict(), compare(central, m, 0.1).to_dict())  # exactly
     assert compare_many(OccupancyMap(RES), maps[:2], 0.1, threads)[1].voxels == 0.0
     assert compare_many(central, [], 0.1, threads) == []
+
+
+def test_a_reference_map_is_a_snapshot_of_its_map():
+    """Read once, a reference scores as its map did then, whatever the map does afterwards."""
+    central, agent = random_map(1, 25), random_map(2, 2, offset=(0.35, 0.1, 0.0))
+    before = central.copy()
+    ref = ReferenceMap(central)
+    assert ref.num_nodes == central.num_nodes and ref.memory_bytes >= 12 * ref.num_nodes
+    fuse_into(central, random_map(3, 25, offset=(-0.2, 0.3, 0.1)), rule="naive-bayes")
+    central.insert_scan(np.array([[2.0, 0.05, 0.05]]), ORIGIN)
+    assert compare(central, agent).to_dict() != compare(before, agent).to_dict()
+    np.testing.assert_equal(compare(ref, agent).to_dict(), compare(before, agent).to_dict())
+    want = reference_score(before, agent, 0.1)
+    assert_score(compare_many(ref, [agent], 0.1)[0], want)
+    del central, before  # the reference holds its own copy of the nodes
+    assert_score(compare(ref, agent), want)
+    assert ReferenceMap(OccupancyMap(RES)).num_nodes == 0
+
+
+def test_a_reference_map_is_checked_like_its_map():
+    with pytest.raises(ValueError, match="resolution"):
+        compare(ReferenceMap(ray_map(0.55)), OccupancyMap(0.2))
+    with pytest.raises(TypeError, match="OccupancyMap"):
+        ReferenceMap(ray_map(0.55).leaves())
 
 
 # -- loss statistics and percentiles ----------------------------------------------------------

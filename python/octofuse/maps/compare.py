@@ -9,7 +9,7 @@ import numpy as np
 
 from ..threads import thread_map
 from .infoloss import InfoLossMap, voxels_per_leaf
-from .occupancy import OccupancyMap
+from .occupancy import OccupancyMap, ReferenceMap
 
 
 @dataclass
@@ -55,16 +55,17 @@ def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
     return mean, weighted_percentile(values, w, 95.0)
 
 
-def compare(central: OccupancyMap, agent: OccupancyMap, tol: float = 0.1) -> Score:
+def compare(central: OccupancyMap | ReferenceMap, agent: OccupancyMap, tol: float = 0.1) -> Score:
     """Score ``agent`` against ``central`` over finest-level voxels."""
     return compare_many(central, [agent], tol)[0]
 
 
-def compare_many(central: OccupancyMap, agents: Sequence[OccupancyMap], tol: float = 0.1,
-                 threads: int = 1) -> list[Score]:
+def compare_many(central: OccupancyMap | ReferenceMap, agents: Sequence[OccupancyMap],
+                 tol: float = 0.1, threads: int = 1) -> list[Score]:
     """:func:`compare` of each of ``agents``, on up to ``threads`` threads (a map at a time, to
-    whichever thread is free)."""
-    counts = thread_map(lambda m: m.class_counts(central, tol), agents, threads)
+    whichever thread is free); ``central`` is read once."""
+    ref = central if isinstance(central, ReferenceMap) else ReferenceMap(central)
+    counts = thread_map(lambda m: m.class_counts(ref, tol), agents, threads)
     return [_score_of_counts(d) for d in counts]
 
 

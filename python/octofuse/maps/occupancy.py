@@ -254,11 +254,14 @@ class OccupancyMap:
         """The voxels whose value differs from ``previous`` (a delta message)."""
         return OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m))
 
-    def class_counts(self, reference: "OccupancyMap", tol: float) -> dict:
+    def class_counts(self, reference: "OccupancyMap | ReferenceMap", tol: float) -> dict:
         """Voxel counts of this map against ``reference`` over finest voxels: the class
         confusion (occupied/free/unknown), KL(reference || self) and |l| differences summed,
-        and voxels where this map is more certain than the reference by more than ``tol``."""
-        return _core._compare_maps(reference._m, self._m, float(tol), 0.0)
+        and voxels where this map is more certain than the reference by more than ``tol``.
+        A map scored against often is read once into a :class:`ReferenceMap`."""
+        if not isinstance(reference, ReferenceMap):
+            reference = ReferenceMap(reference)
+        return _core._compare_maps(reference._r, self._m, float(tol), 0.0)
 
     @property
     def num_leaves(self) -> int:
@@ -302,6 +305,27 @@ class OccupancyMap:
     def __repr__(self) -> str:
         return (f"OccupancyMap(resolution={self.resolution}, leaves={self.num_leaves}, "
                 f"memory={self.memory_bytes / 1e6:.1f} MB)")
+
+
+class ReferenceMap:
+    """A map read once to score maps against (:meth:`OccupancyMap.class_counts`): its nodes in
+    one array, read faster than the tree. A snapshot: what happens to the map afterwards does
+    not change it."""
+
+    __slots__ = ("_r",)
+
+    def __init__(self, m: OccupancyMap):
+        if not isinstance(m, OccupancyMap):
+            raise TypeError(f"ReferenceMap reads an OccupancyMap, got {type(m).__name__}")
+        self._r = _core._ReferenceMap(m._m)
+
+    @property
+    def num_nodes(self) -> int:
+        return self._r.num_nodes
+
+    @property
+    def memory_bytes(self) -> int:
+        return self._r.nbytes
 
 
 class MapFusion(NamedTuple):
