@@ -13,7 +13,7 @@ from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from ..lanes import Lanes
 from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
-from ..maps.occupancy import OccupancyMap, apply_rays
+from ..maps.occupancy import OccupancyMap, ReferenceMap, apply_rays
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
@@ -87,11 +87,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
         # Each rule's maps are a lane of their own (inserted into, fused, scored, in order),
         # and so are the maps of the common frame with the agents' own maps: the lanes meet
-        # only where a score needs the centralized map as it was at that time.
+        # only where a score needs the centralized map as it was at that time (a snapshot the
+        # common lane reads, and goes on inserting).
         lane_maps = {r: {id(m) for m in net.fused[r].values()} for r in rules}
         lane_maps[COMMON] = {id(m) for m in [*common, *own.values()]}
-        last: dict = {}  # lane -> its last task
-        samples_due: list = []  # the scores the common lane waits for before it inserts again
         sampled: dict = {}  # lane -> its last scores, while its maps are unchanged since
         taken: list = []  # (time, the scores of every lane)
 
@@ -105,15 +104,15 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                         with clock:
                             timings[key] += time.perf_counter() - t0
 
-            last[lane] = lanes.submit(lane, run, after)
-            return last[lane]
+            return lanes.submit(lane, run, after)
 
         tol = fuse_cfg.overconfidence_tol
 
-        def scores_of(r: str, maps: dict) -> list:
-            """The agents' maps ``maps`` of rule ``r`` scored against the centralized map."""
+        def scores_of(r: str, maps: dict, ref: ReferenceMap) -> list:
+            """The agents' maps ``maps`` of rule ``r`` scored against the centralized map
+            ``ref``."""
             as_is = [a for a in agents if r != CHANNEL_FILTER and frames.frames.get(a) is None]
-            scores = dict(zip(as_is, compare_many(central, [maps[a] for a in as_is], tol)))
+            scores = dict(zip(as_is, compare_many(ref, [maps[a] for a in as_is], tol)))
             for a in agents:
                 if a not in scores:  # a copy scored: moved into the common frame, or clamped
                     m = frames.to_common(a, maps[a])
@@ -121,18 +120,17 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                         from .channel_filter import clamped
 
                         m = clamped(m)
-                    scores[a] = compare(central, m, tol)
+                    scores[a] = compare(ref, m, tol)
             return [scores[a] for a in agents]
 
         def sample(t):
-            central_now = [last[COMMON]] if COMMON in last else []
+            ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
             scored = []
             for lane, maps in ([(COMMON, own)] if local else []) + [(r, net.fused[r]) for r in rules]:
                 r = LOCAL if lane == COMMON else lane
-                sampled[lane] = submit(lane, lambda r=r, maps=maps: scores_of(r, maps),
-                                       after=() if lane == COMMON else central_now, key="scoring")
+                sampled[lane] = submit(lane, lambda r=r, maps=maps: scores_of(r, maps, ref.result()),
+                                       after=() if lane == COMMON else [ref], key="scoring")
                 scored.append((r, sampled[lane]))
-            samples_due.extend(f for _, f in scored)
             taken.append((t, scored))
 
         # exchange groups and KL samples, merged in time order: (time, kind, payload)
@@ -160,9 +158,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             for lane, ids in lane_maps.items():
                 into = [[m for m in t if id(m) in ids] for t in per_scan]
                 sampled.pop(lane, None)
-                submit(lane, lambda into=into: apply_rays(rays, into, 1),
-                       after=list(samples_due) if lane == COMMON else (), key="insertion")
-            samples_due.clear()
+                submit(lane, lambda into=into: apply_rays(rays, into, 1), key="insertion")
             for s in batch:
                 inserted[agents[s.agent]] += 1
             done[0] += len(batch)
