@@ -206,11 +206,6 @@ Comparison compare_maps(const ReferenceMap& ref, const OccupancyMap& map, double
   return cmp.out;
 }
 
-Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
-                        double occ_threshold) {
-  return compare_maps(ReferenceMap(ref), map, tol, occ_threshold);
-}
-
 std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
                                              const OccupancyMap& previous) {
   auto out = std::make_unique<OccupancyMap>(current.params());

@@ -30,7 +30,7 @@ struct Comparison {
 /// A reference map as compare_maps reads it: its nodes' values and children in one array,
 /// each node's children side by side, depth first. Made once (one walk of the map) and
 /// compared with many maps; it holds nothing of the map it was made from, which may change
-/// or go while it is read.
+/// or go afterwards.
 class ReferenceMap {
  public:
   struct Node {
@@ -57,9 +57,6 @@ class ReferenceMap {
 /// over-confidence tolerance in log-odds; `occ_threshold` the occupancy threshold in log-odds
 /// (OctoMap's default: 0).
 Comparison compare_maps(const ReferenceMap& ref, const OccupancyMap& map, double tol,
-                        double occ_threshold = 0.0);
-/// The same with a reference map read for this one comparison.
-Comparison compare_maps(const OccupancyMap& ref, const OccupancyMap& map, double tol,
                         double occ_threshold = 0.0);
 
 /// The voxels of `current` that are new or have another value than in `previous`, as a map
