@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from conftest import expand, random_map
 
 import octofuse
@@ -408,3 +410,30 @@ def test_near_surface_is_the_signed_distance_test():
         want = np.abs(scene.signed_distance(pts)) <= tol
         np.testing.assert_array_equal(scene.near_surface(pts, tol), want)
         assert 0 < want.sum() < len(pts)
+
+
+def _sorted_weighted_percentile(v, w, q):
+    """The definition: sort, accumulate the weights, take the first value that reaches q %."""
+    order = np.argsort(v, kind="stable")
+    cw = np.cumsum(w[order])
+    return float(v[order][min(np.searchsorted(cw, q / 100.0 * cw[-1]), len(v) - 1)])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 12), st.integers(0, 4)), min_size=1, max_size=200),
+       st.one_of(st.sampled_from([0.0, 25.0, 50.0, 95.0, 100.0]), st.floats(0.0, 100.0)),
+       st.sampled_from([np.float32, np.float64]))
+def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
+    """Narrowing around partition pivots (forced down to a few values) picks the value the
+    sort picks, with ties, zero weights and voxel-count weights."""
+    import octofuse.maps.compare as cmp
+
+    v = np.array([p[0] / 4.0 for p in pairs], dtype=dtype)
+    w = np.array([0.0 if p[1] == 0 else 8.0 ** (p[1] - 1) for p in pairs])
+    if w.sum() == 0:
+        w[0] = 1.0
+    want = _sorted_weighted_percentile(v, w, q)
+    for below in (1, 8, cmp.SORT_BELOW):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(cmp, "SORT_BELOW", below)
+            assert weighted_percentile(v, w, q) == want

@@ -258,13 +258,11 @@ def _fused_percentile(v: np.ndarray, w: np.ndarray, n_fused: int, q: float) -> f
     holds the copied voxels at zero loss, so that many zeros are taken out first."""
     from .compare import weighted_percentile
 
-    order = np.argsort(v)
-    v, w = v[order], w[order].copy()
     extra = float(w.sum()) - n_fused  # copied voxels (zero loss) among the leaves
-    i = 0
-    while extra > 0 and i < len(v) and v[i] <= 0.0:
-        take = min(extra, w[i])
-        w[i] -= take
-        extra -= take
-        i += 1
+    if extra > 0:  # taken from the lowest values (<= 0) up, in sorted order
+        low = np.flatnonzero(v <= 0.0)
+        low = low[np.argsort(v[low])]
+        before = np.cumsum(w[low]) - w[low]
+        w = w.copy()
+        w[low] -= np.clip(extra - before, 0.0, w[low])
     return weighted_percentile(v, w, q) if w.sum() > 0 else 0.0
