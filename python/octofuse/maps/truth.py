@@ -66,18 +66,27 @@ class Scene:
 
     def near_surface(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Whether each point lies within ``tol`` of a box surface (``|signed_distance| <=
-        tol``), box by box over only the points in the box grown by ``tol`` (found among the
-        points sorted by x)."""
+        tol``), box by box over only the points in the box grown by ``tol``: found among the
+        points sorted along the axis where that box keeps the fewest (a floor: z; a wall along
+        x: y)."""
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         near = np.zeros(len(pts), dtype=bool)
-        order = np.argsort(pts[:, 0], kind="stable")
-        xs = pts[order, 0]
+        if len(pts) == 0:
+            return near
+        by_axis = []  # per axis: the points' order and their sorted coordinates
+        for k in range(3):
+            order = np.argsort(pts[:, k])
+            by_axis.append((order, pts[order, k]))
         for lo, hi in self.boxes:
-            span = order[np.searchsorted(xs, lo[0] - tol, "left"):np.searchsorted(xs, hi[0] + tol, "right")]
-            cand = span[np.all((pts[span] >= lo - tol) & (pts[span] <= hi + tol), axis=1)]
+            ranges = [(np.searchsorted(xs, lo[k] - tol, "left"),
+                       np.searchsorted(xs, hi[k] + tol, "right")) for k, (_, xs) in enumerate(by_axis)]
+            k = min(range(3), key=lambda k: ranges[k][1] - ranges[k][0])
+            span = by_axis[k][0][ranges[k][0]:ranges[k][1]]
+            q = pts[span]
+            inside = np.all((q >= lo - tol) & (q <= hi + tol), axis=1)
+            cand, q = span[inside], q[inside]
             if len(cand) == 0:
                 continue
-            q = pts[cand]
             outside = np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
             depth = np.min(np.minimum(q - lo, hi - q), axis=1)  # >= 0 inside the box
             near[cand] |= np.where(outside > 0, outside <= tol, depth <= tol)
