@@ -66,15 +66,20 @@ class Network:
                 open_map(m)
 
     def result_maps(self) -> tuple[dict[str, dict[str, OccupancyMap]], dict[str, OccupancyMap]]:
-        """The agents' maps per rule as scored and written (the channel filter's clamped), and
-        the channel filter's unclamped maps."""
-        if self.cf is None:
-            return self.fused, {}
+        """The agents' maps per rule as scored and written (:meth:`scored_maps`), and the
+        channel filter's unclamped maps."""
+        fused = {r: self.scored_maps(r, self.threads) for r in self.rules}
+        return fused, dict(self.fused[CHANNEL_FILTER]) if self.cf is not None else {}
+
+    def scored_maps(self, rule: str, threads: int = 1) -> dict[str, OccupancyMap]:
+        """The agents' maps of ``rule`` as scored and written: the maps themselves, or the
+        channel filter's clamped copies (made on ``threads`` threads)."""
+        if rule != CHANNEL_FILTER:
+            return self.fused[rule]
         from .channel_filter import clamped
 
         exact = self.fused[CHANNEL_FILTER]
-        scored = dict(zip(exact, thread_map(clamped, exact.values(), self.threads)))
-        return {**self.fused, CHANNEL_FILTER: scored}, dict(exact)
+        return dict(zip(exact, thread_map(clamped, exact.values(), threads)))
 
     def memory(self) -> dict[str, dict[str, dict[str, int]]]:
         """Per rule and agent: bytes of the map and of the per-link state (each map measured

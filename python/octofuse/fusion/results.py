@@ -90,36 +90,50 @@ class SimResult:
 
 
 def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
-                 local: bool = True, compared: Optional[dict] = None
-                 ) -> dict[str, dict[str, Score]]:
+                 local: bool = True) -> dict[str, dict[str, Score]]:
     """Scores of every agent for every rule, and (``local``) of the local-only maps (the
-    floor). ``compared``: (rule, agent) -> the comparison of those final maps with the
-    centralized map, where it was taken already."""
+    floor), with their traffic."""
     jobs = ([(LOCAL, a) for a in res.agents] if local else []) + \
         [(r, a) for r in res.rules for a in res.agents]
     agent_map = lambda r, a: res.local[a] if r == LOCAL else res.fused[r][a]  # noqa: E731
     # maps in the common frame: compared as they are, on both threads
-    compared = dict(compared or {})
-    as_is = [j for j in jobs if res.frames.get(j[1]) is None and j not in compared]
-    compared.update(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
+    as_is = [j for j in jobs if res.frames.get(j[1]) is None]
+    compared = dict(zip(as_is, compare_many(res.central, [agent_map(*j) for j in as_is], tol,
                                             threads)))
 
     def one(job):
         r, a = job
-        m = moved(agent_map(r, a), res.frames.get(a))  # other frames: scored in the common one
-        c = compared.get(job)
-        if r == LOCAL:
-            return score(m, res.central, tol=tol, truth=truth, compared=c)
-        tr = res.traffic[r]
-        loss = None if r == CHANNEL_FILTER else res.loss[r][a]  # exact: no WEP loss
-        return score(m, res.central, tol=tol, loss=loss, truth=truth, compared=c,
-                     bytes_sent=tr.sent[a], bytes_received=tr.received[a],
-                     bytes_sent_32b=tr.sent_32b[a])
+        return score_agent(agent_map(r, a), res.central, tol, frame=res.frames.get(a),
+                           loss=None if r in (LOCAL, CHANNEL_FILTER) else res.loss[r][a],
+                           truth=truth, compared=compared.get(job))
 
     out: dict[str, dict[str, Score]] = {}
     for (r, a), s in zip(jobs, thread_map(one, jobs, threads)):
         out.setdefault(r, {})[a] = s
-    return out
+    return with_traffic(out, res.traffic)
+
+
+def score_agent(m: OccupancyMap, central, tol: float, *, frame=None,
+                loss: Optional[InfoLossMap] = None, truth=None,
+                compared: Optional[Score] = None) -> Score:
+    """One agent's map of a rule (or its own map) scored against the centralized map (an
+    :class:`OccupancyMap` or a ``ReferenceMap``), in the common frame (``frame``: the agent's
+    map frame there, None if it maps in it), without its traffic. ``loss``: its accumulated
+    loss (None for the local-only maps and the exact filter). ``compared``: the comparison of
+    ``m`` with the centralized map, where it was taken already."""
+    return score(moved(m, frame), central, tol=tol, loss=loss, truth=truth, compared=compared)
+
+
+def with_traffic(scores: dict[str, dict[str, Score]],
+                 traffic: dict[str, Traffic]) -> dict[str, dict[str, Score]]:
+    """``scores`` (rule -> agent -> score) with each rule's bytes sent and received."""
+    for r, per in scores.items():
+        if r in traffic:
+            tr = traffic[r]
+            for a, s in per.items():
+                s.bytes_sent, s.bytes_received = tr.sent[a], tr.received[a]
+                s.bytes_sent_32b = tr.sent_32b[a]
+    return scores
 
 
 def rule_groups(fuse_cfg: FuseConfig, size: int) -> list[list[str]]:

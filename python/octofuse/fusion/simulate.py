@@ -19,7 +19,7 @@ from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .graph import make_graph
 from .network import Network
-from .results import LOCAL, SimResult, rule_groups, score_result
+from .results import LOCAL, SimResult, rule_groups, score_agent, with_traffic
 from .schedule import mission_events, parse_schedule
 
 #: the lane of the maps in the common frame (centralized) and the agents' own maps
@@ -69,6 +69,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         start = src.bags.start_ns
         duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
+        resolution = build_cfg.map.resolution
         tree = exact = None
         if CHANNEL_FILTER in rules:
             from .channel_filter import open_map, spanning_tree
@@ -122,6 +123,18 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                         m = clamped(m)
                     scores[a] = compare(ref, m, tol)
             return [scores[a] for a in agents]
+
+        def final_scores(lane, ref: ReferenceMap, last) -> tuple[dict, dict]:
+            """The lane's final maps as scored and written, and their scores (without
+            traffic). ``last``: the lane's last sample, if its maps did not change since."""
+            r = LOCAL if lane == COMMON else lane
+            maps = own if lane == COMMON else net.scored_maps(lane)
+            compared = dict(zip(agents, last.result())) if last is not None else {}
+            return maps, {a: score_agent(
+                maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
+                loss=None if r in (LOCAL, CHANNEL_FILTER) else net.loss_map(r, a, resolution),
+                compared=None if frames.frames.get(a) is not None else compared.get(a))
+                for a in agents}
 
         def sample(t):
             ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
@@ -206,6 +219,13 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 batch = []
         flush(batch)
         advance(float("inf"))
+        # each lane scores its final maps as soon as it is done (a lane that ends first
+        # scores while the others still fuse), against the final centralized map
+        ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
+        finals = {lane: submit(lane, lambda lane=lane, last=sampled.get(lane):
+                               final_scores(lane, ref.result(), last),
+                               after=() if lane == COMMON else [ref], key="scoring")
+                  for lane in lane_maps if lane != COMMON or local}
         lanes.wait()
         timings["mapping + fusion (wall)"] += time.perf_counter() - t_run
         net.close()
@@ -214,22 +234,18 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     timeline = [{"t": t, "rule": r, "agent": a, "kl": s.kl_mean, "overconfidence": s.overconfidence,
                  "coverage": s.coverage}
                 for t, scored in taken for r, fut in scored for a, s in zip(agents, fut.result())]
-    # the last scores of maps in the common frame that did not change since: the final
-    # scores' comparisons
-    final = {(LOCAL if lane == COMMON else lane, a): s for lane, fut in sampled.items()
-             for a, s in zip(agents, fut.result()) if frames.frames.get(a) is None}
-    fused, unclamped = net.result_maps()
+    final = {LOCAL if lane == COMMON else lane: fut.result() for lane, fut in finals.items()}
+    final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
+    fused = {r: final[r][0] for r in rules}
+    unclamped = dict(net.fused[CHANNEL_FILTER]) if CHANNEL_FILTER in rules else {}
     res = SimResult(agents, rules, graph, events, central, own, fused,
-                    {r: {a: net.loss_map(r, a, build_cfg.map.resolution) for a in agents}
+                    {r: {a: net.loss_map(r, a, resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree, unclamped=unclamped,
                     central_unclamped=exact, frames=frames.frames, alignment=frames.report())
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
-    t0 = time.perf_counter()
-    res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, build_cfg.workers,
-                              local=local, compared=final)
-    timings["scoring"] += time.perf_counter() - t0
+    res.scores = with_traffic({r: scores for r, (_, scores) in final.items()}, net.traffic)
     timings["total"] = time.perf_counter() - t_all
     return res
 
