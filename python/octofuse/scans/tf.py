@@ -21,6 +21,7 @@ write ``/base_link``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -200,13 +201,19 @@ class TransformBuffer:
         rotation : array_like, shape (4,)
             Quaternion ``(x, y, z, w)``, normalized here.
         """
-        self.add_transforms(
-            parent,
-            child,
-            np.asarray([stamp_ns], dtype=np.int64),
-            np.asarray(translation, dtype=np.float64).reshape(1, 3),
-            np.asarray(rotation, dtype=np.float64).reshape(1, 4),
-        )
+        self._add_sample(parent, child, int(stamp_ns),
+                         [float(x) for x in np.asarray(translation, dtype=np.float64).reshape(3)],
+                         [float(x) for x in np.asarray(rotation, dtype=np.float64).reshape(4)])
+
+    def _add_sample(self, parent: str, child: str, stamp_ns: int, t: Sequence[float],
+                    q: Sequence[float]) -> None:
+        """:meth:`add_transform` of Python floats (checked here, made into arrays when the
+        link is read: a sample costs microseconds, not a few numpy calls)."""
+        if not all(math.isfinite(x) for x in t):
+            raise ValueError("translations must be finite")
+        if not all(math.isfinite(x) for x in q) or math.sqrt(sum(x * x for x in q)) < 1e-12:
+            raise ValueError("rotation quaternions must be finite and non-zero")
+        self._link(parent, child, static=False).add_sample(stamp_ns, t, q)
 
     def add_transforms(
         self, parent: str, child: str, stamps_ns: Any, translations: Any, rotations: Any
@@ -260,9 +267,8 @@ class TransformBuffer:
             if static:
                 self.add_static_transform(ts.header.frame_id, ts.child_frame_id, t, q)
             else:
-                self.add_transform(
-                    ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header), t, q
-                )
+                self._add_sample(ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header),
+                                 t, q)
 
     def add_pose_message(
         self,

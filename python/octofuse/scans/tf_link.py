@@ -4,11 +4,13 @@ errors of looking transforms up. :class:`octofuse.scans.tf.TransformBuffer` chai
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Sequence
 
 import numpy as np
 
 from .se3 import (
+    normalize_quaternions,
     quaternion_to_matrix,
     rotate_vectors,
     slerp_arcs,
@@ -20,17 +22,16 @@ from .se3 import (
 MAX_TRANSLATION_M = 1e12
 
 
-def sample_problem(t: Any, q: Any) -> str | None:
-    """Why a transform sample (translation, quaternion) cannot be used, or ``None``."""
-    t = np.asarray(t, dtype=np.float64)
-    q = np.asarray(q, dtype=np.float64)
-    if not np.all(np.isfinite(t)):
+def sample_problem(t: Sequence[float], q: Sequence[float]) -> str | None:
+    """Why a transform sample (translation, quaternion) cannot be used, or ``None`` (on
+    Python floats: one sample of a message costs a few microseconds)."""
+    if not all(math.isfinite(x) for x in t):
         return "non-finite translation"
-    if not np.all(np.isfinite(q)):
+    if not all(math.isfinite(x) for x in q):
         return "non-finite rotation quaternion"
-    if np.linalg.norm(q) < 1e-12:
+    if math.sqrt(sum(x * x for x in q)) < 1e-12:
         return "zero rotation quaternion"
-    if np.max(np.abs(t)) > MAX_TRANSLATION_M:
+    if max(abs(x) for x in t) > MAX_TRANSLATION_M:
         return f"translation beyond {MAX_TRANSLATION_M:g} m"
     return None
 
@@ -91,15 +92,32 @@ class Link:
         self.static = static
         self.static_matrix = np.eye(4)
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        #: single samples (stamp, translation, quaternion not yet normalized) added since,
+        #: made into arrays at once when the link is read
+        self._samples: list[tuple[int, Sequence[float], Sequence[float]]] = []
         self.stamps = np.empty(0, dtype=np.int64)
         self.trans = np.empty((0, 3), dtype=np.float64)
         self.quats = np.empty((0, 4), dtype=np.float64)
         self._arcs_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def add(self, stamps: np.ndarray, trans: np.ndarray, quats: np.ndarray) -> None:
+        self._take_samples()  # the order of adding decides between samples of one stamp
         self._pending.append((stamps, trans, quats))
 
+    def add_sample(self, stamp_ns: int, t: Sequence[float], q: Sequence[float]) -> None:
+        """One sample of finite values and a non-zero quaternion (normalized when read)."""
+        self._samples.append((stamp_ns, t, q))
+
+    def _take_samples(self) -> None:
+        if self._samples:
+            stamps, t, q = zip(*self._samples)
+            self._samples.clear()
+            self._pending.append((np.array(stamps, dtype=np.int64),
+                                  np.array(t, dtype=np.float64).reshape(-1, 3),
+                                  normalize_quaternions(np.array(q, dtype=np.float64).reshape(-1, 4))))
+
     def _finalize(self) -> None:
+        self._take_samples()
         if not self._pending:
             return
         stamps = np.concatenate([self.stamps] + [p[0] for p in self._pending])
