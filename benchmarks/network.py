@@ -10,7 +10,7 @@
    parts are thread-seconds (summed over the threads): insertion (tracing each batch's rays,
    then applying them to every rule's maps, the local-only maps and the centralized map),
    exchange + fusion (the messages of the communication events), scoring (KL samples during
-   the run; the final scores are wall time after it), export (writing maps and heat maps) and
+   the run, and the final scores: each lane's last task), export (writing maps and heat maps) and
    the rest of ``write_outputs`` (plots, summary, report).
 
 2. Growth with the number of agents: datasets of 4, 8, 16, 32 and 64 robots generated with
@@ -61,22 +61,9 @@ PARTS = ("insertion", "exchange + fusion", "scoring: KL samples during the run",
 def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict:
     """simulate (+ write_outputs when ``out`` is given) with the demo's setting; figures as a dict."""
     from octofuse.config import RunConfig
-    from octofuse.fusion import simulate as sim_module
     from octofuse.fusion.simulate import simulate
     from octofuse.maps.truth import Scene
     from octofuse.outputs.report import write_outputs
-
-    # the final scores are timed apart from the KL samples taken during the run
-    final_scoring = [0.0]
-    score_result = getattr(sim_module, "score_result", None)
-    if score_result is not None:
-        def timed_score_result(*a, **k):
-            t = time.perf_counter()
-            try:
-                return score_result(*a, **k)
-            finally:
-                final_scoring[0] += time.perf_counter() - t
-        sim_module.score_result = timed_score_result
 
     cfg = RunConfig()
     cfg.build.bags = [bag]
@@ -104,8 +91,8 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
     parts = {
         "insertion": tm.get("insertion", 0.0),
         "exchange + fusion": tm.get("exchange", 0.0) + tm.get("fusion", 0.0),
-        "scoring: KL samples during the run": max(tm.get("scoring", 0.0) - final_scoring[0], 0.0),
-        "scoring: final scores": final_scoring[0],
+        "scoring: KL samples during the run": tm.get("scoring", 0.0),
+        "scoring: final scores": tm.get("final scores", 0.0),
         "export": export,
         "outputs (plots, summary, report)": max(t_out - export, 0.0) if out is not None else 0.0,
     }
@@ -259,7 +246,7 @@ def print_growth(res: dict, out=sys.stdout) -> None:
           f"{1e3 * pt['exchange + fusion'] / max(r['messages'], 1):7.1f} "
           f"{1e6 * pt['insertion'] / max(r['points'], 1):8.2f} {r['peak_rss_mib']:8.0f}")
     p("   msgs: messages over both rules; insert, exch+fus, KL samp: thread-seconds in the lanes; "
-      "scores: the final scores (wall);")
+      "scores: the final scores (thread-s in the lanes);")
     p("   ms/msg: exchange + fusion thread-ms per message; us/point: insertion thread-us per scan "
       "point (each point goes into 4 maps: 2 rules, local-only, centralized)")
 

@@ -404,6 +404,12 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
     cfg = FuseConfig(topology="ring", schedule=PERIOD, rules=rules)
     one = simulate(replace(run_config(team_bag), threads=1), cfg, samples=4)
     assert len(one.timeline) == 4 * (len(rules) + 1) * len(one.agents)
+    # each lane scores its own final maps: the scores score_result takes anew from the result
+    from octofuse.fusion.results import score_result
+
+    anew = score_result(one, cfg.overconfidence_tol, threads=2)
+    assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in anew.items()} \
+        == {r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()}
     for threads in (2, 3):
         got = simulate(replace(run_config(team_bag), threads=threads), cfg, samples=4)
         assert_same_map(got.central, one.central, "central")

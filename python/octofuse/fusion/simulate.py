@@ -221,10 +221,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         advance(float("inf"))
         # each lane scores its final maps as soon as it is done (a lane that ends first
         # scores while the others still fuse), against the final centralized map
-        ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
+        ref = submit(COMMON, lambda: ReferenceMap(central), key="final scores")
         finals = {lane: submit(lane, lambda lane=lane, last=sampled.get(lane):
                                final_scores(lane, ref.result(), last),
-                               after=() if lane == COMMON else [ref], key="scoring")
+                               after=() if lane == COMMON else [ref], key="final scores")
                   for lane in lane_maps if lane != COMMON or local}
         lanes.wait()
         timings["mapping + fusion (wall)"] += time.perf_counter() - t_run
