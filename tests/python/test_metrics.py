@@ -437,3 +437,5 @@ def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(cmp, "SORT_BELOW", below)
             assert weighted_percentile(v, w, q) == want
+    # weights that are not whole numbers are sorted, as the definition does
+    assert weighted_percentile(v, w / 3.0, q) == _sorted_weighted_percentile(v, w / 3.0, q)

@@ -48,7 +48,7 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
         return float("nan")
     whole = np.array_equal(weights, np.floor(weights)) and float(weights.sum()) < 2.0 ** 53
     if not whole or np.isnan(values).any():
-        return _sorted_percentile(values, weights, q, 0.0, q / 100.0 * float(np.sum(weights)))
+        return _sorted_percentile(values, weights, q)
     target = q / 100.0 * float(weights.sum())
     if target <= 0.0:
         return float(values.min())
@@ -72,10 +72,14 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
     return _sorted_percentile(v, w, q, below, target)
 
 
-def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float,
-                       target: float) -> float:
+def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float = 0.0,
+                       target: Optional[float] = None) -> float:
+    """The same by a sort: ``v`` above values of weight ``below`` left out, ``target`` the
+    weight to reach (default: ``q`` % of the cumulative weight)."""
     order = np.argsort(v)
     cw = below + np.cumsum(w[order])
+    if target is None:
+        target = q / 100.0 * cw[-1]
     return float(v[order][min(np.searchsorted(cw, target), len(v) - 1)])
 
 
