@@ -46,15 +46,16 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
     exact in any order, so the result is the sort's. Other weights, or NaN values, are sorted."""
     if len(values) == 0:
         return float("nan")
-    whole = np.array_equal(weights, np.floor(weights)) and float(weights.sum()) < 2.0 ** 53
-    if not whole or np.isnan(values).any():
+    total = float(weights.sum())
+    if not (np.array_equal(weights, np.floor(weights)) and total < 2.0 ** 53) \
+            or np.isnan(values).any():
         return _sorted_percentile(values, weights, q)
-    target = q / 100.0 * float(weights.sum())
+    target = q / 100.0 * total
     if target <= 0.0:
         return float(values.min())
-    v, w, below = values, weights, 0.0  # below: weight of the values left out below v
+    # v: the values left, of weight `rest`; below: the weight of the values left out below v
+    v, w, below, rest = values, weights, 0.0, total
     while len(v) > SORT_BELOW:
-        rest = float(w.sum())
         if rest <= 0.0:  # the target lies beyond every weight: the last value, as sorted
             return float(v.max())
         rank = min(int((target - below) / rest * (len(v) - 1)), len(v) - 1)
@@ -62,13 +63,14 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
         less = v < pivot
         w_less = float(w[less].sum())
         if below + w_less >= target:
-            v, w = v[less], w[less]
+            v, w, rest = v[less], w[less], w_less
             continue
         more = v > pivot
-        below += w_less + float(w[~less & ~more].sum())
+        w_more = float(w[more].sum())
+        below += rest - w_more  # the values below the pivot and at it
         if below >= target or not more.any():
             return float(pivot)
-        v, w = v[more], w[more]
+        v, w, rest = v[more], w[more], w_more
     return _sorted_percentile(v, w, q, below, target)
 
 

@@ -79,7 +79,8 @@ class Scene:
             by_axis.append((order, pts[order, k]))
         for lo, hi in self.boxes:
             ranges = [(np.searchsorted(xs, lo[k] - tol, "left"),
-                       np.searchsorted(xs, hi[k] + tol, "right")) for k, (_, xs) in enumerate(by_axis)]
+                       np.searchsorted(xs, hi[k] + tol, "right"))
+                      for k, (_, xs) in enumerate(by_axis)]
             k = min(range(3), key=lambda k: ranges[k][1] - ranges[k][0])
             span = by_axis[k][0][ranges[k][0]:ranges[k][1]]
             q = pts[span]

@@ -329,7 +329,9 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
             lines += [f"### {r}", "", markdown_table(rows, first="agent"), ""]
     lines += ["## Time", "", "| part | seconds |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in res.timings.items()]
-    lines += ["", files_note(cfg), ""]
+    lines += ["", "The parts that run on several threads are summed over them (so they can add up "
+              "to more than the wall time); `(wall)` and `total` are wall time.", ""]
+    lines += [files_note(cfg), ""]
     if res.frames or res.alignment:
         lines += frames_section(res.frames, res.alignment)
     (out / "report.md").write_text("\n".join(lines))

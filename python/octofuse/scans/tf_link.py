@@ -112,9 +112,9 @@ class Link:
         if self._samples:
             stamps, t, q = zip(*self._samples)
             self._samples.clear()
+            quats = normalize_quaternions(np.array(q, dtype=np.float64).reshape(-1, 4))
             self._pending.append((np.array(stamps, dtype=np.int64),
-                                  np.array(t, dtype=np.float64).reshape(-1, 3),
-                                  normalize_quaternions(np.array(q, dtype=np.float64).reshape(-1, 4))))
+                                  np.array(t, dtype=np.float64).reshape(-1, 3), quats))
 
     def _finalize(self) -> None:
         self._take_samples()
