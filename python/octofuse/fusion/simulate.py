@@ -14,6 +14,7 @@ from ..lanes import Lanes
 from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
 from ..maps.occupancy import OccupancyMap, ReferenceMap, apply_rays
+from ..maps.ray_replay import RayReplay
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
@@ -30,7 +31,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
              progress: Optional[Callable[[int, int], None]] = None,
              source: Optional[ScanSource | ScanReplay] = None,
              observer: Optional[Callable[[float, list, Network, dict], None]] = None,
-             local: bool = True) -> SimResult:
+             local: bool = True, rays: Optional[RayReplay] = None) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -49,7 +50,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     are moved into the common frame to be scored; :mod:`.agent_frames`).
     ``observer(t, group, network, scans)``, if given, is called after every group of exchanges
     with the number of scans inserted so far per agent. ``local``: map, sample and score the
-    agents' own maps too (the floor; robust fusion votes on them).
+    agents' own maps too (the floor; robust fusion votes on them). ``rays``: the batches'
+    rays as traced in an earlier pass over the same scans, or kept for later passes.
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
@@ -62,6 +64,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         raise ValueError("schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
                          "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S")
     t_all = time.perf_counter()
+    trace = rays.next_pass() if rays is not None else trace_scans
     with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
         done = [0]
         agents = [a.name for a in src.agents]
@@ -165,13 +168,13 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             targets = [[net.fused[r][agents[s.agent]] for r in rules]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             scans, per_scan = frames.scan_targets(batch, targets, common)
-            rays = trace_scans(scans, central, build_cfg.workers)  # its grid only, not its nodes
+            traced = trace(scans, central, build_cfg.workers)  # its grid only, not its nodes
             with clock:
                 timings["insertion"] += time.perf_counter() - t0
             for lane, ids in lane_maps.items():
                 into = [[m for m in t if id(m) in ids] for t in per_scan]
                 sampled.pop(lane, None)
-                submit(lane, lambda into=into: apply_rays(rays, into, 1), key="insertion")
+                submit(lane, lambda into=into: apply_rays(traced, into, 1), key="insertion")
             for s in batch:
                 inserted[agents[s.agent]] += 1
             done[0] += len(batch)
@@ -260,16 +263,18 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
     only. Robust fusion and alignment on first contact run every rule in one pass
     (:func:`~octofuse.fusion.results.rule_groups`). ``progress`` counts the scans of every
     pass. The bags (or ``source``) are read in the first pass; later passes replay its scans
-    (:class:`~octofuse.scans.replay.ScanReplay`)."""
+    (:class:`~octofuse.scans.replay.ScanReplay`) and their rays
+    (:class:`~octofuse.maps.ray_replay.RayReplay`)."""
     fuse_cfg.validate("fuse")
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
     with _opened(source, build_cfg) as src:
         scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
+        rays = RayReplay(len(groups))  # and traced once
         for k, group in enumerate(groups):
             step = None if progress is None else \
                 (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
             yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples,
-                           truth=truth, progress=step, source=scans, local=k == 0)
+                           truth=truth, progress=step, source=scans, local=k == 0, rays=rays)
 
 
 def _opened(source, build_cfg: BuildConfig):
