@@ -6,6 +6,7 @@
 #include "octofuse/rules.hpp"
 #include "octofuse/walk.hpp"
 
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -20,6 +21,14 @@ namespace {
 
 using W = detail::WalkNode<OccupancyTree>;
 using OcNode = OccupancyNode;
+
+// The bits set in each 8-bit child mask (a look-up: without -mpopcnt, __builtin_popcount is a
+// call into libgcc).
+constexpr std::array<std::uint8_t, 256> kSetBits = [] {
+  std::array<std::uint8_t, 256> t{};
+  for (unsigned m = 1; m < 256; ++m) t[m] = static_cast<std::uint8_t>(t[m >> 1] + (m & 1u));
+  return t;
+}();
 
 // Walks the reference and one map at once, down to where both are leaves or unknown (a
 // coarse leaf stands for the voxels below it): only the children that either tree has are
@@ -83,8 +92,7 @@ struct Comparer {
   RefSide child(const RefSide& s, unsigned i) const {
     if (s.kids == 0) return s;  // unknown, or a leaf standing for its child
     if (!((s.kids >> i) & 1u)) return {nullptr, 0};
-    const ReferenceMap::Node& c =
-        ref[s.node->first + static_cast<unsigned>(__builtin_popcount(s.kids & ((1u << i) - 1)))];
+    const ReferenceMap::Node& c = ref[s.node->first + kSetBits[s.kids & ((1u << i) - 1)]];
     return {&c, c.kids};
   }
 
