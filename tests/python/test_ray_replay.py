@@ -53,7 +53,9 @@ def test_later_passes_map_what_tracing_anew_maps(batches, monkeypatch):
     monkeypatch.setattr(ray_replay, "trace_scans", counted)
     replay = RayReplay(passes=3)
     for _ in range(3):
+        assert not replay.given_back
         assert_same_map(mapped(replay.next_pass(), batches), want)
+    assert replay.given_back
     assert counted.calls == len(batches)  # traced in the first pass only
     assert replay._kept == [None] * len(batches)  # the last pass let every batch's rays go
     with pytest.raises(RuntimeError, match="pass 4 of a replay of 3"):

@@ -72,6 +72,7 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     histogram values); the merged result and the :class:`MapExports` that wrote them.
     ``export_agents(agents)``: the agents whose maps are written."""
     from ..fusion.results import merge_rule_results, without_maps
+    from ..memory import return_freed_memory
     from ..outputs.map_exports import MapExports
     from ..threads import thread_map
 
@@ -89,21 +90,6 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
         del part, rule_maps
         return_freed_memory()
     return merge_rule_results(parts), written
-
-
-def return_freed_memory() -> None:
-    """Give the pages the run freed (a group's maps, copies, messages, scratch trees) back to
-    the system, so that the next group and the outputs add to what the run holds, not to its
-    peak (the tree pools' empty slabs, and glibc's ``malloc_trim``)."""
-    import ctypes
-
-    from .. import _core
-
-    _core._trim_node_pools()
-    try:
-        ctypes.CDLL(None).malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 def _event_bag(path: Path, cfg: RunConfig, out: Path):

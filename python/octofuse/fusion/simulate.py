@@ -15,6 +15,7 @@ from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
 from ..maps.occupancy import OccupancyMap, ReferenceMap, apply_rays
 from ..maps.ray_replay import RayReplay
+from ..memory import return_freed_memory
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
@@ -157,6 +158,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             timed.append((min(fuse_cfg.robust.time, duration), -1, None))
         timed.sort(key=lambda x: (x[0], x[1]))
         next_i = 0
+        trimmed: list = []  # the replayed rays' memory given back, once
 
         def flush(batch):
             if not batch:
@@ -171,10 +173,17 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             traced = trace(scans, central, build_cfg.workers)  # its grid only, not its nodes
             with clock:
                 timings["insertion"] += time.perf_counter() - t0
+            applied = []
             for lane, ids in lane_maps.items():
                 into = [[m for m in t if id(m) in ids] for t in per_scan]
                 sampled.pop(lane, None)
-                submit(lane, lambda into=into: apply_rays(traced, into, 1), key="insertion")
+                applied.append(submit(lane, lambda into=into: apply_rays(traced, into, 1),
+                                      key="insertion"))
+            if rays is not None and rays.given_back and not trimmed:
+                # the replayed rays, once applied, leave the heap's pages free: given back
+                # before the maps grow to their peak
+                trimmed.append(True)
+                submit(COMMON, lambda: return_freed_memory(pools=False), after=applied)
             for s in batch:
                 inserted[agents[s.agent]] += 1
             done[0] += len(batch)

@@ -32,6 +32,7 @@ from itertools import groupby
 from typing import Callable, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig, MapConfig
+from ..memory import return_freed_memory
 from .executors import ray_session
 from .network import message_bytes
 from .results import LOCAL, Traffic
@@ -51,24 +52,6 @@ def _rss_bytes() -> tuple[int, int, int]:
     except OSError:
         pass
     return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)
-
-
-def _trim() -> None:
-    """Give freed heap memory back to the system (glibc), so that resident memory measures the
-    maps held and not what the allocator keeps after a message was fused."""
-    global _malloc_trim
-    if _malloc_trim is None:
-        try:
-            import ctypes
-
-            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
-        except (OSError, AttributeError):
-            _malloc_trim = False
-    if _malloc_trim:
-        _malloc_trim(0)
-
-
-_malloc_trim = None
 
 
 class SwarmWorker:
@@ -220,7 +203,7 @@ class SwarmWorker:
         self.messages[r] += 1
 
     def _check_memory(self) -> None:
-        _trim()
+        return_freed_memory(pools=False)
         cur = _rss_bytes()[0]
         self.peak_private = max(self.peak_private, cur)
         if self.cap:

@@ -56,6 +56,12 @@ class RayReplay:
 
         return trace
 
+    @property
+    def given_back(self) -> bool:
+        """Whether the last pass has given out every batch it kept (their rays freed once
+        applied)."""
+        return self._pass == self.passes - 1 and bool(self._kept) and self._kept[-1] is None
+
 
 def _ids(scans: Sequence[Scan]) -> list[tuple[int, int]]:
     """What tells a batch's scans apart: their agent and stamp each."""

@@ -1,0 +1,29 @@
+"""Freed memory given back to the system, so that resident memory measures what the process
+holds and what comes next adds to that, not to its peak."""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+from typing import Callable, Optional
+
+
+def return_freed_memory(pools: bool = True) -> None:
+    """Give back the pages glibc's heap holds free (``malloc_trim``) and, with ``pools``, the
+    tree pools' empty slabs (which the next maps would otherwise reuse)."""
+    if pools:
+        from . import _core
+
+        _core._trim_node_pools()
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@functools.cache
+def _malloc_trim() -> Optional[Callable[[int], int]]:
+    """glibc's ``malloc_trim``, or None where the C library has none."""
+    try:
+        return ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):
+        return None
