@@ -1,7 +1,12 @@
 // octofuse bindings: comparing maps, and the voxels that changed between two versions.
 #include "common.hpp"
 
+#include "octofuse/box_surfaces.hpp"
 #include "octofuse/compare.hpp"
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
 
 namespace octofuse::bindings {
 
@@ -38,6 +43,33 @@ void define_compare(py::module_& m) {
       py::arg("ref"), py::arg("map"), py::arg("tol"), py::arg("occ_threshold") = 0.0,
       "Counts of `map` against the reference `ref` (a _ReferenceMap): class confusion, KL, "
       "|l| differences and over-confidence over finest voxels; the GIL is released.");
+  m.def(
+      "_near_box_surfaces",
+      [](py::array_t<double, py::array::c_style | py::array::forcecast> points,
+         py::array_t<double, py::array::c_style | py::array::forcecast> boxes, double tol) {
+        if (points.ndim() != 2 || points.shape(1) != 3)
+          throw py::value_error("near box surfaces: points must be an n x 3 array");
+        if (boxes.ndim() != 3 || boxes.shape(1) != 2 || boxes.shape(2) != 3)
+          throw py::value_error("near box surfaces: boxes must be a B x 2 x 3 array of corners");
+        if (static_cast<std::uint64_t>(boxes.shape(0)) > std::numeric_limits<std::uint32_t>::max())
+          throw py::value_error("near box surfaces: more than 2^32 boxes");
+        if (!std::isfinite(tol) || tol < 0.0)
+          throw py::value_error("near box surfaces: tol must be a finite distance >= 0");
+        const double* b = boxes.data();
+        for (py::ssize_t i = 0; i < boxes.size(); ++i)
+          if (!std::isfinite(b[i])) throw py::value_error("near box surfaces: a box corner is not finite");
+        const auto n = static_cast<std::size_t>(points.shape(0));
+        py::array_t<bool> out(static_cast<py::ssize_t>(n));
+        auto* o = reinterpret_cast<std::uint8_t*>(out.mutable_data());
+        {
+          py::gil_scoped_release release;
+          near_box_surfaces(points.data(), n, b, static_cast<std::size_t>(boxes.shape(0)), tol, o);
+        }
+        return out;
+      },
+      py::arg("points"), py::arg("boxes"), py::arg("tol"),
+      "Whether each point (n x 3) lies within `tol` of the surface of one of the boxes "
+      "(B x 2 x 3: min and max corners); the GIL is released.");
   m.def("_changed_voxels", [](const OccupancyMap& cur, const OccupancyMap& prev) {
     check_compatible(cur, prev);
     py::gil_scoped_release release;

@@ -8,6 +8,7 @@ worked out from the leaves' log-odds: KL of two Bernoullis, with an unknown voxe
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -397,8 +398,9 @@ def test_occupied_accuracy_within_half_a_voxel_diagonal_and_noise():
 
 
 def test_near_surface_is_the_signed_distance_test():
-    """The box-by-box test equals |signed distance| <= tol on random points around
-    overlapping and separate boxes (corners, edges, faces, inside and far away)."""
+    """The core's test (each point against the boxes of its grid cell) equals |signed
+    distance| <= tol on random points around overlapping and separate boxes (corners, edges,
+    faces, inside and far away), and on voxel centres with the accuracy's tolerance."""
     rng = np.random.default_rng(5)
     lo = rng.uniform(-2, 2, (6, 3))
     boxes = np.stack([lo, lo + rng.uniform(0.05, 1.5, (6, 3))], axis=1)
@@ -410,6 +412,18 @@ def test_near_surface_is_the_signed_distance_test():
         want = np.abs(scene.signed_distance(pts)) <= tol
         np.testing.assert_array_equal(scene.near_surface(pts, tol), want)
         assert 0 < want.sum() < len(pts)
+    res = 0.05
+    centres = (np.floor(rng.uniform(-3, 4, (50_000, 3)) / res) + 0.5) * res
+    tol = res * np.sqrt(3) / 2 + 0.03
+    want = np.abs(scene.signed_distance(centres)) <= tol
+    np.testing.assert_array_equal(scene.near_surface(centres, tol), want)
+    one_box = Scene(boxes[:1], [""], [""])  # a grid of one cell
+    np.testing.assert_array_equal(one_box.near_surface(pts, 0.05),
+                                  np.abs(one_box.signed_distance(pts)) <= 0.05)
+    assert not scene.near_surface(np.array([[np.nan, 0.0, 0.0]]), 0.3).any()
+    assert len(scene.near_surface(np.empty((0, 3)), 0.3)) == 0
+    with pytest.raises(ValueError, match="a box corner is not finite"):
+        Scene(np.full((1, 2, 3), np.nan), [""], [""]).near_surface(pts, 0.05)
 
 
 def _sorted_weighted_percentile(v, w, q):
@@ -439,3 +453,11 @@ def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
             assert weighted_percentile(v, w, q) == want
     # weights that are not whole numbers are sorted, as the definition does
     assert weighted_percentile(v, w / 3.0, q) == _sorted_weighted_percentile(v, w / 3.0, q)
+
+
+@pytest.mark.parametrize("corner", [[0.0, 1.0], [0.0, float("nan"), 1.0], [0.0, float("inf"), 1.0]])
+def test_a_scene_file_with_a_bad_corner_is_refused_by_name(tmp_path, corner):
+    path = tmp_path / "bad_scene.json"
+    path.write_text(json.dumps({"boxes": [{"min": corner, "max": [1.0, 2.0, 3.0]}]}))
+    with pytest.raises(ValueError, match="bad_scene.json.*box 1: min and max must be 3 finite numbers"):
+        Scene.load(path)
