@@ -68,8 +68,11 @@ class Network:
     def result_maps(self) -> tuple[dict[str, dict[str, OccupancyMap]], dict[str, OccupancyMap]]:
         """The agents' maps per rule as scored and written (:meth:`scored_maps`), and the
         channel filter's unclamped maps."""
-        fused = {r: self.scored_maps(r, self.threads) for r in self.rules}
-        return fused, dict(self.fused[CHANNEL_FILTER]) if self.cf is not None else {}
+        return {r: self.scored_maps(r, self.threads) for r in self.rules}, self.unclamped_maps()
+
+    def unclamped_maps(self) -> dict[str, OccupancyMap]:
+        """The channel filter's maps as fused (unclamped), or none without it."""
+        return dict(self.fused[CHANNEL_FILTER]) if self.cf is not None else {}
 
     def scored_maps(self, rule: str, threads: int = 1) -> dict[str, OccupancyMap]:
         """The agents' maps of ``rule`` as scored and written: the maps themselves, or the

@@ -249,11 +249,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     final = {LOCAL if lane == COMMON else lane: fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
-    unclamped = dict(net.fused[CHANNEL_FILTER]) if CHANNEL_FILTER in rules else {}
     res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
-                    build_notes=notes, memory=net.memory(), tree=tree, unclamped=unclamped,
+                    build_notes=notes, memory=net.memory(), tree=tree, unclamped=net.unclamped_maps(),
                     central_unclamped=exact, frames=frames.frames, alignment=frames.report())
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)

@@ -266,6 +266,8 @@ class TransformBuffer:
                     continue
             if static:
                 self.add_static_transform(ts.header.frame_id, ts.child_frame_id, t, q)
+            elif topic is not None:  # checked above
+                self._link(parent, child, static=False).add_sample(stamp_to_ns(ts.header), t, q)
             else:
                 self._add_sample(ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header),
                                  t, q)
