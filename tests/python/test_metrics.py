@@ -20,6 +20,7 @@ from conftest import expand, random_map
 import octofuse
 from octofuse import OccupancyMap, fuse_into, fuse_maps
 from octofuse.maps.compare import compare, compare_many, finest_centers, loss_stats, score, weighted_percentile
+from octofuse.maps.infoloss import voxels_in_bins, voxels_per_leaf
 from octofuse.maps.occupancy import ReferenceMap
 from octofuse.maps.truth import Scene
 
@@ -283,7 +284,7 @@ def test_loss_stats_weight_coarse_leaves_by_their_voxels():
     weights = np.power(8.0, 16 - lv.depths.astype(float))
     n_occ, n_free = weights[occupied].sum(), weights[~occupied].sum()
     assert n_occ == 8
-    mean, p95 = loss_stats(loss)
+    mean, p95 = loss_stats(*loss.values_depths())
     want_mean = (n_occ * kl(2 * L_HIT, L_HIT) + n_free * kl(2 * L_MISS, L_MISS)) / (n_occ + n_free)
     assert mean == pytest.approx(want_mean, rel=1e-6)
     # 8 of the voxels (> 5 %) lost the most, although they are a single leaf (< 5 % of leaves)
@@ -292,8 +293,28 @@ def test_loss_stats_weight_coarse_leaves_by_their_voxels():
     assert float(np.percentile(lv.values, 95)) < p95
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 40), st.floats(0.5, 4.0), st.integers(1, 64), st.data())
+def test_voxels_in_bins_are_the_weights_summed_per_bin(nbins, top, block, data):
+    # leaves counted per bin and depth, a block at a time, then weighed: the sums are exact
+    # (the leaves of a few trees: at most 300 x 8^14 voxels, below 2^53)
+    n = data.draw(st.integers(0, 300))
+    values = np.array(data.draw(st.lists(st.sampled_from([-0.5, 0.0, top, top + 0.1, np.nan])
+                                         | st.floats(0.0, top), min_size=n, max_size=n)),
+                      dtype=np.float32)
+    depths = np.array(data.draw(st.lists(st.integers(2, 16), min_size=n, max_size=n)),
+                      dtype=np.uint8)
+    w = voxels_per_leaf(depths)
+    inside = (values >= 0) & (values <= top)
+    bins = np.minimum((values[inside] * (nbins / top)).astype(np.int64), nbins - 1)
+    per_bin, total = voxels_in_bins(values, depths, nbins, top, block)
+    assert per_bin.shape == (nbins,)
+    assert np.array_equal(per_bin, np.bincount(bins, weights=w[inside], minlength=nbins))
+    assert total == w.sum()
+
+
 def test_loss_stats_of_an_empty_loss_map():
-    assert loss_stats(octofuse.InfoLossMap(RES)) == (0.0, 0.0)
+    assert loss_stats(*octofuse.InfoLossMap(RES).values_depths()) == (0.0, 0.0)
 
 
 def test_weighted_percentile():
@@ -318,12 +339,12 @@ def test_score_adds_loss_traffic_and_accuracy():
     central, agent = ray_map(0.55, times=2), ray_map(0.55)
     _, loss = fuse_maps(agent, agent, rule="bhattacharyya")
     truth = Scene(np.array([[[0.5, -1.0, -1.0], [2.0, 1.0, 1.0]]]), ["wall"], ["wall"])
-    s = score(agent, central, loss=loss, truth=truth, bytes_sent=10, bytes_received=20,
-              bytes_sent_32b=30)
+    s = score(agent, central, loss_leaves=loss.values_depths(), truth=truth, bytes_sent=10,
+              bytes_received=20, bytes_sent_32b=30)
     base = compare(central, agent)
     for key in ("kl_mean", "agreement", "coverage", "overconfidence", "voxels"):
         assert getattr(s, key) == getattr(base, key)
-    assert (s.loss_mean, s.loss_p95) == loss_stats(loss)
+    assert (s.loss_mean, s.loss_p95) == loss_stats(*loss.values_depths())
     assert (s.bytes_sent, s.bytes_received, s.bytes_sent_32b) == (10, 20, 30)
     assert s.occupied_accuracy == 1.0  # the endpoint 0.55 lies 0.05 m inside the wall at x = 0.5
     plain = score(agent, central)

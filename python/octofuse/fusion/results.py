@@ -87,6 +87,18 @@ class SimResult:
     #: and per link the alignment on first contact (:mod:`octofuse.fusion.agent_frames`)
     frames: dict = field(default_factory=dict)
     alignment: list[dict] = field(default_factory=list)
+    #: rule -> agent -> the values and depths of its loss map's leaves, once read
+    #: (:meth:`loss_leaves_of`)
+    loss_leaves: dict[str, dict[str, tuple]] = field(default_factory=dict)
+
+    def loss_leaves_of(self, rule: str, agent: str) -> tuple:
+        """The values and depths of the leaves of ``agent``'s loss map under ``rule``
+        (:meth:`~octofuse.maps.infoloss.InfoLossMap.values_depths`), read once for the scores
+        and the loss histogram."""
+        per = self.loss_leaves.setdefault(rule, {})
+        if agent not in per:
+            per[agent] = self.loss[rule][agent].values_depths()
+        return per[agent]
 
 
 def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
@@ -104,8 +116,8 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
     def one(job):
         r, a = job
         return score_agent(agent_map(r, a), res.central, tol, frame=res.frames.get(a),
-                           loss=None if r in (LOCAL, CHANNEL_FILTER) else res.loss[r][a],
-                           truth=truth, compared=compared.get(job))
+                           loss_leaves=None if r in (LOCAL, CHANNEL_FILTER) else
+                           res.loss_leaves_of(r, a), truth=truth, compared=compared.get(job))
 
     out: dict[str, dict[str, Score]] = {}
     for (r, a), s in zip(jobs, thread_map(one, jobs, threads)):
@@ -114,14 +126,16 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
 
 
 def score_agent(m: OccupancyMap, central, tol: float, *, frame=None,
-                loss: Optional[InfoLossMap] = None, truth=None,
+                loss_leaves: Optional[tuple] = None, truth=None,
                 compared: Optional[Score] = None) -> Score:
     """One agent's map of a rule (or its own map) scored against the centralized map (an
     :class:`OccupancyMap` or a ``ReferenceMap``), in the common frame (``frame``: the agent's
-    map frame there, None if it maps in it), without its traffic. ``loss``: its accumulated
-    loss (None for the local-only maps and the exact filter). ``compared``: the comparison of
-    ``m`` with the centralized map, where it was taken already."""
-    return score(moved(m, frame), central, tol=tol, loss=loss, truth=truth, compared=compared)
+    map frame there, None if it maps in it), without its traffic. ``loss_leaves``: the values
+    and depths of its accumulated loss map's leaves (None for the local-only maps and the exact
+    filter). ``compared``: the comparison of ``m`` with the centralized map, where it was taken
+    already."""
+    return score(moved(m, frame), central, tol=tol, loss_leaves=loss_leaves, truth=truth,
+                 compared=compared)
 
 
 def with_traffic(scores: dict[str, dict[str, Score]],
@@ -148,9 +162,10 @@ def rule_groups(fuse_cfg: FuseConfig, size: int) -> list[list[str]]:
 
 
 def without_maps(res: SimResult) -> SimResult:
-    """``res`` without its rules' maps (``fused``, ``loss``, ``unclamped``): what a caller keeps
-    of a group of rules once its maps are written, so that they can be freed."""
-    return replace(res, fused={}, loss={}, unclamped={})
+    """``res`` without its rules' maps (``fused``, ``loss``, ``unclamped``) and the loss
+    leaves read from them: what a caller keeps of a group of rules once its maps are written,
+    so that they can be freed."""
+    return replace(res, fused={}, loss={}, unclamped={}, loss_leaves={})
 
 
 def merge_rule_results(parts: Sequence[SimResult]) -> SimResult:

@@ -128,17 +128,20 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     scores[a] = compare(ref, m, tol)
             return [scores[a] for a in agents]
 
-        def final_scores(lane, ref: ReferenceMap, last) -> tuple[dict, dict]:
-            """The lane's final maps as scored and written, and their scores (without
-            traffic). ``last``: the lane's last sample, if its maps did not change since."""
+        def final_scores(lane, ref: ReferenceMap, last) -> tuple[dict, dict, dict]:
+            """The lane's final maps as scored and written, their scores (without traffic)
+            and their loss leaves as read for the scores (kept for the loss histogram).
+            ``last``: the lane's last sample, if its maps did not change since."""
             r = LOCAL if lane == COMMON else lane
             maps = own if lane == COMMON else net.scored_maps(lane)
             compared = dict(zip(agents, last.result())) if last is not None else {}
+            leaves = {} if r in (LOCAL, CHANNEL_FILTER) else \
+                {a: net.loss_map(r, a, resolution).values_depths() for a in agents}
             return maps, {a: score_agent(
                 maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
-                loss=None if r in (LOCAL, CHANNEL_FILTER) else net.loss_map(r, a, resolution),
+                loss_leaves=leaves.get(a),
                 compared=None if frames.frames.get(a) is not None else compared.get(a))
-                for a in agents}
+                for a in agents}, leaves
 
         def sample(t):
             ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
@@ -249,14 +252,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     final = {LOCAL if lane == COMMON else lane: fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
+    loss_leaves = {r: final[r][2] for r in rules if final[r][2]}
     res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree, unclamped=net.unclamped_maps(),
-                    central_unclamped=exact, frames=frames.frames, alignment=frames.report())
+                    central_unclamped=exact, frames=frames.frames, alignment=frames.report(),
+                    loss_leaves=loss_leaves)
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
-    res.scores = with_traffic({r: scores for r, (_, scores) in final.items()}, net.traffic)
+    res.scores = with_traffic({r: scores for r, (_, scores, _) in final.items()}, net.traffic)
     timings["total"] = time.perf_counter() - t_all
     return res
 

@@ -8,7 +8,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..threads import thread_map
-from .infoloss import InfoLossMap, voxels_per_leaf
+from .infoloss import voxels_per_leaf
 from .occupancy import OccupancyMap, ReferenceMap
 
 
@@ -85,9 +85,9 @@ def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float = 0.
     return float(v[order][min(np.searchsorted(cw, target), len(v) - 1)])
 
 
-def loss_stats(loss: InfoLossMap) -> tuple[float, float]:
-    """Mean and 95th percentile of a loss map over its finest voxels."""
-    values, depths = loss.values_depths()
+def loss_stats(values: np.ndarray, depths: np.ndarray) -> tuple[float, float]:
+    """Mean and 95th percentile of a loss map over its finest voxels, from its leaves' values
+    and depths (:meth:`.infoloss.InfoLossMap.values_depths`)."""
     if len(values) == 0:
         return 0.0, 0.0
     w = voxels_per_leaf(depths)
@@ -131,15 +131,16 @@ def _score_of_counts(d: dict) -> Score:
 
 
 def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
-          loss: Optional[InfoLossMap] = None, truth=None, bytes_sent: Optional[int] = None,
-          bytes_received: Optional[int] = None, bytes_sent_32b: Optional[int] = None,
-          compared: Optional[Score] = None) -> Score:
+          loss_leaves: Optional[tuple[np.ndarray, np.ndarray]] = None, truth=None,
+          bytes_sent: Optional[int] = None, bytes_received: Optional[int] = None,
+          bytes_sent_32b: Optional[int] = None, compared: Optional[Score] = None) -> Score:
     """Every metric of one agent: :func:`compare` (or ``compared``, its result for these maps
-    from :func:`compare_many`), the loss statistics, traffic and the occupied-voxel accuracy
-    against a :class:`~octofuse.scene.Scene`."""
+    from :func:`compare_many`), the loss statistics (of ``loss_leaves``, the values and depths
+    of its loss map's leaves), traffic and the occupied-voxel accuracy against a
+    :class:`~octofuse.scene.Scene`."""
     s = compared if compared is not None else compare(central, agent, tol)
-    if loss is not None:
-        s.loss_mean, s.loss_p95 = loss_stats(loss)
+    if loss_leaves is not None:
+        s.loss_mean, s.loss_p95 = loss_stats(*loss_leaves)
     s.bytes_sent, s.bytes_received, s.bytes_sent_32b = bytes_sent, bytes_received, bytes_sent_32b
     if truth is not None:
         lv = agent.leaves("occupied")

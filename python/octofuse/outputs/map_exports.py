@@ -74,7 +74,7 @@ class MapExports:
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
             if r not in ("naive-bayes", CHANNEL_FILTER):
-                per_agent = thread_map(lambda a: res.loss[r][a].values_depths(), res.agents,
+                per_agent = thread_map(lambda a: res.loss_leaves_of(r, a), res.agents,
                                        self.threads)
                 self.histogram[r] = (np.concatenate([x[0] for x in per_agent]),
                                      np.concatenate([x[1] for x in per_agent]))

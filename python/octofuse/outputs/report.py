@@ -14,7 +14,7 @@ from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
 from ..fusion.results import LOCAL, SimResult
 from ..maps.frames import matrix_pose
-from ..maps.infoloss import voxels_per_leaf
+from ..maps.infoloss import voxels_in_bins
 from ..threads import thread_map
 from .map_exports import MapExports
 from .libraries import pyplot
@@ -208,11 +208,8 @@ def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
     bins = np.linspace(0, top, nbins + 1)
 
     def fractions(r):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
-        v, d = data[r]
-        w = voxels_per_leaf(d)
-        inside = (v >= 0) & (v <= top)
-        k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
-        return np.bincount(k, weights=w[inside], minlength=nbins) / w.sum()
+        per_bin, total = voxels_in_bins(*data[r], nbins, top)
+        return per_bin / total
 
     fig, ax = plt.subplots(figsize=(7, 4))
     for r, h in zip(rules, thread_map(fractions, rules, threads)):
