@@ -307,7 +307,9 @@ def test_voxels_in_bins_are_the_weights_summed_per_bin(nbins, top, block, data):
     w = voxels_per_leaf(depths)
     inside = (values >= 0) & (values <= top)
     bins = np.minimum((values[inside] * (nbins / top)).astype(np.int64), nbins - 1)
-    per_bin, total = voxels_in_bins(values, depths, nbins, top, block)
+    cut = data.draw(st.integers(0, n))  # the leaves of two maps
+    per_bin, total = voxels_in_bins([(values[:cut], depths[:cut]), (values[cut:], depths[cut:])],
+                                    nbins, top, block)
     assert per_bin.shape == (nbins,)
     assert np.array_equal(per_bin, np.bincount(bins, weights=w[inside], minlength=nbins))
     assert total == w.sum()

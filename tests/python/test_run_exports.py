@@ -342,13 +342,23 @@ def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
     from octofuse.outputs.report import plot_loss_histograms
 
     rng = np.random.default_rng(3)
-    data = {r: (rng.gamma(2.0, s, 5000).astype(np.float32),
-                rng.integers(13, 17, 5000).astype(np.uint8))
-            for r, s in (("chernoff", 0.3), ("min-info-loss", 0.5), ("empty", 0.1))}
-    data["empty"] = (np.zeros(0, np.float32), np.zeros(0, np.uint8))
+
+    def agents(scale, n=3):  # each agent's loss leaves
+        return [(rng.gamma(2.0, scale, 2000).astype(np.float32),
+                 rng.integers(13, 17, 2000).astype(np.uint8)) for _ in range(n)]
+
+    data = {"chernoff": agents(0.3), "min-info-loss": agents(0.5),
+            "empty": [(np.zeros(0, np.float32), np.zeros(0, np.uint8))]}
+    kept = {r: [(v.copy(), d.copy()) for v, d in leaves] for r, leaves in data.items()}
     one = plot_loss_histograms(data, tmp_path / "one.png", 1)
     two = plot_loss_histograms(data, tmp_path / "two.png", 2)
     assert one.read_bytes() == two.read_bytes()
+    for r, leaves in data.items():  # the agents' values are left as they were
+        assert all(np.array_equal(v, kv) and np.array_equal(d, kd)
+                   for (v, d), (kv, kd) in zip(leaves, kept[r]))
+    # the agents' leaves in one array draw the same image
+    whole = {r: [tuple(np.concatenate(x) for x in zip(*leaves))] for r, leaves in data.items()}
+    assert plot_loss_histograms(whole, tmp_path / "whole.png", 2).read_bytes() == one.read_bytes()
     # a rule with other values draws another image
-    data["chernoff"] = (data["chernoff"][0] * 2, data["chernoff"][1])
+    data["chernoff"] = [(v * 2, d) for v, d in data["chernoff"]]
     assert plot_loss_histograms(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()

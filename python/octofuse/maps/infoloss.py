@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -51,21 +51,23 @@ def voxels_per_leaf(depths: np.ndarray) -> np.ndarray:
     return _VOXELS_AT_DEPTH[np.asarray(depths)]
 
 
-def voxels_in_bins(values: np.ndarray, depths: np.ndarray, nbins: int, top: float,
+def voxels_in_bins(leaves: Sequence[tuple[np.ndarray, np.ndarray]], nbins: int, top: float,
                    block: int = 1 << 18) -> tuple[np.ndarray, float]:
-    """The finest voxels of leaves (``values``, ``depths``) in each of ``nbins`` equal bins of
-    [0, ``top``] (``top`` in the last bin, values outside left out), as float64, and the finest
-    voxels of all the leaves. The leaves are counted per bin and depth, ``block`` at a time (no
-    temporary array of every leaf), then weighed: each sum is of integers, so it equals the sum
-    of :func:`voxels_per_leaf` exactly while below 2^53 (a tree holds at most 8^16 = 2^48)."""
+    """The finest voxels of ``leaves`` (pairs of value and depth arrays: :meth:`InfoLossMap.
+    values_depths` of several maps) in each of ``nbins`` equal bins of [0, ``top``] (``top`` in
+    the last bin, values outside left out), as float64, and the finest voxels of all the
+    leaves. The leaves are counted per bin and depth, ``block`` at a time (no temporary array
+    of every leaf), then weighed: each sum is of integers, so it equals the sum of
+    :func:`voxels_per_leaf` exactly while below 2^53 (a tree holds at most 8^16 = 2^48)."""
     nd = len(_VOXELS_AT_DEPTH)
     counts, per_depth = np.zeros(nbins * nd, np.int64), np.zeros(nd, np.int64)
-    for start in range(0, len(values), block):
-        v, d = values[start:start + block], depths[start:start + block]
-        inside = (v >= 0) & (v <= top)
-        k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
-        counts += np.bincount(k * nd + d[inside], minlength=nbins * nd)
-        per_depth += np.bincount(d, minlength=nd)
+    for values, depths in leaves:
+        for start in range(0, len(values), block):
+            v, d = values[start:start + block], depths[start:start + block]
+            inside = (v >= 0) & (v <= top)
+            k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
+            counts += np.bincount(k * nd + d[inside], minlength=nbins * nd)
+            per_depth += np.bincount(d, minlength=nd)
     per_bin = (counts.reshape(nbins, nd) * _VOXELS_AT_DEPTH).sum(axis=1)
     return per_bin, float((per_depth * _VOXELS_AT_DEPTH).sum())
 

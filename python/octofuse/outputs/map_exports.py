@@ -39,9 +39,9 @@ class MapExports:
         #: (rule, agent) -> the occupied voxels with their loss, and the map's resolution
         self.voxels: dict = {}
         self.resolution: dict = {}
-        #: rule -> loss values (float32) and depths (uint8) of every agent's loss leaves:
+        #: rule -> the loss values (float32) and depths (uint8) of each agent's loss leaves:
         #: 5 bytes a leaf, for the loss histogram
-        self.histogram: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.histogram: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         self.seconds = 0.0  #: time spent writing
         self._central_written = False
 
@@ -74,10 +74,8 @@ class MapExports:
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
             if r not in ("naive-bayes", CHANNEL_FILTER):
-                per_agent = thread_map(lambda a: res.loss_leaves_of(r, a), res.agents,
-                                       self.threads)
-                self.histogram[r] = (np.concatenate([x[0] for x in per_agent]),
-                                     np.concatenate([x[1] for x in per_agent]))
+                self.histogram[r] = thread_map(lambda a: res.loss_leaves_of(r, a), res.agents,
+                                               self.threads)
         self.seconds += time.perf_counter() - t0
 
     def finish(self) -> dict:

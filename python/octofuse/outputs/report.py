@@ -193,22 +193,24 @@ def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
     return path
 
 
-def plot_loss_histograms(data: dict[str, tuple[np.ndarray, np.ndarray]],
+def plot_loss_histograms(data: dict[str, Sequence[tuple[np.ndarray, np.ndarray]]],
                          path: Path, threads: int = 1) -> Optional[Path]:
     """The loss histogram of every rule: ``data`` maps a rule to the loss values and depths
-    of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`); the rules'
-    histograms are counted on ``threads`` threads."""
+    of each of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`); the
+    rules' histograms are counted on ``threads`` threads."""
     if not data:
         return None
     plt = pyplot()
 
-    rules = [r for r, (v, _) in data.items() if len(v)]
-    tops = thread_map(lambda r: float(np.percentile(data[r][0], 99.5)), rules, threads)
+    rules = [r for r, leaves in data.items() if any(len(v) for v, _ in leaves)]
+    # the values of all agents, partitioned in place by the percentile
+    tops = thread_map(lambda r: float(np.percentile(np.concatenate([v for v, _ in data[r]]), 99.5,
+                                                    overwrite_input=True)), rules, threads)
     nbins, top = 59, max([0.0, *tops]) or 1.0
     bins = np.linspace(0, top, nbins + 1)
 
     def fractions(r):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
-        per_bin, total = voxels_in_bins(*data[r], nbins, top)
+        per_bin, total = voxels_in_bins(data[r], nbins, top)
         return per_bin / total
 
     fig, ax = plt.subplots(figsize=(7, 4))
