@@ -28,6 +28,11 @@ from .schedule import mission_events, parse_schedule
 COMMON = "common frame"
 
 
+def _scored_as(lane: str) -> str:
+    """What a lane's maps are scored as: its rule, or the local-only maps (the common lane)."""
+    return LOCAL if lane == COMMON else lane
+
+
 def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
              progress: Optional[Callable[[int, int], None]] = None,
              source: Optional[ScanSource | ScanReplay] = None,
@@ -132,7 +137,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             """The lane's final maps as scored and written, their scores (without traffic)
             and their loss leaves as read for the scores (kept for the loss histogram).
             ``last``: the lane's last sample, if its maps did not change since."""
-            r = LOCAL if lane == COMMON else lane
+            r = _scored_as(lane)
             maps = own if lane == COMMON else net.scored_maps(lane)
             compared = dict(zip(agents, last.result())) if last is not None else {}
             leaves = {} if r in (LOCAL, CHANNEL_FILTER) else \
@@ -147,7 +152,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
             scored = []
             for lane, maps in ([(COMMON, own)] if local else []) + [(r, net.fused[r]) for r in rules]:
-                r = LOCAL if lane == COMMON else lane
+                r = _scored_as(lane)
                 sampled[lane] = submit(lane, lambda r=r, maps=maps: scores_of(r, maps, ref.result()),
                                        after=() if lane == COMMON else [ref], key="scoring")
                 scored.append((r, sampled[lane]))
@@ -249,7 +254,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     timeline = [{"t": t, "rule": r, "agent": a, "kl": s.kl_mean, "overconfidence": s.overconfidence,
                  "coverage": s.coverage}
                 for t, scored in taken for r, fut in scored for a, s in zip(agents, fut.result())]
-    final = {LOCAL if lane == COMMON else lane: fut.result() for lane, fut in finals.items()}
+    final = {_scored_as(lane): fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
     loss_leaves = {r: final[r][2] for r in rules if final[r][2]}
