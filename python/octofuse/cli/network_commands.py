@@ -11,7 +11,6 @@ from typing import Optional
 import click
 
 from ..config import RunConfig
-from ..memory import MapFreeing
 from .options import (_DEFAULT, CliError, Progress, bag_arguments, build_options, cli,
                       config_options, console, dump_config, exchange_options, export_options,
                       frame_options, need_bags, need_out, out_option, passes_option, rule_option,
@@ -39,7 +38,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
     import_output_libraries()  # once the inputs are checked: an exit waits for the imports
     try:
-        with staged_folder(out, command) as stage, MapFreeing(cfg.build.workers) as freeing:
+        with staged_folder(out, command) as stage:
             with contextlib.ExitStack() as stack:
                 bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
                 if bag is not None:  # one pass in bag time: the bags' start is needed first
@@ -54,8 +53,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                     passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
                                                      truth=truth, progress=bar)
                 res, written = write_rule_groups(
-                    passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents),
-                    freeing)
+                    passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
             write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
             if bag is not None:
                 bag.close()
@@ -68,27 +66,29 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     say(f"report: {out / 'report.md'}")
 
 
-def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents, freeing: MapFreeing):
+def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     """The results of a run's groups of rules merged into one, each group's maps written into
-    ``stage`` as it arrives and then freed by ``freeing`` (only what comes after is kept: heat
-    maps' voxels, histogram values); the merged result and the :class:`MapExports` that wrote
-    them. ``export_agents(agents)``: the agents whose maps are written."""
+    ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
+    histogram values); the merged result and the :class:`MapExports` that wrote them.
+    ``export_agents(agents)``: the agents whose maps are written."""
     from ..fusion.results import merge_rule_results, without_maps
+    from ..memory import return_freed_memory
     from ..outputs.map_exports import MapExports
+    from ..threads import thread_map
 
-    written, parts, arrived = None, [], set()
+    written, parts = None, []
     for part in results:
         if written is None:
             written = MapExports(stage, cfg, cfg.fuse.rules, export_agents(part.agents),
                                  threads=cfg.build.workers)
         written.add(part)
-        arrived.update(part.rules)
-        # freed before the next group runs (its trees then start in slabs of their own), the
-        # last group's while the outputs are written
-        freeing.free((m for per in (*part.fused.values(), *part.loss.values(), part.unclamped)
-                      for m in per.values()), wait=not arrived.issuperset(cfg.fuse.rules))
+        # the rules' maps freed on every thread: the next rules' maps reuse their memory
+        rule_maps = [m for per in (*part.fused.values(), *part.loss.values(), part.unclamped)
+                     for m in per.values()]
+        thread_map(lambda m: m.clear(), rule_maps, cfg.build.workers)
         parts.append(without_maps(part))
-        del part
+        del part, rule_maps
+        return_freed_memory()
     return merge_rule_results(parts), written
 
 
@@ -222,12 +222,12 @@ def fuse_cmd(maps_dir, rounds, **p):
     central = OccupancyMap.load(central_path) if central_path.is_file() else None
     truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
-    with staged_folder(out, "fuse") as stage, MapFreeing(cfg.build.workers) as freeing:
+    with staged_folder(out, "fuse") as stage:
         # a few rules at a time: their maps written, then freed before the next ones run
         res, written = write_rule_groups(
             fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
                                          threads=cfg.build.workers),
-            stage, cfg, lambda agents: agents, freeing)
+            stage, cfg, lambda agents: agents)
         write_outputs(res, stage, cfg, title=title, maps=written)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")
