@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from conftest import expand, random_map
 
@@ -460,6 +460,10 @@ def _sorted_weighted_percentile(v, w, q):
 @given(st.lists(st.tuples(st.integers(0, 12), st.integers(0, 4)), min_size=1, max_size=200),
        st.one_of(st.sampled_from([0.0, 25.0, 50.0, 95.0, 100.0]), st.floats(0.0, 100.0)),
        st.sampled_from([np.float32, np.float64]))
+# the target exactly at the weight of the smallest value: with weights / 3, the tied values'
+# weights must add up in their order, as in the definition
+@example([(0, 0), (0, 1), (0, 1), (0, 2), (0, 3), (0, 3), (1, 1), (1, 2), (1, 2), (0, 1), (0, 3),
+          (1, 2), (1, 3), (1, 4), (1, 2)], 25.0, np.float32)
 def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
     """Narrowing around partition pivots (forced down to a few values) picks the value the
     sort picks, with ties, zero weights and voxel-count weights."""

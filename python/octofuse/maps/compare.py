@@ -77,8 +77,9 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
 def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float = 0.0,
                        target: Optional[float] = None) -> float:
     """The same by a sort: ``v`` above values of weight ``below`` left out, ``target`` the
-    weight to reach (default: ``q`` % of the cumulative weight)."""
-    order = np.argsort(v)
+    weight to reach (default: ``q`` % of the cumulative weight). Equal values keep their
+    order, so weights that are not whole numbers add up as the definition adds them."""
+    order = np.argsort(v, kind="stable")
     cw = below + np.cumsum(w[order])
     if target is None:
         target = q / 100.0 * cw[-1]
