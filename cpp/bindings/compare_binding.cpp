@@ -1,4 +1,5 @@
-// octofuse bindings: comparing maps, and the voxels that changed between two versions.
+// octofuse bindings: comparing maps (with the points near a scene's box surfaces, for the
+// occupied-voxel accuracy), and the voxels that changed between two versions.
 #include "common.hpp"
 
 #include "octofuse/box_surfaces.hpp"

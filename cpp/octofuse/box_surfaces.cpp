@@ -26,7 +26,8 @@ struct Axis {
   }
 };
 
-// Whether q lies within tol of the surface of the box [lo, hi], as numpy computes it:
+// Whether q lies within tol of the surface of the box [lo, hi], as Scene.signed_distance
+// computes it in numpy:
 // outside = |max(lo - q, q - hi, 0)| (the squares summed x, y, z), depth = min(q - lo, hi - q).
 bool near_box(const double* q, const double* lo, const double* hi, double tol) {
   for (int k = 0; k < 3; ++k)

@@ -116,8 +116,8 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
     def one(job):
         r, a = job
         return score_agent(agent_map(r, a), res.central, tol, frame=res.frames.get(a),
-                           loss_leaves=None if r in (LOCAL, CHANNEL_FILTER) else
-                           res.loss_leaves_of(r, a), truth=truth, compared=compared.get(job))
+                           loss=None if r in (LOCAL, CHANNEL_FILTER) else res.loss_leaves_of(r, a),
+                           truth=truth, compared=compared.get(job))
 
     out: dict[str, dict[str, Score]] = {}
     for (r, a), s in zip(jobs, thread_map(one, jobs, threads)):
@@ -126,16 +126,15 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
 
 
 def score_agent(m: OccupancyMap, central, tol: float, *, frame=None,
-                loss_leaves: Optional[tuple] = None, truth=None,
+                loss: InfoLossMap | tuple | None = None, truth=None,
                 compared: Optional[Score] = None) -> Score:
     """One agent's map of a rule (or its own map) scored against the centralized map (an
     :class:`OccupancyMap` or a ``ReferenceMap``), in the common frame (``frame``: the agent's
-    map frame there, None if it maps in it), without its traffic. ``loss_leaves``: the values
-    and depths of its accumulated loss map's leaves (None for the local-only maps and the exact
-    filter). ``compared``: the comparison of ``m`` with the centralized map, where it was taken
-    already."""
-    return score(moved(m, frame), central, tol=tol, loss_leaves=loss_leaves, truth=truth,
-                 compared=compared)
+    map frame there, None if it maps in it), without its traffic. ``loss``: its accumulated
+    loss, as :func:`~octofuse.maps.compare.score` takes it (None for the local-only maps and
+    the exact filter). ``compared``: the comparison of ``m`` with the centralized map, where
+    it was taken already."""
+    return score(moved(m, frame), central, tol=tol, loss=loss, truth=truth, compared=compared)
 
 
 def with_traffic(scores: dict[str, dict[str, Score]],

@@ -144,7 +144,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 {a: net.loss_map(r, a, resolution).values_depths() for a in agents}
             return maps, {a: score_agent(
                 maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
-                loss_leaves=leaves.get(a),
+                loss=leaves.get(a),
                 compared=None if frames.frames.get(a) is not None else compared.get(a))
                 for a in agents}, leaves
 
@@ -257,13 +257,13 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     final = {_scored_as(lane): fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
-    loss_leaves = {r: final[r][2] for r in rules if final[r][2]}
     res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, resolution) for a in agents}
                      for r in rules}, net.traffic, timeline, timings, build_stats=stats,
-                    build_notes=notes, memory=net.memory(), tree=tree, unclamped=net.unclamped_maps(),
-                    central_unclamped=exact, frames=frames.frames, alignment=frames.report(),
-                    loss_leaves=loss_leaves)
+                    build_notes=notes, memory=net.memory(), tree=tree,
+                    unclamped=net.unclamped_maps(), central_unclamped=exact,
+                    frames=frames.frames, alignment=frames.report(),
+                    loss_leaves={r: final[r][2] for r in rules})
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     res.scores = with_traffic({r: scores for r, (_, scores, _) in final.items()}, net.traffic)

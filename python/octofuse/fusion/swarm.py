@@ -168,8 +168,7 @@ class SwarmWorker:
                 out[r][a] = score(self.local[a], c, tol=tol, truth=truth, compared=s)
                 continue
             loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
-            out[r][a] = score(self.fused[a][r], c, tol=tol, loss_leaves=loss.values_depths(),
-                              truth=truth, compared=s,
+            out[r][a] = score(self.fused[a][r], c, tol=tol, loss=loss, truth=truth, compared=s,
                               bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
                               bytes_sent_32b=self.sent_32b[r][a])
         self._check_memory()

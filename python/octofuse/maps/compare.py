@@ -8,7 +8,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..threads import thread_map
-from .infoloss import voxels_per_leaf
+from .infoloss import InfoLossMap, voxels_per_leaf
 from .occupancy import OccupancyMap, ReferenceMap
 
 
@@ -88,7 +88,7 @@ def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float = 0.
 
 def loss_stats(values: np.ndarray, depths: np.ndarray) -> tuple[float, float]:
     """Mean and 95th percentile of a loss map over its finest voxels, from its leaves' values
-    and depths (:meth:`.infoloss.InfoLossMap.values_depths`)."""
+    and depths (:meth:`InfoLossMap.values_depths`)."""
     if len(values) == 0:
         return 0.0, 0.0
     w = voxels_per_leaf(depths)
@@ -132,16 +132,17 @@ def _score_of_counts(d: dict) -> Score:
 
 
 def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
-          loss_leaves: Optional[tuple[np.ndarray, np.ndarray]] = None, truth=None,
+          loss: InfoLossMap | tuple[np.ndarray, np.ndarray] | None = None, truth=None,
           bytes_sent: Optional[int] = None, bytes_received: Optional[int] = None,
           bytes_sent_32b: Optional[int] = None, compared: Optional[Score] = None) -> Score:
     """Every metric of one agent: :func:`compare` (or ``compared``, its result for these maps
-    from :func:`compare_many`), the loss statistics (of ``loss_leaves``, the values and depths
-    of its loss map's leaves), traffic and the occupied-voxel accuracy against a
-    :class:`~octofuse.scene.Scene`."""
+    from :func:`compare_many`), the statistics of its accumulated ``loss`` (the loss map, or
+    its leaves' values and depths as read already: :meth:`InfoLossMap.values_depths`),
+    traffic and the occupied-voxel accuracy against a :class:`~octofuse.scene.Scene`."""
     s = compared if compared is not None else compare(central, agent, tol)
-    if loss_leaves is not None:
-        s.loss_mean, s.loss_p95 = loss_stats(*loss_leaves)
+    if loss is not None:
+        s.loss_mean, s.loss_p95 = loss_stats(
+            *(loss.values_depths() if isinstance(loss, InfoLossMap) else loss))
     s.bytes_sent, s.bytes_received, s.bytes_sent_32b = bytes_sent, bytes_received, bytes_sent_32b
     if truth is not None:
         lv = agent.leaves("occupied")

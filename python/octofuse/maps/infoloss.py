@@ -53,12 +53,13 @@ def voxels_per_leaf(depths: np.ndarray) -> np.ndarray:
 
 def voxels_in_bins(leaves: Sequence[tuple[np.ndarray, np.ndarray]], nbins: int, top: float,
                    block: int = 1 << 18) -> tuple[np.ndarray, float]:
-    """The finest voxels of ``leaves`` (pairs of value and depth arrays: :meth:`InfoLossMap.
-    values_depths` of several maps) in each of ``nbins`` equal bins of [0, ``top``] (``top`` in
-    the last bin, values outside left out), as float64, and the finest voxels of all the
-    leaves. The leaves are counted per bin and depth, ``block`` at a time (no temporary array
-    of every leaf), then weighed: each sum is of integers, so it equals the sum of
-    :func:`voxels_per_leaf` exactly while below 2^53 (a tree holds at most 8^16 = 2^48)."""
+    """The finest voxels of ``leaves`` (pairs of value and depth arrays, as
+    :meth:`InfoLossMap.values_depths` gives them for several maps) in each of ``nbins`` equal
+    bins of [0, ``top``] (``top`` in the last bin, values outside left out), as float64, and
+    the finest voxels of all the leaves. The leaves are counted per bin and depth, ``block``
+    at a time (no temporary array of every leaf), then weighed: each sum is of integers, so
+    it equals the sum of :func:`voxels_per_leaf` exactly while below 2^53 (a tree holds at
+    most 8^16 = 2^48)."""
     nd = len(_VOXELS_AT_DEPTH)
     counts, per_depth = np.zeros(nbins * nd, np.int64), np.zeros(nd, np.int64)
     for values, depths in leaves:

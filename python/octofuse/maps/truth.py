@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _core
+
 
 @dataclass
 class Scene:
@@ -22,7 +24,8 @@ class Scene:
         p = Path(path)
         try:
             data = json.loads(p.read_text())
-            boxes = np.array([_corners(b, k) for k, b in enumerate(data["boxes"])]).reshape(-1, 2, 3)
+            corners = [_corners(b, k) for k, b in enumerate(data["boxes"])]
+            boxes = np.array(corners, dtype=float).reshape(-1, 2, 3)  # (0, 2, 3) without boxes
             return cls(boxes, [b.get("name", "") for b in data["boxes"]],
                        [b.get("kind", "") for b in data["boxes"]])
         except FileNotFoundError:
@@ -67,9 +70,7 @@ class Scene:
     def near_surface(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Whether each point lies within ``tol`` of a box surface (``|signed_distance| <=
         tol``), by the core: each point against the boxes of its cell in a grid over the
-        boxes, with numpy's arithmetic."""
-        from .. import _core
-
+        boxes, with the arithmetic of :meth:`signed_distance`."""
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         return _core._near_box_surfaces(pts, self.boxes, float(tol))
 
@@ -85,6 +86,7 @@ class Scene:
 def _corners(box: dict, k: int) -> np.ndarray:
     """A scene box's min and max corners (2 x 3), checked."""
     lo, hi = (np.asarray(box[key], dtype=float) for key in ("min", "max"))
-    if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
-        raise ValueError(f"box {box.get('name') or k + 1}: min and max must be 3 finite numbers each")
+    if lo.shape != (3,) or hi.shape != (3,) or not np.isfinite([lo, hi]).all():
+        raise ValueError(f"box {box.get('name') or k + 1}: min and max must be 3 finite numbers "
+                         "each")
     return np.stack([lo, hi])
