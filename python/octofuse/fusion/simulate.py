@@ -19,6 +19,7 @@ from ..memory import return_freed_memory
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
+from .central_replay import CentralReplay
 from .graph import make_graph
 from .network import Network
 from .results import LOCAL, SimResult, rule_groups, score_agent, with_traffic
@@ -37,7 +38,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
              progress: Optional[Callable[[int, int], None]] = None,
              source: Optional[ScanSource | ScanReplay] = None,
              observer: Optional[Callable[[float, list, Network, dict], None]] = None,
-             local: bool = True, rays: Optional[RayReplay] = None) -> SimResult:
+             local: bool = True, rays: Optional[RayReplay] = None,
+             central_replay: Optional[CentralReplay] = None) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -57,7 +59,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     ``observer(t, group, network, scans)``, if given, is called after every group of exchanges
     with the number of scans inserted so far per agent. ``local``: map, sample and score the
     agents' own maps too (the floor; robust fusion votes on them). ``rays``: the batches'
-    rays as traced in an earlier pass over the same scans, or kept for later passes.
+    rays as traced in an earlier pass over the same scans, or kept for later passes;
+    ``central_replay``: the centralized map and its snapshots as mapped and taken in an
+    earlier pass, or kept for later passes.
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
@@ -88,8 +92,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         frames = AgentFrames.from_config(agents, fuse_cfg)
         net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
         own = {a: mk() for a in agents} if local else {}
-        central = mk()
-        common = [central] + ([exact] if exact is not None else [])
+        replayed = central_replay is not None and central_replay.replaying
+        central = central_replay.map if replayed else mk()
+        # the maps of the common frame mapped in this pass
+        common = ([] if replayed else [central]) + ([exact] if exact is not None else [])
         inserted: dict[str, int] = {a: 0 for a in agents}
         sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
         timings = net.timings
@@ -148,8 +154,15 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 compared=None if frames.frames.get(a) is not None else compared.get(a))
                 for a in agents}, leaves
 
+        def snapshot(key: str):
+            """The centralized map as it is now, as scored against (a future)."""
+            if replayed:
+                return central_replay.take()
+            ref = submit(COMMON, lambda: ReferenceMap(central), key=key)
+            return central_replay.keep(ref) if central_replay is not None else ref
+
         def sample(t):
-            ref = submit(COMMON, lambda: ReferenceMap(central), key="scoring")
+            ref = snapshot("scoring")
             scored = []
             for lane, maps in ([(COMMON, own)] if local else []) + [(r, net.fused[r]) for r in rules]:
                 r = _scored_as(lane)
@@ -183,6 +196,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 timings["insertion"] += time.perf_counter() - t0
             applied = []
             for lane, ids in lane_maps.items():
+                if not ids:  # the common lane of a pass that replays the centralized map
+                    continue
                 into = [[m for m in t if id(m) in ids] for t in per_scan]
                 sampled.pop(lane, None)
                 applied.append(submit(lane, lambda into=into: apply_rays(traced, into, 1),
@@ -241,7 +256,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         advance(float("inf"))
         # each lane scores its final maps as soon as it is done (a lane that ends first
         # scores while the others still fuse), against the final centralized map
-        ref = submit(COMMON, lambda: ReferenceMap(central), key="final scores")
+        ref = snapshot("final scores")
         finals = {lane: submit(lane, lambda lane=lane, last=sampled.get(lane):
                                final_scores(lane, ref.result(), last),
                                after=() if lane == COMMON else [ref], key="final scores")
@@ -249,6 +264,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         lanes.wait()
         timings["mapping + fusion (wall)"] += time.perf_counter() - t_run
         net.close()
+        if central_replay is not None:
+            central_replay.end_pass(central)
         src.check_placed()
         stats, notes = src.stats, src.notes()
     timeline = [{"t": t, "rule": r, "agent": a, "kl": s.kl_mean, "overconfidence": s.overconfidence,
@@ -281,18 +298,21 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
     only. Robust fusion and alignment on first contact run every rule in one pass
     (:func:`~octofuse.fusion.results.rule_groups`). ``progress`` counts the scans of every
     pass. The bags (or ``source``) are read in the first pass; later passes replay its scans
-    (:class:`~octofuse.scans.replay.ScanReplay`) and their rays
-    (:class:`~octofuse.maps.ray_replay.RayReplay`)."""
+    (:class:`~octofuse.scans.replay.ScanReplay`), their rays
+    (:class:`~octofuse.maps.ray_replay.RayReplay`) and the centralized map with its snapshots
+    (:class:`~.central_replay.CentralReplay`)."""
     fuse_cfg.validate("fuse")
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
     with _opened(source, build_cfg) as src:
         scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
         rays = RayReplay(len(groups))  # and traced once
+        central = CentralReplay(len(groups))  # and the centralized map mapped once
         for k, group in enumerate(groups):
             step = None if progress is None else \
                 (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
             yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples,
-                           truth=truth, progress=step, source=scans, local=k == 0, rays=rays)
+                           truth=truth, progress=step, source=scans, local=k == 0, rays=rays,
+                           central_replay=central)
 
 
 def _opened(source, build_cfg: BuildConfig):
