@@ -166,8 +166,12 @@ def test_tree_consistency_is_enforced():
         buf.add_static_transform("laser", "map", [0, 0, 0], [0, 0, 0, 1])
     with pytest.raises(oio.TransformError, match="is static"):
         buf.add_transform("base_link", "laser", 10 * S, [0, 0, 0], [0, 0, 0, 1])
-    with pytest.raises(ValueError, match="non-zero"):
+    with pytest.raises(ValueError, match="map -> odom at 10000000000 ns: zero rotation quaternion"):
         buf.add_transform("map", "odom", 10 * S, [0, 0, 0], [0, 0, 0, 0])
+    with pytest.raises(ValueError, match="non-finite translation"):
+        buf.add_transform("map", "odom", 10 * S, [0, math.nan, 0], [0, 0, 0, 1])
+    with pytest.raises(ValueError, match="translation beyond"):
+        buf.add_transform("map", "odom", 10 * S, [2e12, 0, 0], [0, 0, 0, 1])
 
 
 def test_samples_out_of_order_and_duplicates():

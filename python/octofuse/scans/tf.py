@@ -21,7 +21,6 @@ write ``/base_link``).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -209,10 +208,9 @@ class TransformBuffer:
                     q: Sequence[float]) -> None:
         """:meth:`add_transform` of Python floats (checked here, made into arrays when the
         link is read: a sample costs microseconds, not a few numpy calls)."""
-        if not all(math.isfinite(x) for x in t):
-            raise ValueError("translations must be finite")
-        if not all(math.isfinite(x) for x in q) or math.sqrt(sum(x * x for x in q)) < 1e-12:
-            raise ValueError("rotation quaternions must be finite and non-zero")
+        why = sample_problem(t, q)
+        if why is not None:
+            raise ValueError(f"transform {parent} -> {child} at {stamp_ns} ns: {why}")
         self._link(parent, child, static=False).add_sample(stamp_ns, t, q)
 
     def add_transforms(
