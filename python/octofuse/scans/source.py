@@ -14,6 +14,7 @@ import numpy as np
 from ..config import AgentSpec, BuildConfig
 from .bags import BagSet
 from .decode import laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
+from .deskew import deskew_scan, deskew_scans
 from .se3 import transform_matrix
 from .tf import (
     ConnectivityError,
@@ -249,13 +250,19 @@ class ScanSource:
             placed.append((p, points, pose, max_range))
         skewed = [k for k, (p, points, _, _) in enumerate(placed) if self.cfg.deskew
                   and hasattr(p.msg, "ranges") and p.msg.time_increment > 0 and len(points)]
-        if self.per_scan_transforms:
-            for k in skewed:
-                p, points, pose, max_range = placed[k]
-                points = self._deskew(p.msg, points, fixed, p.frame, p.stamp, pose)
-                placed[k] = (p, points, pose, max_range)
-        elif skewed:
-            self._deskew_many(placed, skewed, fixed)
+        if skewed:
+            rows = [placed[k] for k in skewed]
+            if self.per_scan_transforms:
+                moved = [deskew_scan(self.tf, self._time_range, fixed, p.msg, points, p.frame,
+                                     p.stamp, pose) for p, points, pose, _ in rows]
+            else:
+                moved = deskew_scans(self.tf, self._time_range, fixed, [r[0].msg for r in rows],
+                                     [r[1] for r in rows], [r[0].frame for r in rows],
+                                     [r[0].stamp for r in rows], [r[2] for r in rows])
+            for k, points in zip(skewed, moved):
+                if points is not None:  # else its beam timing gives no motion correction
+                    p, _, pose, max_range = placed[k]
+                    placed[k] = (p, points, pose, max_range)
         out = []
         for (p, _, pose, max_range), points in zip(placed, self._keep_traceable(placed)):
             st = self.stats[p.agent]
@@ -365,58 +372,6 @@ class ScanSource:
             out.append(points[keep[ends[k] - sizes[k]:ends[k]]])
         return out
 
-    def _deskew(self, msg, points, fixed, frame, stamp, pose) -> np.ndarray:
-        """Move each beam's point by the sensor motion between the scan stamp and its beam time.
-
-        Points come back in the sensor frame at ``stamp``: p = T(stamp)^-1 T(t_i) p_i, with
-        t_i = stamp + i * time_increment (beam times clipped to the transforms' time range).
-        """
-        t = _beam_times(points, msg.angle_min, msg.angle_increment,
-                        float(msg.time_increment) * 1e9, stamp)
-        if not np.all(np.isfinite(t)):  # degenerate beam timing: no motion correction
-            return points
-        lo, hi = self._time_range(fixed, frame)
-        if lo is not None:
-            t = np.clip(t, lo, hi)
-        T = self.tf.lookup_many(fixed, frame, t.astype(np.int64))
-        world = np.einsum("kij,kj->ki", T[:, :3, :3], points) + T[:, :3, 3]
-        inv = np.linalg.inv(pose)
-        return world @ inv[:3, :3].T + inv[:3, 3]
-
-    def _deskew_many(self, placed: list, skewed: list[int], fixed: str) -> None:
-        """:meth:`_deskew` of the scans ``placed[k]`` for ``k`` in ``skewed``, in place: the
-        beam times of all of them at once, and one :meth:`TransformBuffer.transform_points`
-        per frame over all their beams (no 4x4 matrix per beam)."""
-        msgs = [placed[k][0].msg for k in skewed]
-        pts = [placed[k][1] for k in skewed]
-        sizes = np.array([len(p) for p in pts])
-        starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        per_beam = lambda values: np.repeat(np.array(values, dtype=np.float64), sizes)  # noqa: E731
-        t = _beam_times(np.concatenate(pts), per_beam([m.angle_min for m in msgs]),
-                        per_beam([m.angle_increment for m in msgs]),
-                        per_beam([float(m.time_increment) * 1e9 for m in msgs]),
-                        per_beam([placed[k][0].stamp for k in skewed]))
-        timed = np.logical_and.reduceat(np.isfinite(t), starts)  # else no motion correction
-        by_frame: dict[str, list[int]] = {}
-        for j, k in enumerate(skewed):
-            if timed[j]:
-                by_frame.setdefault(placed[k][0].frame, []).append(j)
-        for frame, js in by_frame.items():
-            beams = np.concatenate([np.arange(starts[j], starts[j] + sizes[j]) for j in js])
-            tf = t[beams]
-            lo, hi = self._time_range(fixed, frame)
-            if lo is not None:
-                tf = np.clip(tf, lo, hi)
-            world = self.tf.transform_points(fixed, frame, tf.astype(np.int64),
-                                             np.concatenate([pts[j] for j in js]))
-            at = 0
-            for j in js:
-                p, _, pose, max_range = placed[skewed[j]]
-                mine = world[at:at + sizes[j]]
-                at += sizes[j]
-                # back into the sensor frame at the scan's stamp: R^T (x - t)
-                placed[skewed[j]] = (p, (mine - pose[:3, 3]) @ pose[:3, :3], pose, max_range)
-
     def _decode(self, msg) -> tuple[np.ndarray, float]:
         cfg = self.cfg
         if hasattr(msg, "ranges"):
@@ -442,16 +397,6 @@ class _Pending:
     msg: object
     stamp: int
     frame: str
-
-
-def _beam_times(points: np.ndarray, angle_min, angle_increment, time_increment_ns,
-                stamp) -> np.ndarray:
-    """Stamps (float ns) of the beams that gave the points of a LaserScan: the beam index
-    from each point's bearing, ``stamp + index * time_increment`` (scalars or per point)."""
-    ang = np.arctan2(points[:, 1], points[:, 0])
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        idx = np.rint(np.mod(ang - angle_min, 2 * np.pi) / angle_increment)
-        return stamp + idx * time_increment_ns
 
 
 def _laserscan_problem(msg) -> str | None:
