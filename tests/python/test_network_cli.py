@@ -207,6 +207,39 @@ def test_build_then_fuse(built, tmp_path, capsys):
     assert "# octofuse fuse: 2 rounds over complete" in (out / "report.md").read_text()
 
 
+@pytest.mark.parametrize("fmt", ["mcap", "bag"])
+def test_fuse_writes_every_round_to_a_bag(built, tmp_path, capsys, fmt):
+    """--export-bag: one message per rule, receiver and round it fused in, stamped with the
+    round (s); each agent's last one is its written map."""
+    from octofuse.outputs.rosbag_export import read_map_bag
+
+    out, replay = tmp_path / "fused", tmp_path / f"rounds.{fmt}"
+    rules = ["min-info-loss", "channel-filter"]
+    code, text, err = run_cli(capsys, "fuse", built, "--topology", "line", "--rounds", "3",
+                              "--rules", ",".join(rules), "--export-bag", replay, "--out", out)
+    assert code == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    want = {(e["rule"], e["receiver"], round(e["t"] * 1e9)) for e in s["fusion_events"]}
+    got = read_map_bag(replay)
+    assert len(got) == len(want) == s["event_bag"]["messages"] > 0
+    assert f"bag: {replay} ({len(got)} map messages)" in text
+    assert sorted((t, st) for t, st, _ in got) == sorted(
+        (f"/octofuse/{r}/{a}/octomap", st) for r, a, st in want)
+    assert {st for _, st, _ in got} == {0, S, 2 * S}
+    for r in rules:
+        for a in AGENTS:
+            last = [m for t, _, m in got if t == f"/octofuse/{r}/{a}/octomap"][-1]
+            assert_same_map(last, OccupancyMap.load(out / r / f"{a}.ot"), (r, a))
+    # the same maps as without the bag (there, the rules run in groups)
+    plain = tmp_path / "plain"
+    assert run_cli(capsys, "fuse", built, "--topology", "line", "--rounds", "3", "--rules",
+                   ",".join(rules), "--out", plain)[0] == 0
+    for r in rules:
+        for a in AGENTS:
+            assert_same_map(OccupancyMap.load(plain / r / f"{a}.ot"),
+                            OccupancyMap.load(out / r / f"{a}.ot"), (r, a))
+
+
 def test_fuse_without_a_centralized_map_scores_nothing(built, tmp_path, capsys):
     maps = tmp_path / "maps"
     maps.mkdir()

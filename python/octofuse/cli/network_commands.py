@@ -35,7 +35,12 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 
     out = check_replaceable(cfg.out)
     truth = Scene.find(cfg.truth, cfg.build.bags)
-    bag = _event_bag(export_bag, cfg, out) if export_bag is not None else None
+    bag = None
+    if export_bag is not None:
+        if cfg.export_agents == "none":
+            raise CliError("--export-bag: no agent is exported (--export-agents none)")
+        bag = _event_bag(export_bag, cfg, out,
+                         lambda agents: _export_agents(cfg.export_agents, agents))
     import_output_libraries()  # once the inputs are checked: an exit waits for the imports
     try:
         with staged_folder(out, command) as stage:
@@ -92,17 +97,16 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     return merge_rule_results(parts), written
 
 
-def _event_bag(path: Path, cfg: RunConfig, out: Path):
-    """The per-event bag of ``--export-bag``, checked and opened before the run."""
+def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
+    """The per-event bag of ``--export-bag`` with the maps of the agents ``select(agents)``,
+    checked and opened before the run."""
     from ..outputs.event_bag import FusionEventBag
 
-    if cfg.export_agents == "none":
-        raise CliError("--export-bag: no agent is exported (--export-agents none)")
     if path.absolute() == out.absolute() or out.absolute() in path.absolute().parents:
         raise CliError(f"--export-bag '{path}' is inside --out '{out}', which is replaced "
                        "whole; give a path outside it")
     return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"),
-                          select=lambda agents: _export_agents(cfg.export_agents, agents))
+                          select=select)
 
 
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
@@ -196,11 +200,12 @@ def demo(export_bag, **p):
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @frame_options
 @export_options
+@export_bag_option
 @config_options
 @out_option
-def fuse_cmd(maps_dir, rounds, **p):
+def fuse_cmd(maps_dir, rounds, export_bag, **p):
     """Fuse finished maps (a folder written by `octofuse build`) over a graph for R rounds."""
-    from ..fusion.rounds import fuse_finished_in_rule_groups
+    from ..fusion.rounds import fuse_finished, fuse_finished_in_rule_groups
     from ..maps.occupancy import OccupancyMap
     from ..maps.truth import Scene
     from ..outputs.report import write_outputs
@@ -222,15 +227,28 @@ def fuse_cmd(maps_dir, rounds, **p):
     central = OccupancyMap.load(central_path) if central_path.is_file() else None
     truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
-    with staged_folder(out, "fuse") as stage:
-        # a few rules at a time: their maps written, then freed before the next ones run
-        res, written = write_rule_groups(
-            fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
-                                         threads=cfg.build.workers),
-            stage, cfg, lambda agents: agents)
-        write_outputs(res, stage, cfg, title=title, maps=written)
+    every = lambda agents: agents  # noqa: E731  (every agent's maps are written)
+    bag = _event_bag(export_bag, cfg, out, every) if export_bag is not None else None
+    try:
+        with staged_folder(out, "fuse") as stage:
+            if bag is not None:  # every rule in one group, the bag written round by round
+                groups = (fuse_finished(maps, central, cfg.fuse, truth=truth,
+                                        threads=cfg.build.workers, observer=bag)
+                          for _ in range(1))
+            else:  # a few rules at a time: their maps written, then freed before the next
+                groups = fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
+                                                      threads=cfg.build.workers)
+            res, written = write_rule_groups(groups, stage, cfg, every)
+            write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
+            if bag is not None:
+                bag.close()
+    finally:
+        if bag is not None:
+            bag.abort()  # nothing once closed
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")
+    if bag is not None:
+        say(f"bag: {bag.path} ({bag.messages} map messages)")
 
 
 @cli.command()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from typing import Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
@@ -18,7 +18,9 @@ from .schedule import drop_messages, parse_schedule, rounds as make_rounds
 
 def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
                   fuse_cfg: FuseConfig, *, truth=None, threads: int = 0,
-                  score_local: bool = True) -> SimResult:
+                  score_local: bool = True,
+                  observer: Optional[Callable[[float, list, Network, dict], None]] = None
+                  ) -> SimResult:
     """Fuse finished maps over the graph for the rounds of ``fuse_cfg.schedule``
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
     start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
@@ -28,7 +30,9 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     Each map is in its agent's frame (``fuse_cfg.agent_frames``; messages are moved into the
     receiver's, or the links aligned on first contact with ``fuse_cfg.align``) and ``central``
     in the common frame: the agents' maps are moved into it to be scored. ``score_local``:
-    score the agents' own maps too (the floor)."""
+    score the agents' own maps too (the floor). ``observer(t, round, network, {})``, if
+    given, is called after every round, ``t`` its index (the rounds' ``time_s``), as
+    :func:`~octofuse.fusion.simulate.simulate` calls it after a group of exchanges."""
     fuse_cfg.validate("fuse")
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
@@ -58,8 +62,10 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
                   tree=tree, frames=frames)
     net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
-    for rnd in rounds:
+    for k, rnd in enumerate(rounds):
         net.exchange(rnd)  # double-buffered: contents taken before fusing
+        if observer is not None and rnd:
+            observer(float(k), rnd, net, {})
     net.close()
     fused, unclamped = net.result_maps()
     res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
