@@ -467,6 +467,25 @@ def test_fuse_needs_a_folder_of_maps(built, tmp_path, capsys):
     assert_one_error(code, err, "holds 1 agent map(s)", "at least 2")
 
 
+def test_bench_with_an_agent_in_its_own_frame_scores_as_run_does(bag, tmp_path, capsys):
+    args = ["--rules", "chernoff", "--schedule", "periodic:1", "--resolution", RES,
+            "--agent-frame", "b=0.2,0,0,0,0,0.1"]
+    code, _, err = run_cli(capsys, "bench", bag, *args, "--topologies", "ring",
+                           "--executor", "serial", "--out", tmp_path / "bench")
+    assert code == 0, err
+    with (tmp_path / "bench" / "bench.csv").open() as f:
+        rows = {r["rule"]: r for r in csv.DictReader(f)}
+    code, _, err = run_cli(capsys, "run", bag, *args, "--topology", "ring", "--samples", "0",
+                           "--out", tmp_path / "run")
+    assert code == 0, err
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["agent_frames"]["b"]["x"] == pytest.approx(0.2)
+    for rule in ("chernoff", LOCAL):
+        for key in ("kl_mean", "overconfidence", "coverage"):
+            assert float(rows[rule][key]) == pytest.approx(run["mean"][rule][key], rel=1e-12), \
+                (rule, key)
+
+
 @pytest.mark.parametrize("args, needles", [
     (["--topologies", "ring,hexagon"], ["unknown topology 'hexagon'"]),
     (["--topologies", "ring,SPLIT"], ["is disconnected"]),

@@ -264,6 +264,7 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
 @click.option("--resume", is_flag=True, help="reuse the finished cells of --out and of an "
               "interrupted run")
 @exchange_options
+@frame_options
 @passes_option(_DEFAULT.fuse.rules_per_pass)
 @build_options
 @config_options
