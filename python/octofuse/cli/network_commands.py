@@ -42,29 +42,23 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
         bag = _event_bag(export_bag, cfg, out,
                          lambda agents: _export_agents(cfg.export_agents, agents))
     import_output_libraries()  # once the inputs are checked: an exit waits for the imports
-    try:
-        with staged_folder(out, command) as stage:
-            with contextlib.ExitStack() as stack:
-                bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
-                if bag is not None:  # one pass in bag time: the bags' start is needed first
-                    from ..scans.source import ScanSource
+    with staged_folder(out, command) as stage, _complete_or_dropped(bag):
+        with contextlib.ExitStack() as stack:
+            bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
+            if bag is not None:  # one pass in bag time: the bags' start is needed first
+                from ..scans.source import ScanSource
 
-                    src = stack.enter_context(ScanSource(cfg.build))
-                    bag.start_ns = src.bags.start_ns or 0
-                    passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
-                                       progress=bar, source=src, observer=bag)
-                              for _ in range(1))  # run when asked for, not held afterwards
-                else:
-                    passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
-                                                     truth=truth, progress=bar)
-                res, written = write_rule_groups(
-                    passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
-            write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
-            if bag is not None:
-                bag.close()
-    finally:
-        if bag is not None:
-            bag.abort()  # nothing once closed
+                src = stack.enter_context(ScanSource(cfg.build))
+                bag.start_ns = src.bags.start_ns or 0
+                passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
+                                   progress=bar, source=src, observer=bag)
+                          for _ in range(1))  # run when asked for, not held afterwards
+            else:
+                passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
+                                                 truth=truth, progress=bar)
+            res, written = write_rule_groups(
+                passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
+        write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     console().print(scores_table(res, title))
     if bag is not None:
         say(f"bag: {bag.path} ({bag.messages} map messages)")
@@ -107,6 +101,19 @@ def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
                        "whole; give a path outside it")
     return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"),
                           select=select)
+
+
+@contextlib.contextmanager
+def _complete_or_dropped(bag):
+    """The per-event bag (or None) finished when the block ends well (before the output folder
+    it is named in is put in place), dropped otherwise."""
+    try:
+        yield
+        if bag is not None:
+            bag.close()
+    finally:
+        if bag is not None:
+            bag.abort()  # nothing once closed
 
 
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
@@ -229,22 +236,16 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     every = lambda agents: agents  # noqa: E731  (every agent's maps are written)
     bag = _event_bag(export_bag, cfg, out, every) if export_bag is not None else None
-    try:
-        with staged_folder(out, "fuse") as stage:
-            if bag is not None:  # every rule in one group, the bag written round by round
-                groups = (fuse_finished(maps, central, cfg.fuse, truth=truth,
-                                        threads=cfg.build.workers, observer=bag)
-                          for _ in range(1))
-            else:  # a few rules at a time: their maps written, then freed before the next
-                groups = fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
-                                                      threads=cfg.build.workers)
-            res, written = write_rule_groups(groups, stage, cfg, every)
-            write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
-            if bag is not None:
-                bag.close()
-    finally:
-        if bag is not None:
-            bag.abort()  # nothing once closed
+    with staged_folder(out, "fuse") as stage, _complete_or_dropped(bag):
+        if bag is not None:  # every rule in one group, the bag written round by round
+            groups = (fuse_finished(maps, central, cfg.fuse, truth=truth,
+                                    threads=cfg.build.workers, observer=bag)
+                      for _ in range(1))
+        else:  # a few rules at a time: their maps written, then freed before the next
+            groups = fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
+                                                  threads=cfg.build.workers)
+        res, written = write_rule_groups(groups, stage, cfg, every)
+        write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")
     if bag is not None:
