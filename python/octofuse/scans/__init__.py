@@ -10,7 +10,8 @@
   :func:`load_transforms` fills one from a :class:`BagSet`.
 """
 
-from .bags import BagError, BagMessage, BagSet, TopicInfo, normalize_msgtype
+from .bags import BagError, BagMessage, BagSet, TopicInfo
+from .msgtypes import normalize_msgtype
 from .decode import POINTFIELD_DTYPES, laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
 from .se3 import invert_transform, matrix_to_quaternion, quaternion_to_matrix, transform_matrix
 from .tf import (
