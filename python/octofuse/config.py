@@ -267,9 +267,10 @@ class FuseConfig:
         if CHANNEL_FILTER in self.rules:
             raise ValueError(f"{where}: the {CHANNEL_FILTER} rule needs every agent in one frame "
                              f"(its arithmetic on resampled maps is not exact), but {why}")
-        if self.robust.enabled:
-            raise ValueError(f"{where}: robust fusion needs every agent in one frame (it "
-                             f"measures the maps' offsets itself), but {why}")
+        if self.robust.enabled and self.align != "off":
+            raise ValueError(f"{where}: robust fusion measures the maps' offsets itself (in "
+                             f"the common frame, each map moved by its agent's frame), but "
+                             f"align = {self.align}")
 
 
 @dataclass

@@ -20,7 +20,8 @@ from conftest import expand, random_map  # noqa: E402
 from test_frames import SENSORS, room_map  # noqa: E402
 
 from octofuse import OccupancyMap  # noqa: E402
-from octofuse.config import AgentFrame, FuseConfig, RunConfig, from_dict  # noqa: E402
+from octofuse.config import (AgentFrame, FuseConfig, RobustConfig, RunConfig,  # noqa: E402
+                             from_dict)
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
@@ -232,6 +233,23 @@ def test_transform_error_is_the_relative_motion():
 # -- what is refused ------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("bias", ["shift", "turn"])
+def test_robust_fusion_votes_on_the_maps_in_the_common_frame(lab, bias):
+    """robot3's biased poses: without its frame its map is off by the bias and voted out; with
+    it, its map moved into the common frame agrees with its neighbours' and it is kept."""
+    def vote(**fuse):
+        fcfg = FuseConfig(rules=[RULE], topology="max-robust:3", schedule="periodic:10",
+                          robust=RobustConfig(enabled=True, time=20.0), **fuse)
+        res = simulate(make_build_config(lab[bias], threads=2), fcfg, samples=0)
+        return res, res.robust.measurements[res.agents.index("robot3")]
+
+    res, offset = vote()
+    assert res.excluded == ["robot3"] and np.hypot(*offset[:2]) > 0.35
+    res, offset = vote(agent_frames=[AgentFrame("robot3", bias_frame(lab[bias]))])
+    assert res.excluded == [] and np.hypot(*offset[:2]) < 0.05 and abs(offset[2]) < 0.01
+    assert not res.robust.abstained[res.agents.index("robot3")]
+
+
 @pytest.fixture(scope="module")
 def small_bag(tmp_path_factory):
     return bf.team_bag(tmp_path_factory.mktemp("bag"), 2, 2)
@@ -245,7 +263,7 @@ def small_bag(tmp_path_factory):
     (["--agent-frame", "a=1,0,0,0,0,0", "--rules", "channel-filter"],
      "the channel-filter rule needs every agent in one frame"),
     (["--align", "planar", "--rules", "channel-filter"], "but align = planar"),
-    (["--agent-frame", "b=0,0,0,0,0,0.1", "--robust"], "robust fusion needs every agent in one frame"),
+    (["--align", "planar", "--robust"], "robust fusion measures the maps' offsets itself"),
 ])
 def test_bad_frames_are_one_line_and_exit_1(small_bag, tmp_path, capsys, flags, needle):
     out = tmp_path / "o"

@@ -220,7 +220,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
                 if kind == -1:
-                    vote.append(submit(COMMON, lambda t=t: _vote(own, graph, fuse_cfg, t)).result())
+                    # on the agents' own maps in the common frame
+                    vote.append(submit(COMMON, lambda t=t: _vote(
+                        {a: frames.to_common(a, m) for a, m in own.items()}, graph, fuse_cfg,
+                        t)).result())
                 elif kind == 0:
                     if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
                         out = set(vote[0].excluded) if vote else set()
