@@ -17,12 +17,11 @@ from .se3 import invert_transform, matrix_to_quaternion, quaternion_to_matrix, t
 from .tf import (
     ConnectivityError,
     ExtrapolationError,
-    PoseSource,
     TransformBuffer,
     TransformError,
     UnknownFrameError,
-    load_transforms,
 )
+from .tf_bags import PoseSource, load_transforms
 
 __all__ = [
     "POINTFIELD_DTYPES",

@@ -16,14 +16,8 @@ from .bags import BagSet
 from .decode import laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
 from .deskew import deskew_scan, deskew_scans
 from .se3 import transform_matrix
-from .tf import (
-    ConnectivityError,
-    ExtrapolationError,
-    PoseSource,
-    TransformError,
-    UnknownFrameError,
-    load_transforms,
-)
+from .tf import ConnectivityError, ExtrapolationError, TransformError, UnknownFrameError
+from .tf_bags import PoseSource, load_transforms
 
 LASERSCAN = "sensor_msgs/msg/LaserScan"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
