@@ -490,6 +490,7 @@ def test_bench_with_an_agent_in_its_own_frame_scores_as_run_does(bag, tmp_path, 
     (["--topologies", "ring,hexagon"], ["unknown topology 'hexagon'"]),
     (["--topologies", "ring,SPLIT"], ["is disconnected"]),
     (["--rules", "chernoff,bayes"], ["unknown fusion rule 'bayes'"]),
+    (["--rules", "chernoff", "--agent-frame", "zz=1,0,0,0,0,0"], ["unknown agent 'zz'"]),
 ])
 def test_bench_bad_input_fails_before_any_run(bag, split_graph, tmp_path, capsys, args, needles):
     args = [a.replace("SPLIT", str(split_graph)) for a in args]

@@ -30,7 +30,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     from ..maps.truth import Scene
     from ..outputs.libraries import import_output_libraries
     from ..outputs.report import write_outputs
-    from ..outputs.staging import check_replaceable, staged_folder
+    from ..outputs.staging import check_replaceable
     from ..outputs.tables import scores_table
 
     out = check_replaceable(cfg.out)
@@ -42,7 +42,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
         bag = _event_bag(export_bag, cfg, out,
                          lambda agents: _export_agents(cfg.export_agents, agents))
     import_output_libraries()  # once the inputs are checked: an exit waits for the imports
-    with staged_folder(out, command) as stage, _complete_or_dropped(bag):
+    with _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
             if bag is not None:  # one pass in bag time: the bags' start is needed first
@@ -104,13 +104,16 @@ def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
 
 
 @contextlib.contextmanager
-def _complete_or_dropped(bag):
-    """The per-event bag (or None) finished when the block ends well (before the output folder
-    it is named in is put in place), dropped otherwise."""
+def _staged_with_bag(out: Path, command: str, bag):
+    """:func:`~octofuse.outputs.staging.staged_folder` of ``out``, with the per-event bag (or
+    None) finished before the folder is put in place, and dropped if anything fails."""
+    from ..outputs.staging import staged_folder
+
     try:
-        yield
-        if bag is not None:
-            bag.close()
+        with staged_folder(out, command) as stage:
+            yield stage
+            if bag is not None:
+                bag.close()
     finally:
         if bag is not None:
             bag.abort()  # nothing once closed
@@ -216,7 +219,7 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     from ..maps.occupancy import OccupancyMap
     from ..maps.truth import Scene
     from ..outputs.report import write_outputs
-    from ..outputs.staging import check_replaceable, staged_folder
+    from ..outputs.staging import check_replaceable
 
     cfg = run_config({**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
                      bags=[maps_dir], defaults={"fuse": {"schedule": "rounds:3"}})
@@ -236,7 +239,7 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     every = lambda agents: agents  # noqa: E731  (every agent's maps are written)
     bag = _event_bag(export_bag, cfg, out, every) if export_bag is not None else None
-    with staged_folder(out, "fuse") as stage, _complete_or_dropped(bag):
+    with _staged_with_bag(out, "fuse", bag) as stage:
         if bag is not None:  # every rule in one group, the bag written round by round
             groups = (fuse_finished(maps, central, cfg.fuse, truth=truth,
                                     threads=cfg.build.workers, observer=bag)

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 from ..config import RunConfig, to_dict
+from ..fusion.agent_frames import AgentFrames
 from ..fusion.executors import Executor, SerialExecutor, make_executor
 from ..fusion.graph import make_graph
 from .report import COLUMNS, mean_scores
@@ -186,10 +187,11 @@ def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address,
          cpus_per_cell, memory_per_cell) -> list[Path]:
     sources = _SharedSources(stack)
     n_agents = _agent_counts(cfg, cells, sources)
-    for cell in cells:
+    for cell in cells:  # the graphs and agent frames on the bags' agents, before any cell
         if cell.bags in n_agents:
             make_graph(cell.topology, n_agents[cell.bags][0], seed=cell.seed,
                        names=n_agents[cell.bags][1])
+            AgentFrames.from_config(n_agents[cell.bags][1], cfg.fuse)
     axes = [a for a, vals in (("bags", {c.bags for c in cells}), ("topology", {c.topology for c in cells}),
                               ("schedule", {c.schedule for c in cells}), ("seed", {c.seed for c in cells}))
             if len(vals) > 1 or a == "topology"]

@@ -3,7 +3,7 @@ point is moved by the sensor's motion between the scan's stamp and its beam's ti
 
 from __future__ import annotations
 
-from typing import Callable, Optional, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -47,22 +47,22 @@ def deskew_scan(tf: TransformBuffer, time_range: TimeRange, fixed: str, msg, poi
 
 def deskew_scans(tf: TransformBuffer, time_range: TimeRange, fixed: str, msgs: Sequence,
                  points: Sequence[np.ndarray], frames: Sequence[str], stamps: Sequence[int],
-                 poses: Sequence[np.ndarray]) -> list[Optional[np.ndarray]]:
+                 poses: Sequence[np.ndarray]) -> list[np.ndarray]:
     """:func:`deskew_scan` of several scans: the beam times of all of them at once, and one
     :meth:`TransformBuffer.transform_points` per frame over all their beams (no 4x4 matrix per
-    beam). None for a scan whose beam timing is degenerate (no motion correction)."""
+    beam)."""
     sizes = np.array([len(p) for p in points])
     starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
     per_beam = lambda values: np.repeat(np.array(values, dtype=np.float64), sizes)  # noqa: E731
     t = beam_times(np.concatenate(points), per_beam([m.angle_min for m in msgs]),
                    per_beam([m.angle_increment for m in msgs]),
                    per_beam([float(m.time_increment) * 1e9 for m in msgs]), per_beam(stamps))
-    timed = np.logical_and.reduceat(np.isfinite(t), starts)
+    timed = np.logical_and.reduceat(np.isfinite(t), starts)  # else no motion correction
     by_frame: dict[str, list[int]] = {}
     for j, frame in enumerate(frames):
         if timed[j]:
             by_frame.setdefault(frame, []).append(j)
-    out: list[Optional[np.ndarray]] = [None] * len(points)
+    out = list(points)
     for frame, js in by_frame.items():
         beams = np.concatenate([np.arange(starts[j], starts[j] + sizes[j]) for j in js])
         tf_ns = t[beams]

@@ -254,9 +254,8 @@ class ScanSource:
                                      [r[1] for r in rows], [r[0].frame for r in rows],
                                      [r[0].stamp for r in rows], [r[2] for r in rows])
             for k, points in zip(skewed, moved):
-                if points is not None:  # else its beam timing gives no motion correction
-                    p, _, pose, max_range = placed[k]
-                    placed[k] = (p, points, pose, max_range)
+                p, _, pose, max_range = placed[k]
+                placed[k] = (p, points, pose, max_range)
         out = []
         for (p, _, pose, max_range), points in zip(placed, self._keep_traceable(placed)):
             st = self.stats[p.agent]
