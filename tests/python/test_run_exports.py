@@ -339,7 +339,10 @@ def test_bad_export_flags_are_one_line(bag, tmp_path, capsys, flags, message):
 
 
 def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
-    from octofuse.outputs.report import plot_loss_histograms
+    from octofuse.outputs.loss_histogram import count_loss_histograms, plot_loss_histograms
+
+    def plot(data, path, threads):
+        return plot_loss_histograms(count_loss_histograms(data, threads), path)
 
     rng = np.random.default_rng(3)
 
@@ -350,15 +353,15 @@ def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
     data = {"chernoff": agents(0.3), "min-info-loss": agents(0.5),
             "empty": [(np.zeros(0, np.float32), np.zeros(0, np.uint8))]}
     kept = {r: [(v.copy(), d.copy()) for v, d in leaves] for r, leaves in data.items()}
-    one = plot_loss_histograms(data, tmp_path / "one.png", 1)
-    two = plot_loss_histograms(data, tmp_path / "two.png", 2)
+    one = plot(data, tmp_path / "one.png", 1)
+    two = plot(data, tmp_path / "two.png", 2)
     assert one.read_bytes() == two.read_bytes()
     for r, leaves in data.items():  # the agents' values are left as they were
         assert all(np.array_equal(v, kv) and np.array_equal(d, kd)
                    for (v, d), (kv, kd) in zip(leaves, kept[r]))
     # the agents' leaves in one array draw the same image
     whole = {r: [tuple(np.concatenate(x) for x in zip(*leaves))] for r, leaves in data.items()}
-    assert plot_loss_histograms(whole, tmp_path / "whole.png", 2).read_bytes() == one.read_bytes()
+    assert plot(whole, tmp_path / "whole.png", 2).read_bytes() == one.read_bytes()
     # a rule with other values draws another image
     data["chernoff"] = [(v * 2, d) for v, d in data["chernoff"]]
-    assert plot_loss_histograms(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()
+    assert plot(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -14,8 +15,7 @@ from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
 from ..fusion.results import LOCAL, SimResult
 from ..maps.frames import matrix_pose
-from ..maps.infoloss import voxels_in_bins
-from ..threads import thread_map
+from .loss_histogram import count_loss_histograms, plot_loss_histograms
 from .map_exports import MapExports
 from .libraries import pyplot
 
@@ -193,42 +193,6 @@ def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
     return path
 
 
-def plot_loss_histograms(data: dict[str, Sequence[tuple[np.ndarray, np.ndarray]]],
-                         path: Path, threads: int = 1) -> Optional[Path]:
-    """The loss histogram of every rule: ``data`` maps a rule to the loss values and depths
-    of each of its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`); the
-    rules' histograms are counted on ``threads`` threads."""
-    if not data:
-        return None
-    plt = pyplot()
-
-    rules = [r for r, leaves in data.items() if any(len(v) for v, _ in leaves)]
-    # the values of all agents, partitioned in place by the percentile
-    tops = thread_map(lambda r: float(np.percentile(np.concatenate([v for v, _ in data[r]]), 99.5,
-                                                    overwrite_input=True)), rules, threads)
-    nbins, top = 59, max([0.0, *tops]) or 1.0
-    bins = np.linspace(0, top, nbins + 1)
-
-    def fractions(r):  # fraction of the fused voxels per bin (a leaf weighs the voxels it covers)
-        per_bin, total = voxels_in_bins(data[r], nbins, top)
-        return per_bin / total
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for r, h in zip(rules, thread_map(fractions, rules, threads)):
-        ax.stairs(h, bins, lw=1.3, label=r)
-    ax.set_xlabel("accumulated information loss per voxel [nats]")
-    ax.set_ylabel("fraction of fused voxels")
-    ax.set_yscale("log")
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    ax.set_title("Information loss over all fusions, all agents")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
                   export_agents: Optional[Sequence[str]] = None, heatmaps: bool = True,
                   title: str = "octofuse run", event_bag=None,
@@ -245,14 +209,17 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         agents = list(export_agents) if export_agents is not None else res.agents
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
-    exported = maps.finish()
+    # the histograms are counted (numpy, the GIL let go) while the figures are drawn here
+    with ThreadPoolExecutor(1, thread_name_prefix="octofuse-histogram") as counting:
+        hist = counting.submit(count_loss_histograms, maps.histogram, cfg.build.workers)
+        exported = maps.finish()
+        paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
+                 "loss_hist": plot_loss_histograms(hist.result(),
+                                                   out / "info_loss_histogram.png")}
     res.timings["export"] = res.timings.get("export", 0.0) + maps.seconds
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
-    paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
-             "loss_hist": plot_loss_histograms(maps.histogram, out / "info_loss_histogram.png",
-                                               cfg.build.workers)}
     means = mean_scores(res.scores) if res.scores else {}
     exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {
