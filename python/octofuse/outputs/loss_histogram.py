@@ -1,6 +1,6 @@
 """The report's loss histogram: every rule's accumulated information loss per fused voxel,
-counted from its agents' loss leaves, then drawn. Counting is numpy on large arrays (it runs
-on threads, beside the drawing of other figures); drawing is Matplotlib."""
+counted from its agents' loss leaves (numpy on large arrays, the rules on threads), then
+drawn (Matplotlib)."""
 
 from __future__ import annotations
 

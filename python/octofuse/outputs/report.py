@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -209,17 +208,15 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         agents = list(export_agents) if export_agents is not None else res.agents
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
-    # the histograms are counted (numpy, the GIL let go) while the figures are drawn here
-    with ThreadPoolExecutor(1, thread_name_prefix="octofuse-histogram") as counting:
-        hist = counting.submit(count_loss_histograms, maps.histogram, cfg.build.workers)
-        exported = maps.finish()
-        paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
-                 "loss_hist": plot_loss_histograms(hist.result(),
-                                                   out / "info_loss_histogram.png")}
+    exported = maps.finish()
     res.timings["export"] = res.timings.get("export", 0.0) + maps.seconds
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
+    paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
+             "loss_hist": plot_loss_histograms(
+                 count_loss_histograms(maps.histogram, cfg.build.workers),
+                 out / "info_loss_histogram.png")}
     means = mean_scores(res.scores) if res.scores else {}
     exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {
