@@ -460,6 +460,19 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, 
     for r, per in whole_and_delta[False].scores.items():
         for a, sc in per.items():
             assert one.scores[r][a].to_dict() == sc.to_dict(), (r, a)
+    # the loss leaves the final scores read are kept only when asked (for a loss histogram);
+    # otherwise they are read again from the loss maps: the same arrays
+    assert not any(per for p in (one, *parts) for per in p.loss_leaves.values())
+    kept = list(simulate_in_rule_groups(run_config(team_bag), cfg, samples=0,
+                                        keep_loss_leaves=True))
+    wep = [r for r in SOME_RULES if r != "naive-bayes"]
+    for p in kept:
+        for r in p.rules:
+            assert p.loss_leaves[r].keys() == set(one.agents)
+            for a in one.agents:
+                for x, y in zip(p.loss_leaves[r][a], one.loss_leaves_of(r, a)):
+                    np.testing.assert_array_equal(x, y)
+            assert r not in wep or any(len(p.loss_leaves[r][a][0]) for a in one.agents)
     robust = FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES, rules_per_pass=1)
     robust.robust.enabled = True
     groups = simulate_in_rule_groups(run_config(team_bag), robust, samples=0)

@@ -51,11 +51,11 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                 src = stack.enter_context(ScanSource(cfg.build))
                 bag.start_ns = src.bags.start_ns or 0
                 passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
-                                   progress=bar, source=src, observer=bag)
+                                   progress=bar, source=src, observer=bag, keep_loss_leaves=True)
                           for _ in range(1))  # run when asked for, not held afterwards
-            else:
+            else:  # the loss leaves kept for the loss histogram
                 passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
-                                                 truth=truth, progress=bar)
+                                                 truth=truth, progress=bar, keep_loss_leaves=True)
             res, written = write_rule_groups(
                 passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)

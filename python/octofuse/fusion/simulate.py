@@ -39,7 +39,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
              source: Optional[ScanSource | ScanReplay] = None,
              observer: Optional[Callable[[float, list, Network, dict], None]] = None,
              local: bool = True, rays: Optional[RayReplay] = None,
-             central_replay: Optional[CentralReplay] = None) -> SimResult:
+             central_replay: Optional[CentralReplay] = None,
+             keep_loss_leaves: bool = False) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -61,7 +62,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     agents' own maps too (the floor; robust fusion votes on them). ``rays``: the batches'
     rays as traced in an earlier pass over the same scans, or kept for later passes;
     ``central_replay``: the centralized map and its snapshots as mapped and taken in an
-    earlier pass, or kept for later passes.
+    earlier pass, or kept for later passes. ``keep_loss_leaves``: keep the loss maps' leaves
+    as the final scores read them (:meth:`SimResult.loss_leaves_of`, for a loss histogram; 5
+    bytes a leaf), instead of letting them go once scored.
     """
     fuse_cfg.validate("fuse")
     if not 0 <= samples <= 10_000:
@@ -141,18 +144,21 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
         def final_scores(lane, ref: ReferenceMap, last) -> tuple[dict, dict, dict]:
             """The lane's final maps as scored and written, their scores (without traffic)
-            and their loss leaves as read for the scores (kept for the loss histogram).
-            ``last``: the lane's last sample, if its maps did not change since."""
+            and, if kept, their loss leaves as read for the scores. ``last``: the lane's last
+            sample, if its maps did not change since."""
             r = _scored_as(lane)
             maps = own if lane == COMMON else net.scored_maps(lane)
             compared = dict(zip(agents, last.result())) if last is not None else {}
-            leaves = {} if r in (LOCAL, CHANNEL_FILTER) else \
-                {a: net.loss_map(r, a, resolution).values_depths() for a in agents}
-            return maps, {a: score_agent(
-                maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
-                loss=leaves.get(a),
-                compared=None if frames.frames.get(a) is not None else compared.get(a))
-                for a in agents}, leaves
+            scores, leaves = {}, {}
+            for a in agents:  # an agent's leaves, unless kept, go once it is scored
+                loss = None if r in (LOCAL, CHANNEL_FILTER) else \
+                    net.loss_map(r, a, resolution).values_depths()
+                if keep_loss_leaves and loss is not None:
+                    leaves[a] = loss
+                scores[a] = score_agent(
+                    maps[a], ref, tol, frame=frames.frames.get(a), truth=truth, loss=loss,
+                    compared=None if frames.frames.get(a) is not None else compared.get(a))
+            return maps, scores, leaves
 
         def snapshot(key: str):
             """The centralized map as it is now, as scored against (a future)."""
@@ -293,7 +299,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
 
 def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                             truth=None, progress: Optional[Callable[[int, int], None]] = None,
-                            source: Optional[ScanSource] = None) -> Iterator[SimResult]:
+                            source: Optional[ScanSource] = None,
+                            keep_loss_leaves: bool = False) -> Iterator[SimResult]:
     """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
     replaying the bags once per group, so that a caller can write a group's maps and free them
     before the next group runs. The rules' maps never meet, so every rule's result is the one
@@ -315,7 +322,7 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
                 (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
             yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples,
                            truth=truth, progress=step, source=scans, local=k == 0, rays=rays,
-                           central_replay=central)
+                           central_replay=central, keep_loss_leaves=keep_loss_leaves)
 
 
 def _opened(source, build_cfg: BuildConfig):
