@@ -149,16 +149,19 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             r = _scored_as(lane)
             maps = own if lane == COMMON else net.scored_maps(lane)
             compared = dict(zip(agents, last.result())) if last is not None else {}
-            scores, leaves = {}, {}
-            for a in agents:  # an agent's leaves, unless kept, go once it is scored
-                loss = None if r in (LOCAL, CHANNEL_FILTER) else \
-                    net.loss_map(r, a, resolution).values_depths()
-                if keep_loss_leaves and loss is not None:
-                    leaves[a] = loss
-                scores[a] = score_agent(
-                    maps[a], ref, tol, frame=frames.frames.get(a), truth=truth, loss=loss,
-                    compared=None if frames.frames.get(a) is not None else compared.get(a))
-            return maps, scores, leaves
+            has_loss = r not in (LOCAL, CHANNEL_FILTER)
+
+            def read(a):  # the values and depths of a's loss map's leaves
+                return net.loss_map(r, a, resolution).values_depths()
+
+            # kept leaves are read first, all of them; others one by one, each let go once
+            # its agent is scored
+            leaves = {a: read(a) for a in agents} if has_loss and keep_loss_leaves else {}
+            return maps, {a: score_agent(
+                maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
+                loss=(leaves[a] if a in leaves else read(a)) if has_loss else None,
+                compared=None if frames.frames.get(a) is not None else compared.get(a))
+                for a in agents}, leaves
 
         def snapshot(key: str):
             """The centralized map as it is now, as scored against (a future)."""
