@@ -45,6 +45,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     with _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
+            # either way the final scores' loss leaves are kept, for the loss histogram
             if bag is not None:  # one pass in bag time: the bags' start is needed first
                 from ..scans.source import ScanSource
 
@@ -53,7 +54,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                 passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
                                    progress=bar, source=src, observer=bag, keep_loss_leaves=True)
                           for _ in range(1))  # run when asked for, not held afterwards
-            else:  # the loss leaves kept for the loss histogram
+            else:
                 passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
                                                  truth=truth, progress=bar, keep_loss_leaves=True)
             res, written = write_rule_groups(
