@@ -7,26 +7,22 @@ baselines, applied to whole OctoMap trees by a compiled C++ core.
 The package follows the data flow: ``scans`` (bags to posed scans) -> ``maps`` (scans to
 maps, map fusion, scores) -> ``fusion`` (maps exchanged over a graph) -> ``outputs``
 (reports, exports, studies); ``beliefs`` and ``targets`` hold the same rules on target
-beliefs. ``import octofuse`` loads only the rules and the map types; the pipeline's public
-names below are imported on first use.
+beliefs. ``import octofuse`` loads nothing else: every public name below is imported on its
+first use (so that the ``octofuse`` program can catch an interruption while it imports).
 """
 
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
-
-from .maps.infoloss import InfoLossMap, Leaves
-from .maps.occupancy import MapFileError, MapFusion, OccupancyMap, exchange_maps, fuse_into, fuse_maps
-from .rules import RULES, WEP_RULES, BernoulliFusion, LogOddsFusion, fuse_bernoulli, fuse_logodds
-
-try:
-    __version__ = importlib.metadata.version("octofuse")
-except importlib.metadata.PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
 
 #: public name -> module that defines it (imported on first access)
 _LAZY = {
+    "InfoLossMap": "maps.infoloss", "Leaves": "maps.infoloss",
+    "MapFileError": "maps.occupancy", "MapFusion": "maps.occupancy",
+    "OccupancyMap": "maps.occupancy", "exchange_maps": "maps.occupancy",
+    "fuse_into": "maps.occupancy", "fuse_maps": "maps.occupancy",
+    "RULES": "rules", "WEP_RULES": "rules", "BernoulliFusion": "rules",
+    "LogOddsFusion": "rules", "fuse_bernoulli": "rules", "fuse_logodds": "rules",
     "AgentSpec": "config", "BuildConfig": "config", "FuseConfig": "config",
     "MapConfig": "config", "RunConfig": "config", "load_yaml": "config",
     "build_maps": "maps.build", "BuildResult": "maps.build",
@@ -42,20 +38,28 @@ _LAZY = {
 
 
 def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'octofuse' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    if name == "__version__":
+        value = _version()
+    else:
+        module = _LAZY.get(name)
+        if module is None:
+            raise AttributeError(f"module 'octofuse' has no attribute {name!r}")
+        value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
+
+
+def _version() -> str:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("octofuse")
+    except importlib.metadata.PackageNotFoundError:  # a source tree that was never installed
+        return "0+unknown"
 
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = [
-    "RULES", "WEP_RULES", "BernoulliFusion", "InfoLossMap", "Leaves", "LogOddsFusion",
-    "MapFileError", "MapFusion", "OccupancyMap", "exchange_maps", "fuse_bernoulli",
-    "fuse_into", "fuse_logodds", "fuse_maps", *_LAZY,
-]
+__all__ = [*_LAZY]

@@ -283,6 +283,26 @@ def test_import_octofuse_loads_no_heavy_module():
     light, after = p.stdout.splitlines()
     assert light == "[]"
     assert after == "['rosbags']"  # the check above can see a module that was imported
+    # nothing but the package itself: the program can catch an interruption while it imports
+    p = subprocess.run([sys.executable, "-c", "import sys, octofuse.program\n"
+                        "print(sorted(m for m in sys.modules if m.startswith(('octofuse.', "
+                        "'numpy'))))"], capture_output=True, text=True, timeout=120, env=ENV)
+    assert p.stdout.strip() == "['octofuse.program']", p.stdout + p.stderr
+
+
+def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
+    """An interruption while the program imports the command line (a quarter of a second)
+    ends as one while the command runs: one line, exit code 130, no traceback."""
+    script = ("import sys, octofuse.program\n"
+              "class Interrupt:  # Ctrl-C as the command line is imported\n"
+              "    def find_spec(self, name, path=None, target=None):\n"
+              "        if name == 'octofuse.cli':\n"
+              "            raise KeyboardInterrupt\n"
+              "sys.meta_path.insert(0, Interrupt())\n"
+              "octofuse.program.run()\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, env=ENV)
+    assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
 
 
 @pytest.mark.parametrize("code", [0, 130])
@@ -298,4 +318,4 @@ def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
                          timeout=120, env=ENV)
     assert (out.returncode, out.stderr) == (code, "")
     installed = OCTOFUSE.read_text()
-    assert "from octofuse.cli import entry" in installed, installed
+    assert "from octofuse.program import run" in installed, installed

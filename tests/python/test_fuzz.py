@@ -621,6 +621,28 @@ def test_sigint_keeps_outputs(work, ran):
     assert outcome.stderr.strip() == "error: interrupted"
 
 
+def test_sigint_while_importing_is_one_line(work, tmp_path):
+    """Ctrl-C once the interpreter is up, while the program still imports (numpy loaded, the
+    command line not yet): one line, exit code 130, nothing written."""
+    out = tmp_path / "never"
+    p = subprocess.Popen([str(OCTOFUSE), "run", str(work["team"]), "--out", str(out)],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, preexec_fn=_limits(None),
+                         env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    t0 = time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < TIME_LIMIT:
+        try:
+            if "numpy" in Path(f"/proc/{p.pid}/maps").read_text():
+                break
+        except OSError:
+            pass
+        time.sleep(0.002)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=TIME_LIMIT)
+    assert (p.returncode, err.decode().strip()) == (130, "error: interrupted")
+    assert not out.exists()
+
+
 def test_full_disk(work, ran):
     fsize = 30000
     _go(Case("build with fsize 1000", ["build", str(work["bag"]), "--resolution", "0.1", "--out",

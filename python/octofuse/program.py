@@ -1,0 +1,17 @@
+"""The ``octofuse`` program: the command line (:mod:`octofuse.cli`) imported, then run. Importing
+it takes a quarter of a second; an interruption (Ctrl-C) in that time ends as one while the
+command runs does, with one line and exit code 130, not a traceback."""
+
+from __future__ import annotations
+
+import sys
+
+
+def run() -> None:
+    """Import the command line and run it (:func:`octofuse.cli.entry`)."""
+    try:
+        from .cli import entry
+    except KeyboardInterrupt:
+        sys.stderr.write("error: interrupted\n")
+        sys.exit(130)
+    entry()
