@@ -25,7 +25,8 @@ __all__ = ["cli", "entry", "main", "run_config", "CliError"]
 
 
 def entry() -> None:
-    """The ``octofuse`` program: :func:`main`, then the interpreter's exit, which a late Ctrl-C
+    """What the ``octofuse`` program (:mod:`octofuse.program`) runs once it has imported the
+    command line: :func:`main`, then the interpreter's exit, which a late Ctrl-C
     (the command is over, its outputs written or left as they were) no longer interrupts with
     a traceback or a death by signal. The objects left are frozen out of the exit's last
     garbage collection (half a second after a demo): every file is written and closed."""

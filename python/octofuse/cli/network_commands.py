@@ -51,9 +51,9 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 
                 src = stack.enter_context(ScanSource(cfg.build))
                 bag.start_ns = src.bags.start_ns or 0
-                passes = (simulate(cfg.build, cfg.fuse, samples=cfg.samples, truth=truth,
-                                   progress=bar, source=src, observer=bag, keep_loss_leaves=True)
-                          for _ in range(1))  # run when asked for, not held afterwards
+                passes = _one_group(lambda: simulate(
+                    cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar,
+                    source=src, observer=bag, keep_loss_leaves=True))
             else:
                 passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
                                                  truth=truth, progress=bar, keep_loss_leaves=True)
@@ -90,6 +90,12 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
         del part, rule_maps
         return_freed_memory()
     return merge_rule_results(parts), written
+
+
+def _one_group(run):
+    """Every rule in one group for :func:`write_rule_groups`: ``run()``'s result, computed
+    when the writer asks for it and not held afterwards."""
+    yield run()
 
 
 def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
@@ -242,9 +248,8 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     bag = _event_bag(export_bag, cfg, out, every) if export_bag is not None else None
     with _staged_with_bag(out, "fuse", bag) as stage:
         if bag is not None:  # every rule in one group, the bag written round by round
-            groups = (fuse_finished(maps, central, cfg.fuse, truth=truth,
-                                    threads=cfg.build.workers, observer=bag)
-                      for _ in range(1))
+            groups = _one_group(lambda: fuse_finished(maps, central, cfg.fuse, truth=truth,
+                                                      threads=cfg.build.workers, observer=bag))
         else:  # a few rules at a time: their maps written, then freed before the next
             groups = fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
                                                   threads=cfg.build.workers)
