@@ -38,8 +38,9 @@ class AgentSpec:
 
     name: str
     topic: str
-    #: ``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped`` topic giving the robot's pose
-    #: in the fixed frame; when set, tf is not used for this agent.
+    #: topic giving the robot's pose in the fixed frame (``nav_msgs/Odometry``, or
+    #: ``geometry_msgs/`` ``PoseStamped``, ``PoseWithCovarianceStamped`` or
+    #: ``TransformStamped``); when set, tf is not used for this agent.
     pose_topic: Optional[str] = None
     #: static sensor offset on the robot: x y z qx qy qz qw (with ``pose_topic``)
     sensor_offset: Optional[list[float]] = None

@@ -44,6 +44,8 @@ PC2 = "sensor_msgs/msg/PointCloud2"
 SCAN = "sensor_msgs/msg/LaserScan"
 ODOM = "nav_msgs/msg/Odometry"
 POSE = "geometry_msgs/msg/PoseStamped"
+POSE_COV = "geometry_msgs/msg/PoseWithCovarianceStamped"
+TRANSFORM = "geometry_msgs/msg/TransformStamped"
 
 KINDS = ("ros1", "sqlite3", "mcap", "bare_mcap")
 
@@ -298,21 +300,24 @@ def _pose_msg(ts, m: np.ndarray):
 
 def tf_message(ts, stamp_ns: int, links: Iterable[tuple[str, str, np.ndarray]]):
     """TFMessage of (parent, child, 4x4 T_parent_child) links."""
+    return ts.types[TF](transforms=[transform_stamped(ts, stamp_ns, parent, child, m)
+                             for parent, child, m in links])
+
+
+def transform_stamped(ts, stamp_ns: int, parent: str, child: str, m: np.ndarray):
+    """TransformStamped of the link parent -> child, 4x4 T_parent_child."""
     T = ts.types
     from octofuse.scans import matrix_to_quaternion
 
-    out = []
-    for parent, child, m in links:
-        q = matrix_to_quaternion(m)
-        out.append(T["geometry_msgs/msg/TransformStamped"](
-            header=header(ts, stamp_ns, parent),
-            child_frame_id=child,
-            transform=T["geometry_msgs/msg/Transform"](
-                translation=T["geometry_msgs/msg/Vector3"](*map(float, m[:3, 3])),
-                rotation=T["geometry_msgs/msg/Quaternion"](*map(float, q)),
-            ),
-        ))
-    return T[TF](transforms=out)
+    q = matrix_to_quaternion(m)
+    return T[TRANSFORM](
+        header=header(ts, stamp_ns, parent),
+        child_frame_id=child,
+        transform=T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](*map(float, m[:3, 3])),
+            rotation=T["geometry_msgs/msg/Quaternion"](*map(float, q)),
+        ),
+    )
 
 
 @dataclass
@@ -377,6 +382,21 @@ class Recording:
     def pose_stamped(self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "map") -> None:
         self.add(topic, POSE, stamp_ns + LATENCY_NS,
                  lambda ts: ts.types[POSE](header=header(ts, stamp_ns, frame), pose=_pose_msg(ts, pose)))
+
+    def pose_with_covariance(self, topic: str, stamp_ns: int, pose: np.ndarray,
+                             frame: str = "map") -> None:
+        def build(ts):
+            T = ts.types
+            return T[POSE_COV](header=header(ts, stamp_ns, frame),
+                               pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                                   pose=_pose_msg(ts, pose), covariance=np.zeros(36)))
+
+        self.add(topic, POSE_COV, stamp_ns + LATENCY_NS, build)
+
+    def transform(self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "map",
+                  child: str = "base_link") -> None:
+        self.add(topic, TRANSFORM, stamp_ns + LATENCY_NS,
+                 lambda ts: transform_stamped(ts, stamp_ns, frame, child, pose))
 
     # scans
     def cloud(self, topic: str, frame: str, stamp_ns: int, pose: np.ndarray, *,

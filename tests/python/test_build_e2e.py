@@ -25,6 +25,7 @@ from bagfactory import KINDS, LAYOUTS, S, T0, Recording, Robot, run_cli  # noqa:
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.config import AgentSpec, BuildConfig, MapConfig, RunConfig, load_yaml  # noqa: E402
+from octofuse.scans.tf_bags import POSE_TYPES  # noqa: E402
 
 RES = "0.1"
 REPO = Path(__file__).resolve().parents[2]
@@ -251,21 +252,32 @@ def test_scan_with_empty_frame_id_is_skipped_and_counted(tmp_path, capsys):
     bf.assert_same_map(OccupancyMap.load(out / "r1.ot"), bf.reference_map(rec.shots[:3]), "r1")
 
 
-@pytest.mark.parametrize("msgtype", ["odometry", "pose_stamped"])
+POSE_WRITERS = {  # each pose message type --pose reads, and how a recording writes it
+    "nav_msgs/msg/Odometry": lambda rec, t, pose: rec.odometry("/r1/pose", t, pose, frame="map",
+                                                               child="r1/base_link"),
+    "geometry_msgs/msg/PoseStamped": lambda rec, t, pose: rec.pose_stamped("/r1/pose", t, pose),
+    "geometry_msgs/msg/PoseWithCovarianceStamped":
+        lambda rec, t, pose: rec.pose_with_covariance("/r1/pose", t, pose),
+    "geometry_msgs/msg/TransformStamped":
+        lambda rec, t, pose: rec.transform("/r1/pose", t, pose, child="r1/base_link"),
+}
+
+
+def test_pose_writers_cover_every_pose_type():
+    assert sorted(POSE_WRITERS) == sorted(POSE_TYPES)
+
+
+@pytest.mark.parametrize("msgtype", sorted(POSE_WRITERS))
 def test_pose_topic_instead_of_tf(tmp_path, capsys, msgtype):
     # a constant heading: the sensor offset then moves rigidly with the pose samples
     robot = lidar_robot(velocity=(0.5, 0.1, 0.0), start=(-1.9, 0.13, 0.3), odom=(0.0, 0.0, 0.0))
     rec = Recording()
     for k in range(5):
-        t = T0 + k * S // 2
-        if msgtype == "odometry":
-            rec.odometry("/r1/odom", t, robot.base_pose(t), frame="map", child="r1/base_link")
-        else:
-            rec.pose_stamped("/r1/pose", t, robot.base_pose(t), frame="map")
+        POSE_WRITERS[msgtype](rec, T0 + k * S // 2, robot.base_pose(T0 + k * S // 2))
     for t in times(0.25):
         rec.robot_scan(robot, t)
     bag = rec.write(tmp_path / "poses", "ros1")
-    topic = "/r1/odom" if msgtype == "odometry" else "/r1/pose"
+    topic = "/r1/pose"
     x, y, z, yaw = robot.mount
     offset = ",".join(f"{v:.17g}" for v in (x, y, z, *bf.yaw_quaternion(yaw)))
     out = tmp_path / "maps"

@@ -56,7 +56,8 @@ config_options = _options(
 build_options = _options(
     click.option("--agent", multiple=True, help="NAME=TOPIC (repeatable)  [default: one agent per "
                  "scan topic]"),
-    click.option("--pose", multiple=True, help="NAME=POSE_TOPIC: Odometry/PoseStamped instead of tf"),
+    click.option("--pose", multiple=True, help="NAME=POSE_TOPIC instead of tf: Odometry, PoseStamped, "
+                 "PoseWithCovarianceStamped or TransformStamped"),
     click.option("--sensor-offset", multiple=True, help="NAME=x,y,z,qx,qy,qz,qw sensor pose on the robot"),
     click.option("--fixed-frame", help="fixed frame of the maps", show_default=_DEFAULT.build.fixed_frame),
     click.option("--resolution", type=float, help="voxel size in metres",

@@ -17,12 +17,11 @@ from .decode import laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
 from .deskew import deskew_scan, deskew_scans
 from .se3 import transform_matrix
 from .tf import ConnectivityError, ExtrapolationError, TransformError, UnknownFrameError
-from .tf_bags import PoseSource, load_transforms
+from .tf_bags import POSE_TYPES, PoseSource, load_transforms
 
 LASERSCAN = "sensor_msgs/msg/LaserScan"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 SCAN_TYPES = (LASERSCAN, POINTCLOUD2)
-POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
 RESERVED_NAMES = ("centralized",)
 #: OctoMap's keys reach 32768 voxels from the origin; a voxel less, for float rounding
 EXTENT_VOXELS = 32767.0

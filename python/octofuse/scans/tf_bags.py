@@ -13,9 +13,10 @@ from .tf_link import TransformError
 if TYPE_CHECKING:
     from .bags import BagSet
 
-__all__ = ["PoseSource", "load_transforms"]
+__all__ = ["POSE_TYPES", "PoseSource", "load_transforms"]
 
-_POSE_TYPES = (
+#: the message types a pose topic may have (each gives a pose with its stamp)
+POSE_TYPES = (
     "nav_msgs/msg/Odometry",
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
@@ -91,7 +92,7 @@ def load_transforms(
         pose_sources = [PoseSource(topic, child) for topic, child in pose_sources.items()]
     poses = {p.topic: p for p in pose_sources}
     spec: dict[str, Any] = {t: _TF_TYPE for t in (*tf_topics, *static_tf_topics)}
-    spec.update({t: _POSE_TYPES for t in poses})
+    spec.update({t: POSE_TYPES for t in poses})
     buf = TransformBuffer(tolerance_ns=tolerance_ns)
     if not spec:
         return buf
