@@ -41,8 +41,7 @@ def deskew_scan(tf: TransformBuffer, time_range: TimeRange, fixed: str, msg, poi
         t = np.clip(t, lo, hi)
     T = tf.lookup_many(fixed, frame, t.astype(np.int64))
     world = np.einsum("kij,kj->ki", T[:, :3, :3], points) + T[:, :3, 3]
-    inv = np.linalg.inv(pose)
-    return world @ inv[:3, :3].T + inv[:3, 3]
+    return _into_sensor_frame(world, pose)
 
 
 def deskew_scans(tf: TransformBuffer, time_range: TimeRange, fixed: str, msgs: Sequence,
@@ -75,6 +74,11 @@ def deskew_scans(tf: TransformBuffer, time_range: TimeRange, fixed: str, msgs: S
         for j in js:
             mine = world[at:at + sizes[j]]
             at += sizes[j]
-            # back into the sensor frame at the scan's stamp: R^T (x - t)
-            out[j] = (mine - poses[j][:3, 3]) @ poses[j][:3, :3]
+            out[j] = _into_sensor_frame(mine, poses[j])
     return out
+
+
+def _into_sensor_frame(world: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Points of the fixed frame back in the sensor frame at the scan's stamp (``pose``, a
+    rigid transform): R^T (x - t)."""
+    return (world - pose[:3, 3]) @ pose[:3, :3]
