@@ -18,9 +18,9 @@ import importlib
 #: public name -> module that defines it (imported on first access)
 _LAZY = {
     "InfoLossMap": "maps.infoloss", "Leaves": "maps.infoloss",
-    "MapFileError": "maps.occupancy", "MapFusion": "maps.occupancy",
-    "OccupancyMap": "maps.occupancy", "exchange_maps": "maps.occupancy",
-    "fuse_into": "maps.occupancy", "fuse_maps": "maps.occupancy",
+    "MapFileError": "maps.occupancy", "OccupancyMap": "maps.occupancy",
+    "MapFusion": "maps.tree_fusion", "exchange_maps": "maps.tree_fusion",
+    "fuse_into": "maps.tree_fusion", "fuse_maps": "maps.tree_fusion",
     "RULES": "rules", "WEP_RULES": "rules", "BernoulliFusion": "rules",
     "LogOddsFusion": "rules", "fuse_bernoulli": "rules", "fuse_logodds": "rules",
     "AgentSpec": "config", "BuildConfig": "config", "FuseConfig": "config",

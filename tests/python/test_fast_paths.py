@@ -17,7 +17,8 @@ import pytest
 
 from octofuse import _core
 from octofuse.maps.infoloss import InfoLossMap
-from octofuse.maps.occupancy import OccupancyMap, fuse_into, fuse_maps
+from octofuse.maps.occupancy import OccupancyMap
+from octofuse.maps.tree_fusion import fuse_into, fuse_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -123,7 +124,7 @@ def test_insert_scans_equals_scan_by_scan():
 def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
     """The rays of a scan are cast once for all its targets, whatever their clamping or
     sensor model (those act per map): each map ends as if filled on its own."""
-    from octofuse.maps.occupancy import insert_batch
+    from octofuse.maps.ray_batches import insert_batch
 
     scans = random_scans(6, 12)
     kinds = [lambda: OccupancyMap(0.1), lambda: OccupancyMap(0.1).open_clamping(),
@@ -145,7 +146,7 @@ def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
 def test_rays_traced_once_feed_maps_apart_as_one_batch():
     """Rays traced once and applied to groups of maps in separate calls (as a run's lanes
     do) leave every map as one batch into all of them; a wrong call changes no map."""
-    from octofuse.maps.occupancy import apply_rays, insert_batch, trace_rays
+    from octofuse.maps.ray_batches import apply_rays, insert_batch, trace_rays
 
     scans = random_scans(7, 10)
     poses = np.stack([np.eye(4)] * len(scans))

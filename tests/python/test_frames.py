@@ -11,7 +11,7 @@ from conftest import finest_voxels
 from octofuse import OccupancyMap
 from octofuse.maps.frames import (check_rigid, common_resolution, fuse_map_files, invert,
                                   matrix_pose, parse_frame, pose_matrix, prepare_maps)
-from octofuse.maps.occupancy import fuse_maps
+from octofuse.maps.tree_fusion import fuse_maps
 
 RES = 0.1
 SENSORS = [(-2.0, 0.9, 0.6), (0.0, -0.2, 0.6), (2.2, -1.0, 0.6), (-0.4, 1.3, 1.2)]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from test_frames import SENSORS, room_map
 
-from octofuse.maps.occupancy import fuse_maps
+from octofuse.maps.tree_fusion import fuse_maps
 from octofuse.outputs.clouds import read_cloud
 from octofuse.outputs.export import shared_color_range, write_heatmap
 

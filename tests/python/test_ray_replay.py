@@ -12,7 +12,8 @@ import bagfactory as bf  # noqa: E402
 from bagfactory import assert_same_map  # noqa: E402
 from octofuse.maps import ray_replay  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
-from octofuse.maps.occupancy import OccupancyMap, apply_rays  # noqa: E402
+from octofuse.maps.occupancy import OccupancyMap  # noqa: E402
+from octofuse.maps.ray_batches import apply_rays  # noqa: E402
 from octofuse.maps.ray_replay import RayReplay  # noqa: E402
 from octofuse.scans.source import ScanSource, batched  # noqa: E402
 

@@ -54,7 +54,8 @@ from pathlib import Path
 from typing import Sequence
 
 from ..config import CHANNEL_FILTER
-from ..maps.occupancy import OccupancyMap, fuse_into, subtract_into
+from ..maps.occupancy import OccupancyMap
+from ..maps.tree_fusion import fuse_into, subtract_into
 from .graph import Graph, make_graph
 
 __all__ = ["CHANNEL_FILTER", "ChannelFilter", "Message", "add_into", "clamped", "negated",

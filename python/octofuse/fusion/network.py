@@ -9,7 +9,8 @@ from typing import Callable, Optional, Sequence
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.infoloss import InfoLossMap
-from ..maps.occupancy import OccupancyMap, exchange_maps, fuse_into
+from ..maps.occupancy import OccupancyMap
+from ..maps.tree_fusion import exchange_maps, fuse_into
 from ..threads import thread_map
 from .agent_frames import AgentFrames
 from .results import FusionEvent, Traffic

@@ -13,7 +13,8 @@ from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from ..lanes import Lanes
 from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
-from ..maps.occupancy import OccupancyMap, ReferenceMap, apply_rays
+from ..maps.occupancy import OccupancyMap, ReferenceMap
+from ..maps.ray_batches import apply_rays
 from ..maps.ray_replay import RayReplay
 from ..memory import return_freed_memory
 from ..scans.replay import ScanReplay

@@ -133,7 +133,8 @@ class SwarmWorker:
     def receive(self, receiver: str, senders: list[str], *messages) -> int:
         """Fuse the messages (one list of per-rule streams per sender, in event order)."""
         from ..maps.infoloss import InfoLossMap
-        from ..maps.occupancy import OccupancyMap, fuse_into
+        from ..maps.occupancy import OccupancyMap
+        from ..maps.tree_fusion import fuse_into
 
         t0 = time.perf_counter()
         for msg in messages:

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..config import AgentSpec, BuildConfig
 from ..scans.source import AgentStats, Scan, ScanSource, batched, prefetch
-from .occupancy import OccupancyMap, insert_batch, trace_rays
+from .occupancy import OccupancyMap
+from .ray_batches import insert_batch, trace_rays
 
 
 def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]],
@@ -23,7 +24,7 @@ def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]
 
 def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int):
     """The posed scans' rays traced once on ``grid``'s grid, to apply to maps with
-    :func:`~octofuse.maps.occupancy.apply_rays`."""
+    :func:`~octofuse.maps.ray_batches.apply_rays`."""
     return trace_rays(grid, *_scan_arrays(scans), threads)
 
 

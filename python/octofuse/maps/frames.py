@@ -202,7 +202,8 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
     """
     from ..rules import parse_rule, parse_unknown
     from .infoloss import InfoLossMap, voxels_per_leaf
-    from .occupancy import OccupancyMap, fuse_into
+    from .occupancy import OccupancyMap
+    from .tree_fusion import fuse_into
 
     paths = [Path(p) for p in paths]
     if not paths:
