@@ -9,6 +9,9 @@ import sys
 
 def run() -> None:
     """Import the command line and run it (:func:`octofuse.cli.entry`)."""
+    from .interrupts import remember_interrupts
+
+    remember_interrupts()
     try:
         from .cli import entry
     except KeyboardInterrupt:

@@ -305,6 +305,34 @@ def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
     assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
 
 
+def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
+    """A Ctrl-C whose KeyboardInterrupt is swallowed where it lands (numpy's compiled modules,
+    imported on first use, do so in their initialisation) still ends the command: one line,
+    exit code 130, the previous outputs as they were."""
+    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / MARKER).write_text("written by octofuse run\n")  # an earlier run's outputs
+    (out / "previous.txt").write_text("kept")
+    script = ("import os, signal, sys, time, octofuse.program\n"
+              "class Swallow:  # Ctrl-C while a module is imported, swallowed there\n"
+              "    def find_spec(self, name, path=None, target=None):\n"
+              "        if name == 'octofuse.fusion.simulate':\n"
+              "            try:\n"
+              "                os.kill(os.getpid(), signal.SIGINT)\n"
+              "                time.sleep(5)\n"
+              "            except KeyboardInterrupt:\n"
+              "                pass\n"
+              "sys.meta_path.insert(0, Swallow())\n"
+              f"sys.argv = ['octofuse', 'run', {str(lab8)!r}, '--rule', 'naive-bayes', "
+              f"'--topology', 'ring', '--every', '50', '--samples', '2', '--out', {str(out)!r}]\n"
+              "octofuse.program.run()\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300, env=ENV)
+    assert (done.returncode, done.stderr) == (130, "error: interrupted\n")
+    assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
+
+
 @pytest.mark.parametrize("code", [0, 130])
 def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
     """Once the command is over (done, or interrupted and reported), a Ctrl-C while the

@@ -19,6 +19,7 @@ from typing import Optional
 import click
 
 from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
+from ..interrupts import raise_if_interrupted
 from .options import CliError, cli, run_config
 
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]
@@ -43,6 +44,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         args = sys.argv[1:] if argv is None else list(argv)
         with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below
             cli.invoke(ctx)
+        raise_if_interrupted()  # one swallowed on its way (octofuse.interrupts)
     except click.exceptions.Exit as e:
         return e.exit_code
     except click.ClickException as e:

@@ -15,6 +15,7 @@ from typing import Optional
 import click
 
 from ..config import RunConfig
+from ..interrupts import raise_if_interrupted
 
 _DEFAULT = RunConfig()
 CONTEXT = {"help_option_names": ["-h", "--help"], "show_default": True, "max_content_width": 100}
@@ -242,6 +243,7 @@ class Progress:
         self._bar.__exit__(*exc)
 
     def __call__(self, done: int, total: int) -> None:
+        raise_if_interrupted()
         self._bar.update(self._task, completed=done, total=total)
 
 

@@ -16,6 +16,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from ..interrupts import raise_if_interrupted
+
 #: a file in every output folder octofuse writes, naming the command that wrote it
 MARKER = ".octofuse-output"
 
@@ -40,6 +42,7 @@ def staged_folder(out: str | os.PathLike, command: str) -> Iterator[Path]:
     stage = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
     try:
         yield stage
+        raise_if_interrupted()  # a Ctrl-C swallowed on its way keeps the old outputs too
         (stage / MARKER).write_text(f"written by octofuse {command}\n")
         _replace(stage, final)
     except BaseException as e:
