@@ -18,8 +18,8 @@ from typing import Optional
 
 import click
 
-from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from ..interrupts import raise_if_interrupted
+from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]
