@@ -187,6 +187,10 @@ def test_insert_errors_name_the_row_and_leave_the_map():
     assert m.num_leaves == 0
     m.insert_scans([])
     assert m.num_leaves == 0
+    for bad in (0, -1, 2.5, "2", True):  # as fuse_into's: only whole numbers in range
+        with pytest.raises(ValueError, match="threads"):
+            m.insert_scans([(np.ones((2, 3)), (0, 0, 0))], threads=bad)
+    assert m.num_leaves == 0
 
 
 def random_map(seed: int, offset: float) -> OccupancyMap:

@@ -106,7 +106,7 @@ class OccupancyMap:
         if not pts_list:
             return
         n = len(pts_list)
-        kw = {} if threads is None else {"threads": int(threads)}
+        kw = {} if threads is None else {"threads": thread_count(threads)}
         _core._insert_batch([[self._m]] * n, pts_list, np.ascontiguousarray(np.stack(poses)),
                             np.full(n, float(max_range)), map_frame=map_frame, **kw)
 
@@ -335,6 +335,14 @@ def _resolution(resolution) -> float:
     if not np.isfinite(r) or r <= 0:
         raise ValueError(f"resolution must be a positive number of metres, got {resolution!r}")
     return r
+
+
+def thread_count(threads) -> int:
+    """``threads`` as an int, or a ValueError naming it unless it is a whole number (the core
+    then checks its range)."""
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
+        raise ValueError(f"threads must be a whole number, got {threads!r}")
+    return int(threads)
 
 
 def _points(points) -> np.ndarray:

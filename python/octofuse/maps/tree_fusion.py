@@ -5,12 +5,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numpy as np
-
 from .. import _core
 from ..rules import parse_rule, parse_unknown
 from .infoloss import InfoLossMap
-from .occupancy import OccupancyMap
+from .occupancy import OccupancyMap, thread_count
 
 
 class MapFusion(NamedTuple):
@@ -59,7 +57,7 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
         raise TypeError("fuse_into expects two OccupancyMap objects")
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
     counts = _core._fuse_into(dst._m, msg._m, rule, unknown, None if loss is None else loss._t,
-                              threads=_threads(threads))
+                              threads=thread_count(threads))
     if loss is not None:
         loss._record(counts)
     return loss
@@ -94,8 +92,3 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
             loss._record(counts)
     return int(counts_b[3]), int(counts_a[3])  # what a received is b's
 
-
-def _threads(threads) -> int:
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
-        raise ValueError(f"threads must be a whole number, got {threads!r}")
-    return int(threads)
