@@ -24,7 +24,12 @@ def remember_interrupts() -> None:
     signal.signal(signal.SIGINT, _on_sigint)
 
 
+def interrupted() -> bool:
+    """Whether a Ctrl-C arrived (as :func:`remember_interrupts` remembers it)."""
+    return _interrupted
+
+
 def raise_if_interrupted() -> None:
     """``KeyboardInterrupt`` if a Ctrl-C arrived (one that was swallowed on its way)."""
-    if _interrupted:
+    if interrupted():
         raise KeyboardInterrupt

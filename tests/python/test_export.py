@@ -372,3 +372,18 @@ def test_an_interpreter_leaving_while_the_libraries_import_exits_as_asked():
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                              timeout=180)
         assert out.returncode == 3, (delay, out.returncode, out.stderr[-500:])
+
+
+def test_the_imports_ahead_begin_no_library_once_interrupted(monkeypatch):
+    """After a Ctrl-C the thread finishes the import under way and begins no other: the exit
+    waits for it."""
+    from octofuse.outputs import libraries
+
+    for flags, expected in (([False, False], ["pyplot", "open3d"]), ([False, True], ["pyplot"]),
+                            ([True], [])):
+        calls, asked = [], iter(flags)
+        monkeypatch.setattr(libraries, "pyplot", lambda: calls.append("pyplot"))
+        monkeypatch.setattr(libraries, "open3d", lambda: calls.append("open3d"))
+        monkeypatch.setattr(libraries, "interrupted", lambda: next(asked))
+        libraries._load_output_libraries()
+        assert calls == expected

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import threading
 
+from ..interrupts import interrupted
+
 
 def pyplot():
     """``matplotlib.pyplot``, drawing on the Agg backend."""
@@ -28,15 +30,20 @@ def import_output_libraries() -> threading.Thread:
     """Start importing both on a thread of their own; whoever needs them first waits for the
     import to finish, as Python's imports do."""
 
-    def load() -> None:
-        try:
-            pyplot()
-            open3d()
-        except Exception:  # imported again where needed, which says what is wrong
-            pass
-
     # not a daemon: an interpreter that exits early (an interrupted run) waits for the
-    # imports instead of tearing down a half-initialised extension module
-    thread = threading.Thread(target=load, name="octofuse-imports")
+    # import under way instead of tearing down a half-initialised extension module
+    thread = threading.Thread(target=_load_output_libraries, name="octofuse-imports")
     thread.start()
     return thread
+
+
+def _load_output_libraries() -> None:
+    """Both libraries imported; the second not begun once a Ctrl-C has arrived (the exit
+    would wait for it)."""
+    try:
+        for load in (pyplot, open3d):
+            if interrupted():
+                return
+            load()
+    except Exception:  # imported again where needed, which says what is wrong
+        pass
