@@ -5,6 +5,7 @@
 #include "octofuse/occupancy_map.hpp"
 #include "octofuse/tree_access.hpp"
 
+#include <cstring>
 #include <mutex>
 
 namespace octofuse::detail {
@@ -12,12 +13,14 @@ namespace octofuse::detail {
 /// A position in a scalar tree during a walk. Nodes are created lazily, only when a value
 /// is added below them, so a walk that adds nothing leaves no trace. A "fresh" node was
 /// created by this walk (its region was not in the tree); a non-fresh childless node is a
-/// leaf that stands for all voxels below it. Children keep a pointer to their parent cursor,
-/// which lives in the caller's frame for the whole visit.
+/// leaf that stands for all voxels below it, expanded only when an add below it changes a
+/// value. Children keep a pointer to their parent cursor, which lives in the caller's frame
+/// for the whole visit.
 struct LossCursor {
   mutable ScalarNode* node = nullptr;
   mutable bool fresh = false;
   const LossCursor* parent = nullptr;
+  const ScalarNode* within = nullptr;  ///< the leaf a cursor without a node lies in, if any
   unsigned idx = 0;
   bool active = false;
   bool shared = false;  ///< visited by the serial top of a parallel walk (see LossAdder)
@@ -44,31 +47,37 @@ class LossAdder {
     return c;
   }
 
-  /// The cursor of child i (expands a coarse leaf; does not create nodes yet).
+  /// The cursor of child i (creates no node yet).
   LossCursor child(const LossCursor& c, unsigned i) {
     LossCursor k;
     if (!c.active) return k;
     k.active = true;
-    if (c.node != nullptr) {
-      if (!c.fresh && !ops_->nodeHasChildren(c.node)) {
-        ops_->expandNode(c.node);  // a coarse leaf: its children inherit its value
-        k.node = ops_->getNodeChild(c.node, i);
-        return k;
-      }
-      if (ops_->nodeChildExists(c.node, i)) {
-        k.node = ops_->getNodeChild(c.node, i);
-        k.fresh = c.fresh;
-        return k;
-      }
-    }
     k.parent = &c;
     k.idx = i;
+    if (c.node == nullptr) {
+      k.within = c.within;
+    } else if (!c.fresh && !ops_->nodeHasChildren(c.node)) {
+      // a coarse leaf: expanded when an add below it changes a value. A NaN leaf is expanded
+      // now, as finishing it then makes it the max of its children (NaN children never prune)
+      if (c.node->getValue() == c.node->getValue()) {
+        k.within = c.node;
+      } else {
+        ops_->expandNode(c.node);
+        k.node = ops_->getNodeChild(c.node, i);
+      }
+    } else if (ops_->nodeChildExists(c.node, i)) {
+      k.node = ops_->getNodeChild(c.node, i);
+      k.fresh = c.fresh;
+    }
     return k;
   }
 
   /// Adds v to every voxel under the cursor.
   void add(const LossCursor& c, float v) {
     if (!c.active) return;
+    if (c.node == nullptr && c.within != nullptr && keeps(c.within->getValue(), v)) {
+      return;  // expanding the leaf would give every child its value, pruned back at the end
+    }
     materialize(c);
     if (c.fresh || !ops_->nodeHasChildren(c.node)) {
       c.node->setValue(c.node->getValue() + v);
@@ -113,6 +122,9 @@ class LossAdder {
       materialize(*c.parent);
     }
     Node* p = c.parent->node;
+    if (!c.parent->fresh && !ops_->nodeHasChildren(p)) {
+      ops_->expandNode(p);  // a coarse leaf: its children inherit its value
+    }
     if (ops_->nodeChildExists(p, c.idx)) {
       c.node = ops_->getNodeChild(p, c.idx);
       c.fresh = c.parent->fresh;
@@ -140,6 +152,12 @@ class LossAdder {
     LossCursor c;
     c.node = n;
     finish(c);
+  }
+
+  // Whether x + v is x, bit for bit.
+  static bool keeps(float x, float v) {
+    const float s = x + v;
+    return std::memcmp(&s, &x, sizeof s) == 0;
   }
 
   ScalarTree* t_;
