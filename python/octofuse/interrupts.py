@@ -3,7 +3,8 @@ when the signal arrives; if that is inside the initialisation of a compiled modu
 imports ``numpy.random``, a Cython module, on first use), the module's code swallows it and the
 command would run on to the end. The ``octofuse`` program therefore also remembers the signal,
 and the places a command passes often (each batch of scans) and the moment its outputs would
-replace the old ones ask again."""
+replace the old ones ask again; the thread importing the output libraries ahead then begins no
+other import."""
 
 from __future__ import annotations
 

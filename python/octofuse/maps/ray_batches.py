@@ -19,8 +19,8 @@ def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np
     targets, different maps in parallel; the result equals OctoMap's insertPointCloud of
     every scan into every target, in order. The GIL is released.
     """
-    _core._insert_batch([[m._m for m in t] for t in targets],
-                        *_batch_arrays(points, poses, max_ranges), int(threads))
+    _core._insert_batch(_core_targets(targets), *_batch_arrays(points, poses, max_ranges),
+                        int(threads))
 
 
 def trace_rays(grid: OccupancyMap, points: Sequence[np.ndarray], poses: np.ndarray,
@@ -34,10 +34,15 @@ def trace_rays(grid: OccupancyMap, points: Sequence[np.ndarray], poses: np.ndarr
 def apply_rays(rays, targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:
     """Apply traced rays (:func:`trace_rays`) to maps: ``targets[k]`` receive scan ``k``; each
     map its scans in order, maps in parallel. The GIL is released."""
-    _core._apply_rays(rays, [[m._m for m in t] for t in targets], int(threads))
+    _core._apply_rays(rays, _core_targets(targets), int(threads))
 
 
 def _batch_arrays(points, poses, max_ranges) -> tuple[list, np.ndarray, np.ndarray]:
     """A batch's points, poses and maximum ranges as the core reads them (C-contiguous)."""
     return ([np.ascontiguousarray(p) for p in points], np.ascontiguousarray(poses, dtype=np.float64),
             np.ascontiguousarray(max_ranges, dtype=np.float64))
+
+
+def _core_targets(targets: Sequence[Sequence[OccupancyMap]]) -> list[list]:
+    """Each scan's target maps as the core's objects."""
+    return [[m._m for m in t] for t in targets]

@@ -35,8 +35,7 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     Raises ``ValueError`` if the maps differ in resolution or clamping, or for an unknown
     rule or policy.
     """
-    if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
-        raise TypeError("fuse_maps expects two OccupancyMap objects")
+    _check_maps("fuse_maps", a, b)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
     raw_map, raw_loss, counts = _core._fuse_maps(a._m, b._m, rule, unknown)
     return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, *counts[:3]))
@@ -53,10 +52,9 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
     voxels fused and copied (voxels only the message knows); returns ``loss``. With
     ``threads`` > 1, disjoint subtrees are fused on that many threads (same result).
     """
-    if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
-        raise TypeError("fuse_into expects two OccupancyMap objects")
+    _check_maps("fuse_into", dst, msg)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, None if loss is None else loss._t,
+    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, _loss_tree(loss),
                               threads=thread_count(threads))
     if loss is not None:
         loss._record(counts)
@@ -67,8 +65,7 @@ def subtract_into(dst: OccupancyMap, msg: OccupancyMap) -> None:
     """``dst -= msg`` voxel by voxel in log-odds, in place (a voxel only ``msg`` knows gets
     its negated value): the naive-Bayes fusion of a negated copy of ``msg``, bit for bit,
     without the copy."""
-    if not isinstance(dst, OccupancyMap) or not isinstance(msg, OccupancyMap):
-        raise TypeError("subtract_into expects two OccupancyMap objects")
+    _check_maps("subtract_into", dst, msg)
     _core._subtract_into(dst._m, msg._m)
 
 
@@ -81,14 +78,21 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     Returns the leaves ``a`` and ``b`` had, i.e. the sizes of the two messages in voxels
     (counted by the walk: ``a0.num_leaves`` and ``b0.num_leaves``).
     """
-    if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
-        raise TypeError("exchange_maps expects two OccupancyMap objects")
+    _check_maps("exchange_maps", a, b)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown,
-                                            None if loss_a is None else loss_a._t,
-                                            None if loss_b is None else loss_b._t)
+    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown, _loss_tree(loss_a),
+                                            _loss_tree(loss_b))
     for loss, counts in ((loss_a, counts_a), (loss_b, counts_b)):
         if loss is not None:
             loss._record(counts)
     return int(counts_b[3]), int(counts_a[3])  # what a received is b's
 
+
+def _check_maps(function: str, a, b) -> None:
+    if not isinstance(a, OccupancyMap) or not isinstance(b, OccupancyMap):
+        raise TypeError(f"{function} expects two OccupancyMap objects")
+
+
+def _loss_tree(loss: InfoLossMap | None):
+    """The core's tree of ``loss``, or None."""
+    return None if loss is None else loss._t
