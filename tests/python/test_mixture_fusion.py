@@ -8,7 +8,9 @@ from scipy.special import logsumexp
 from scipy.stats import multivariate_normal
 
 from octofuse.beliefs.base import Belief
-from octofuse.beliefs.mixture import GaussianMixture, foci, product
+from octofuse.beliefs.gaussian import Gaussian
+from octofuse.beliefs.mixture import GaussianMixture
+from octofuse.beliefs.mixture_algebra import foci, product
 from octofuse.beliefs.mixture_fusion import fuse_mixtures, search_omega
 from octofuse.beliefs.mixture_grid import Grid2D, grid_fuse
 from octofuse.beliefs.mixture_omega import WepCosts
@@ -256,6 +258,23 @@ def test_bad_arguments_raise_clear_errors(kwargs, match):
 def test_dimension_mismatch_raises():
     with pytest.raises(ValueError, match="dimension"):
         fuse_mixtures(random_mixture(1), GaussianMixture.gaussian([0.0], [[1.0]]))
+
+
+def test_operations_keep_the_class_of_their_input_and_refuse_other_beliefs():
+    class Tagged(GaussianMixture):  # a user's subclass: every result must stay one
+        __slots__ = ()
+
+    a, b = (Tagged(m.weights, m.means, m.covariances) for m in (random_mixture(5), random_mixture(6)))
+    results = [product(a, b)[0], foci(a, b, 0.3), runnalls_reduce(product(a, b)[0], 2), a.reduce(1),
+               a.multiply(b), a.wep(b, 0.4, seed=0)]
+    results += [fuse_mixtures(a, b, rule=r, method=m, seed=1).mixture
+                for r in ("naive-bayes", "chernoff") for m in ("moment-match", "em", "foci")]
+    assert all(type(m) is Tagged for m in results)
+    gaussian = Gaussian.from_moments([0.0, 0.0], np.eye(2))
+    for call in (lambda: product(a, gaussian), lambda: foci(gaussian, a, 0.5),
+                 lambda: fuse_mixtures(a, gaussian)):
+        with pytest.raises(TypeError, match="GaussianMixture"):
+            call()
 
 
 def test_wep_costs_reject_non_finite_log_densities():

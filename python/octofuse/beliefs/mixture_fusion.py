@@ -51,7 +51,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .base import check_weight
-from .mixture import GaussianMixture, _as_rng, _check_pair, foci, kl_divergence, logsumexp0, product
+from .mixture_algebra import M, Mixture, as_rng, check_pair, foci, kl_divergence, logsumexp0, product
 from .mixture_omega import OMEGA_RULES, WepCosts, choose_omega
 from .mixture_reduction import runnalls_reduce, weighted_em
 
@@ -65,7 +65,7 @@ PROPOSAL_INFLATION = 2.0  # moment matching samples each pair from its FOCI term
 class MixtureFusion:
     """Result of :func:`fuse_mixtures`. Divergences are sample estimates in nats."""
 
-    mixture: GaussianMixture  #: the fused mixture, at most ``max_components`` components
+    mixture: Mixture  #: the fused mixture, at most ``max_components`` components
     omega: float  #: weight on ``a`` (NaN for naive-bayes)
     rule: str
     method: str
@@ -96,13 +96,13 @@ def check_rule(rule: str) -> str:
     return rule
 
 
-def importance_density(a: GaussianMixture, b: GaussianMixture, w_bar: float) -> GaussianMixture:
+def importance_density(a: M, b: M, w_bar: float) -> M:
     """``(1 - 2 eps) FOCI(w_bar) + eps p_a + eps p_b``: the defensive omega-search density."""
     f = foci(a, b, w_bar)
     parts = [(1.0 - 2.0 * DEFENSIVE_SHARE, f), (DEFENSIVE_SHARE, a), (DEFENSIVE_SHARE, b)]
-    return GaussianMixture(np.concatenate([s * m.weights for s, m in parts]),
-                           np.concatenate([m.means for _, m in parts]),
-                           np.concatenate([m.covariances for _, m in parts]))
+    return type(a)(np.concatenate([s * m.weights for s, m in parts]),
+                   np.concatenate([m.means for _, m in parts]),
+                   np.concatenate([m.covariances for _, m in parts]))
 
 
 def _draw(a, b, w_bar, n, rng):
@@ -129,7 +129,7 @@ def search_omega(a, b, rule, n_samples, rng, *, nb_mean_diff=None, info_a=None, 
     return w, x, costs, attempt
 
 
-def moment_match(a: GaussianMixture, b: GaussianMixture, w: float, n_per_pair: int, rng) -> GaussianMixture:
+def moment_match(a: M, b: M, w: float, n_per_pair: int, rng) -> M:
     """Paper 002 section IV: one moment-matched Gaussian per component pair of ``p_a^w p_b^(1-w)``."""
     w = check_weight(w)
     if w in (0.0, 1.0):
@@ -170,26 +170,26 @@ def moment_match(a: GaussianMixture, b: GaussianMixture, w: float, n_per_pair: i
     mean[bad], cov[bad] = f.means[bad], f.covariances[bad]  # too few effective samples: FOCI term
     weights = np.exp(log_mass - logsumexp(log_mass))
     keep = weights > 0
-    return GaussianMixture(weights[keep], mean[keep], cov[keep])
+    return type(a)(weights[keep], mean[keep], cov[keep])
 
 
-def _without_zero_weights(m: GaussianMixture) -> GaussianMixture:
+def _without_zero_weights(m: M) -> M:
     keep = m.weights > 0
-    return m if keep.all() else GaussianMixture(m.weights[keep], m.means[keep], m.covariances[keep])
+    return m if keep.all() else type(m)(m.weights[keep], m.means[keep], m.covariances[keep])
 
 
-def _estimate_info(p: GaussianMixture, prior: GaussianMixture, n: int, rng) -> float:
+def _estimate_info(p: Mixture, prior: Mixture, n: int, rng) -> float:
     return max(0.0, kl_divergence(p, prior, n, rng))
 
 
 def fuse_mixtures(
-    a: GaussianMixture,
-    b: GaussianMixture,
+    a: Mixture,
+    b: Mixture,
     rule: str = "min-info-loss",
     n_samples: int = 1000,
     method: str = "moment-match",
     max_components: int = 15,
-    prior: GaussianMixture | None = None,
+    prior: Mixture | None = None,
     seed=None,
     *,
     omega: float | None = None,
@@ -206,7 +206,7 @@ def fuse_mixtures(
     samples per component pair for ``moment-match`` (default ``max(64, n_samples // 4)``).
     ``seed`` is an int or a numpy Generator. See the module docstring for rules and methods.
     """
-    _check_pair(a, b)
+    check_pair(a, b)
     a, b = _without_zero_weights(a), _without_zero_weights(b)
     rule = check_rule(rule)
     if method not in MIXTURE_METHODS:
@@ -217,10 +217,10 @@ def fuse_mixtures(
     if rule == "kld-weighted-chernoff" and prior is None and omega is None:
         raise ValueError("kld-weighted-chernoff needs the common prior mixture (prior=...)")
     if prior is not None:
-        _check_pair(a, prior)
+        check_pair(a, prior)
     if omega is not None:
         omega = check_weight(omega)
-    rng = _as_rng(seed)
+    rng = as_rng(seed)
     info_a = info_b = math.nan
     if prior is not None:
         info_a = _estimate_info(a, prior, 4 * n_samples, rng)

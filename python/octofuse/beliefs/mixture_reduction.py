@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from .mixture import GaussianMixture, gaussian_logpdf, log_det_spd, logsumexp0
+
+from .mixture_algebra import M, gaussian_logpdf, log_det_spd, logsumexp0
 
 
 def _merge(w, mu, cov, i, j):
@@ -27,7 +28,7 @@ def _merge_costs(w, mu, cov, logdet, i, others):
     return 0.5 * (wij * logdet_ij - wi * logdet[i] - wo * logdet[others])
 
 
-def runnalls_reduce(mix: GaussianMixture, max_components: int) -> GaussianMixture:
+def runnalls_reduce(mix: M, max_components: int) -> M:
     """Merge pairs greedily by Runnalls' KL bound until at most ``max_components`` remain.
 
     Merges preserve the mixture's weight, mean and covariance; zero-weight components are dropped
@@ -40,7 +41,7 @@ def runnalls_reduce(mix: GaussianMixture, max_components: int) -> GaussianMixtur
     w, mu, cov = mix.weights[keep].copy(), mix.means[keep].copy(), mix.covariances[keep].copy()
     n = w.shape[0]
     if n <= max_components:
-        return mix if keep.all() else GaussianMixture(w, mu, cov)
+        return mix if keep.all() else type(mix)(w, mu, cov)
     logdet = log_det_spd(cov)
     costs = np.full((n, n), np.inf)
     for i in range(n - 1):
@@ -62,16 +63,16 @@ def runnalls_reduce(mix: GaussianMixture, max_components: int) -> GaussianMixtur
         lo, hi = others < i, others > i
         costs[others[lo], i] = new[lo]
         costs[i, others[hi]] = new[hi]
-    return GaussianMixture(w[active], mu[active], cov[active])
+    return type(mix)(w[active], mu[active], cov[active])
 
 
 def weighted_em(
     x: np.ndarray,
     weights: np.ndarray,
-    init: GaussianMixture,
+    init: M,
     n_iter: int = 50,
     tol: float = 1e-6,
-) -> GaussianMixture:
+) -> M:
     """Weighted EM: the mixture maximising ``sum_s weights_s log p(x_s)``, started from ``init``.
 
     ``weights`` are non-negative importance weights (normalised here). Covariances get a small
@@ -103,4 +104,4 @@ def weighted_em(
         if abs(loglik - prev) < tol * max(1.0, abs(loglik)):
             break
         prev = loglik
-    return GaussianMixture(w, mu, cov)
+    return type(init)(w, mu, cov)
