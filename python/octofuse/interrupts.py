@@ -4,11 +4,14 @@ imports ``numpy.random``, a Cython module, on first use), the module's code swal
 command would run on to the end. The ``octofuse`` program therefore also remembers the signal,
 and the places a command passes often (each batch of scans) and the moment its outputs would
 replace the old ones ask again; the thread importing the output libraries ahead then begins no
-other import."""
+other import. From the Ctrl-C on, what it left half-done (an object half-built when it landed,
+a weak-reference callback it cut short) complains to no one as it is freed: the run is ending
+with its one line."""
 
 from __future__ import annotations
 
 import signal
+import sys
 
 _interrupted = False
 
@@ -16,7 +19,13 @@ _interrupted = False
 def _on_sigint(signum, frame) -> None:
     global _interrupted
     _interrupted = True
+    sys.unraisablehook = _ignore_unraisable
     raise KeyboardInterrupt
+
+
+def _ignore_unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` once interrupted: the errors of destructors and callbacks, which
+    Python would print as "Exception ignored in", are dropped."""
 
 
 def remember_interrupts() -> None:

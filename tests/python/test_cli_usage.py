@@ -333,6 +333,43 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
 
 
+@pytest.mark.parametrize("where", ["half-built", "callback"])
+def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
+    """A Ctrl-C landing in an object's construction (Matplotlib's parser grammar as the output
+    libraries are imported) or in a weak-reference callback leaves the object to complain as
+    it is freed ("Exception ignored in ..."): once interrupted, the run ends with its one
+    line."""
+    script = ("import os, signal, sys, time, weakref\n"
+              "from octofuse.interrupts import interrupted, remember_interrupts\n"
+              "remember_interrupts()\n"
+              "def ctrl_c():\n"
+              "    os.kill(os.getpid(), signal.SIGINT)\n"
+              "    time.sleep(5)\n"
+              "class Half:\n"
+              "    def __init__(self):\n"
+              "        ctrl_c()\n"
+              "        self.expr = None\n"
+              "    def __del__(self):\n"
+              "        self.expr  # AttributeError: never set\n"
+              "class Target:\n"
+              "    pass\n"
+              "try:\n"
+              f"    if {where!r} == 'half-built':\n"
+              "        Half()\n"
+              "    else:\n"
+              "        t = Target()\n"
+              "        r = weakref.ref(t, lambda _: ctrl_c())\n"
+              "        del t  # the KeyboardInterrupt is raised in the callback, and swallowed\n"
+              "except KeyboardInterrupt:\n"
+              "    pass\n"
+              "if interrupted():\n"
+              "    sys.stderr.write('error: interrupted\\n')\n"
+              "    sys.exit(130)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, env=ENV)
+    assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
+
+
 @pytest.mark.parametrize("code", [0, 130])
 def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
     """Once the command is over (done, or interrupted and reported), a Ctrl-C while the
