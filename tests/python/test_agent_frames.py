@@ -290,7 +290,7 @@ def test_a_config_file_pose_of_the_wrong_length_names_the_key():
         from_dict(FuseConfig, {"align": "yes"}, where="cfg.fuse")
 
 
-def test_the_swarm_refuses_frames_up_front():
+def test_the_swarm_refuses_alignment_up_front():
     from octofuse.fusion.swarm import simulate_swarm
 
     bcfg = make_build_config("unused.bag")

@@ -16,7 +16,7 @@ ray = pytest.importorskip("ray")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 
-from octofuse.config import FuseConfig, RunConfig  # noqa: E402
+from octofuse.config import AgentFrame, FuseConfig, RunConfig  # noqa: E402
 from octofuse.fusion.executors import RayExecutor, make_executor  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
@@ -86,11 +86,19 @@ def test_the_executor_reports_a_crashed_worker():
     assert not by[1].ok and "Worker" in by[1].error
 
 
-@pytest.mark.parametrize("delta, per_worker", [(False, 2), (True, 4)])
-def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker):
+@pytest.mark.parametrize("delta, per_worker, framed", [(False, 2, False), (True, 4, False),
+                                                        (False, 2, True), (True, 1, True)])
+def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed):
+    """Also with two agents mapping in frames of their own (their scans are taken as given in
+    those frames): messages moved into the receiver's, the centralized map and the scores in
+    the common frame, as in the simulation."""
     cfg = config(bag)
-    fuse = FuseConfig(rules=list(RULES), topology="ring", schedule="periodic:0.33", delta=delta)
+    frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
+              AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []
+    fuse = FuseConfig(rules=list(RULES), topology="ring", schedule="periodic:0.33", delta=delta,
+                      agent_frames=frames)
     ref = simulate(cfg.build, fuse, samples=0)
+    assert ref.frames.keys() == ({"a", "c"} if framed else set())
     sw = simulate_swarm(cfg.build, fuse, collect_maps=True, agents_per_worker=per_worker)
     assert sw.agents == ref.agents and sw.events == ref.events and sw.messages == len(ref.events)
     assert len(sw.workers) == -(-len(ref.agents) // per_worker) + 1

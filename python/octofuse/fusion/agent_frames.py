@@ -172,14 +172,20 @@ class AgentFrames:
         moved by that frame (points and origin) for them."""
         out_scans, out_targets = [], []
         for scan, tgt in zip(scans, targets):
-            T = self.frames.get(self.agents[scan.agent])
-            if T is None:
+            moved_scan = self.scan_in_common(scan)
+            if moved_scan is scan:
                 out_scans.append(scan)
                 out_targets.append([*tgt, *common])
             else:
-                out_scans += [scan, dataclasses.replace(scan, pose=T @ scan.pose)]
+                out_scans += [scan, moved_scan]
                 out_targets += [list(tgt), list(common)]
         return out_scans, out_targets
+
+    def scan_in_common(self, scan):
+        """``scan`` of its agent's frame in the common frame (its pose moved by that frame;
+        ``scan`` itself for an agent in the common frame)."""
+        T = self.frames.get(self.agents[scan.agent])
+        return scan if T is None else dataclasses.replace(scan, pose=T @ scan.pose)
 
 
 def frames_section(frames: Mapping[str, np.ndarray], alignment: Sequence[dict]) -> list[str]:

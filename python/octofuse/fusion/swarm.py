@@ -17,8 +17,13 @@ its messages first in, first out; a scan stamped exactly at an exchange time is 
 before it. With ``collect_maps`` the final maps come back as streams, equal byte for byte to
 those of :func:`~octofuse.fusion.simulate.simulate`.
 
-Not supported here: robust fusion (the vote needs every robot's map in one place) and the KL
-timeline (``samples``).
+Agents may map in frames of their own (``fuse.agent_frames``), as in the simulation: a receiver
+moves each message into its frame before fusing it, the centralized worker takes each scan moved
+into the common frame, and scores compare the maps moved into it.
+
+Not supported here: robust fusion (the vote needs every robot's map in one place), alignment on
+first contact (``fuse.align``: a link aligns on both ends' maps at once) and the KL timeline
+(``samples``).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from typing import Callable, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig, MapConfig
 from ..memory import return_freed_memory
+from .agent_frames import AgentFrames
 from .executors import ray_session
 from .network import message_bytes
 from .results import LOCAL, Traffic
@@ -59,14 +65,16 @@ class SwarmWorker:
 
     ``memory_cap`` (bytes, optional): after every call the worker checks its private resident
     memory (not counting the shared object store) and raises ``MemoryError`` naming itself
-    once it is over the cap."""
+    once it is over the cap. ``frames``: the run's agent frames (default: every agent in the
+    common frame)."""
 
     def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
                  unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
-                 central: bool = False):
+                 central: bool = False, frames: Optional[AgentFrames] = None):
         from ..maps.occupancy import OccupancyMap
 
         self.index, self.names, self.rules = index, list(names), list(rules)
+        self.frames = frames or AgentFrames(self.names)
         self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
         mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
         self.resolution = map_cfg.resolution
@@ -131,16 +139,18 @@ class SwarmWorker:
         return out
 
     def receive(self, receiver: str, senders: list[str], *messages) -> int:
-        """Fuse the messages (one list of per-rule streams per sender, in event order)."""
+        """Fuse the messages (one list of per-rule streams per sender, in event order), each
+        moved into the receiver's frame first."""
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
         from ..maps.tree_fusion import fuse_into
 
         t0 = time.perf_counter()
-        for msg in messages:
+        for sender, msg in zip(senders, messages):
             for r, data in zip(self.rules, msg):
                 m = OccupancyMap.from_bytes(data)
                 self.received[r][receiver] += message_bytes(m)
+                m = self.frames.to_receiver(sender, receiver, m, self.resolution)
                 loss = self.loss[receiver].get(r)
                 if loss is None:
                     loss = self.loss[receiver][r] = InfoLossMap(m.resolution)
@@ -162,14 +172,15 @@ class SwarmWorker:
         c = OccupancyMap.from_bytes(central)
         jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
         agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
-        compared = compare_many(c, [agent_map(*j) for j in jobs], tol, self.threads)
+        maps = [self.frames.to_common(a, agent_map(r, a)) for r, a in jobs]  # as scored
+        compared = compare_many(c, maps, tol, self.threads)
         out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
-        for (r, a), s in zip(jobs, compared):
+        for (r, a), m, s in zip(jobs, maps, compared):
             if r == LOCAL:
-                out[r][a] = score(self.local[a], c, tol=tol, truth=truth, compared=s)
+                out[r][a] = score(m, c, tol=tol, truth=truth, compared=s)
                 continue
             loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
-            out[r][a] = score(self.fused[a][r], c, tol=tol, loss=loss, truth=truth, compared=s,
+            out[r][a] = score(m, c, tol=tol, loss=loss, truth=truth, compared=s,
                               bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
                               bytes_sent_32b=self.sent_32b[r][a])
         self._check_memory()
@@ -265,9 +276,9 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
         raise ValueError("channel filters and message loss are not available in a swarm; use "
                          "simulate")
-    if fuse_cfg.own_frames or fuse_cfg.align != "off":
-        raise ValueError("agent frames and alignment (fuse.agent_frames, fuse.align) are not "
-                         "available in a swarm (its agents share the common frame); use simulate")
+    if fuse_cfg.align != "off":
+        raise ValueError("alignment on first contact (fuse.align) is not available in a swarm "
+                         "(a link aligns on the maps of both its ends at once); use simulate")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -279,6 +290,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     timings: dict[str, float] = defaultdict(float)
     with ray_session(address, num_cpus) as ray, ScanSource(build_cfg) as src:
         agents = [a.name for a in src.agents]
+        frames = AgentFrames.from_config(agents, fuse_cfg)
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
         start = src.bags.start_ns
         _, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
@@ -299,7 +311,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
         groups = [agents[w * agents_per_worker:(w + 1) * agents_per_worker] for w in range(n_workers)]
         t0 = time.perf_counter()
         workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
-                                 threads, memory_per_worker) for w, names in enumerate(groups)]
+                                 threads, memory_per_worker, frames=frames)
+                   for w, names in enumerate(groups)]
         central = ray.remote(SwarmWorker).options(**opts).remote(
             n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True)
         ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
@@ -373,7 +386,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
                 pending = 0
             name = agents[scan.agent]
             buffers[scan.agent // agents_per_worker].append((name, scan))
-            all_scans.append((name, scan))
+            all_scans.append((name, frames.scan_in_common(scan)))
             pending += 1
             if pending >= build_cfg.batch_size * max(1, n_workers):
                 flush()
