@@ -250,6 +250,102 @@ def test_an_interrupted_write_leaves_the_previous_outputs(bag, tmp_path, capsys,
     assert no_leftovers(tmp_path, {"run", "maps"})
 
 
+@pytest.fixture
+def ctrl_c(monkeypatch):
+    """``ctrl_c()`` does what the ``octofuse`` program's handler does on a Ctrl-C (the state
+    of octofuse.interrupts is restored afterwards)."""
+    import signal
+
+    from octofuse import interrupts
+
+    monkeypatch.setattr(interrupts, "_interrupted", False)
+    monkeypatch.setattr(interrupts, "_outputs_in_place", False)
+    monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)
+    return lambda frame=None: interrupts._on_sigint(signal.SIGINT, frame)
+
+
+def test_an_error_after_a_ctrl_c_is_the_interruption(bag, tmp_path, capsys, previous,
+                                                     monkeypatch, ctrl_c):
+    """A library that turns the KeyboardInterrupt into an error of its own (Matplotlib's
+    compiled code: "Invalid bounding box") ends the command as interrupted."""
+    import octofuse.outputs.report
+
+    def interrupted_in_a_library(res, out, *args, **kw):
+        (Path(out) / "report.md").write_text("half")
+        try:
+            ctrl_c()
+        except KeyboardInterrupt:
+            raise ValueError("Invalid bounding box") from None
+
+    monkeypatch.setattr(octofuse.outputs.report, "write_outputs", interrupted_in_a_library)
+    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
+                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
+                           "--out", previous["run"])
+    assert (code, err.strip()) == (130, "error: interrupted")
+    assert snapshot(previous["run"]) == previous["before"]["run"]
+    assert no_leftovers(tmp_path, {"run", "maps"})
+
+
+def test_a_ctrl_c_once_the_outputs_are_in_place_ends_nothing(bag, tmp_path, capsys, previous,
+                                                            monkeypatch, ctrl_c):
+    """The command is done once its outputs replaced the old ones: a Ctrl-C as it prints its
+    table neither ends it with 130 (which says the old outputs were kept) nor cuts it short."""
+    import octofuse.outputs.tables
+
+    table = octofuse.outputs.tables.scores_table
+
+    def interrupted_table(*args, **kw):
+        ctrl_c()
+        return table(*args, **kw)
+
+    monkeypatch.setattr(octofuse.outputs.tables, "scores_table", interrupted_table)
+    code, text, err = run_cli(capsys, "run", bag, "--rules", "naive-bayes", "--topology", "line",
+                              "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
+                              "--out", previous["run"])
+    assert code == 0 and err == "", err
+    assert "naive-bayes" in text and "report:" in text
+    assert snapshot(previous["run"]) != previous["before"]["run"]
+    assert (previous["run"] / MARKER).read_text() == "written by octofuse run\n"
+
+
+def test_a_ctrl_c_in_the_import_systems_bookkeeping_is_only_remembered(ctrl_c):
+    """Raised in importlib's own code (a module lock's callback between taking and releasing
+    the import lock), a KeyboardInterrupt could leave the import lock held and the exit
+    waiting forever for the imports thread: there it is remembered, and raised at the next
+    check."""
+    from octofuse import interrupts
+
+    frames = []
+
+    class Spy:  # a finder: importlib's own frame calls it
+        def find_spec(self, name, path=None, target=None):
+            if name == "octofuse_no_such_module":
+                frames.append(sys._getframe(1))
+
+    sys.meta_path.insert(0, Spy())
+    try:
+        with pytest.raises(ModuleNotFoundError):
+            __import__("octofuse_no_such_module")
+    finally:
+        sys.meta_path.pop(0)
+    assert frames[0].f_code.co_filename.startswith("<frozen importlib")
+
+    def only_remembered(frame):
+        try:
+            ctrl_c(frame)
+        except KeyboardInterrupt:
+            pytest.fail("raised")
+
+    only_remembered(frames[0])
+    assert interrupts.cut_short()
+    with pytest.raises(KeyboardInterrupt):
+        interrupts.raise_if_interrupted()
+    with pytest.raises(KeyboardInterrupt):
+        ctrl_c(sys._getframe())  # anywhere else: raised at once
+    with interrupts.held():
+        only_remembered(sys._getframe())
+
+
 def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
     assert (previous["run"] / MARKER).read_text() == "written by octofuse run\n"
     out = tmp_path / "fused"

@@ -18,7 +18,7 @@ from typing import Optional
 
 import click
 
-from ..interrupts import raise_if_interrupted
+from ..interrupts import begin_command, cut_short, raise_if_interrupted
 from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
@@ -39,7 +39,9 @@ def entry() -> None:
 
 def main(argv: Optional[list[str]] = None) -> int:
     """Run the CLI: usage errors exit 2 with click's message, bad input 1 with one line,
-    an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug)."""
+    an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug). An
+    error after a Ctrl-C is the Ctrl-C's (a library turned it into an error of its own)."""
+    begin_command()
     try:
         args = sys.argv[1:] if argv is None else list(argv)
         with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below
@@ -50,16 +52,16 @@ def main(argv: Optional[list[str]] = None) -> int:
     except click.ClickException as e:
         e.show()
         return e.exit_code
-    except click.Abort:
-        _error("interrupted")
-        return 130
-    except KeyboardInterrupt:
-        _error("interrupted")
-        return 130
+    except (click.Abort, KeyboardInterrupt):
+        return _interrupted()
     except (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError) as e:
+        if cut_short():
+            return _interrupted()
         _error(_message(e))
         return 1
     except Exception as e:  # a bug in octofuse, not bad input
+        if cut_short():
+            return _interrupted()
         if _bad_input(e):
             _error(_message(e))
             return 1
@@ -89,3 +91,8 @@ def _message(e: BaseException) -> str:
 
 def _error(text: str) -> None:
     click.echo(f"error: {text}", err=True)
+
+
+def _interrupted() -> int:
+    _error("interrupted")
+    return 130

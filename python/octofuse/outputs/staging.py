@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-from ..interrupts import raise_if_interrupted
+from ..interrupts import held, outputs_in_place, raise_if_interrupted
 
 #: a file in every output folder octofuse writes, naming the command that wrote it
 MARKER = ".octofuse-output"
@@ -42,9 +42,11 @@ def staged_folder(out: str | os.PathLike, command: str) -> Iterator[Path]:
     stage = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
     try:
         yield stage
-        raise_if_interrupted()  # a Ctrl-C swallowed on its way keeps the old outputs too
-        (stage / MARKER).write_text(f"written by octofuse {command}\n")
-        _replace(stage, final)
+        with held():  # the old outputs or the new ones in place, never neither
+            raise_if_interrupted()  # a Ctrl-C swallowed on its way keeps the old outputs too
+            (stage / MARKER).write_text(f"written by octofuse {command}\n")
+            _replace(stage, final)
+            outputs_in_place()
     except BaseException as e:
         shutil.rmtree(stage, ignore_errors=True)
         _name_final_paths(e, stage, final)
