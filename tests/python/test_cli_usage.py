@@ -24,6 +24,12 @@ RES = "0.2"
 ENV = {k: v for k, v in os.environ.items() if k not in ("FORCE_COLOR", "COLUMNS", "OCTOFUSE_DEBUG")}
 
 
+def python_c(script: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``script`` run by a fresh Python (as a user's shell would start it), its output as text."""
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=timeout, env=ENV)
+
+
 def octofuse(*args, cwd=None) -> subprocess.CompletedProcess:
     """The installed console script, as a user runs it."""
     assert OCTOFUSE.is_file(), f"the octofuse command is not installed at {OCTOFUSE}"
@@ -373,16 +379,14 @@ def test_import_octofuse_loads_no_heavy_module():
             f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
             "octofuse.simulate\n"  # a lazy name: loads the pipeline
             f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n")
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                       env=ENV)
+    p = python_c(code)
     assert p.returncode == 0, p.stderr
     light, after = p.stdout.splitlines()
     assert light == "[]"
     assert after == "['rosbags']"  # the check above can see a module that was imported
     # nothing but the package itself: the program can catch an interruption while it imports
-    p = subprocess.run([sys.executable, "-c", "import sys, octofuse.program\n"
-                        "print(sorted(m for m in sys.modules if m.startswith(('octofuse.', "
-                        "'numpy'))))"], capture_output=True, text=True, timeout=120, env=ENV)
+    p = python_c("import sys, octofuse.program\n"
+                 "print(sorted(m for m in sys.modules if m.startswith(('octofuse.', 'numpy'))))")
     assert p.stdout.strip() == "['octofuse.program']", p.stdout + p.stderr
 
 
@@ -396,8 +400,7 @@ def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
               "            raise KeyboardInterrupt\n"
               "sys.meta_path.insert(0, Interrupt())\n"
               "octofuse.program.run()\n")
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120, env=ENV)
+    out = python_c(script)
     assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
 
 
@@ -423,8 +426,7 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
               f"sys.argv = ['octofuse', 'run', {str(lab8)!r}, '--rule', 'naive-bayes', "
               f"'--topology', 'ring', '--every', '50', '--samples', '2', '--out', {str(out)!r}]\n"
               "octofuse.program.run()\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=300, env=ENV)
+    done = python_c(script, timeout=300)
     assert (done.returncode, done.stderr) == (130, "error: interrupted\n")
     assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
 
@@ -461,8 +463,7 @@ def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
               "if interrupted():\n"
               "    sys.stderr.write('error: interrupted\\n')\n"
               "    sys.exit(130)\n")
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120, env=ENV)
+    out = python_c(script)
     assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
 
 
@@ -475,8 +476,7 @@ def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
               f"c.main = lambda: {code}\n"
               "atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))\n"
               "c.entry()\n")
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120, env=ENV)
+    out = python_c(script)
     assert (out.returncode, out.stderr) == (code, "")
     installed = OCTOFUSE.read_text()
     assert "from octofuse.program import run" in installed, installed
