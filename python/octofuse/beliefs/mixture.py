@@ -3,7 +3,8 @@ operations as a :class:`~octofuse.beliefs.base.Belief`.
 
 The operations live below this class and take any mixture: the closed-form products in
 :mod:`~octofuse.beliefs.mixture_algebra`, the reduction in
-:mod:`~octofuse.beliefs.mixture_reduction`, the WEP fusion in :mod:`~octofuse.beliefs.mixture_fusion`.
+:mod:`~octofuse.beliefs.mixture_reduction`, the WEP fusion in
+:mod:`~octofuse.beliefs.mixture_fusion`.
 """
 
 from __future__ import annotations
