@@ -54,17 +54,13 @@ def main(argv: Optional[list[str]] = None) -> int:
         return e.exit_code
     except (click.Abort, KeyboardInterrupt):
         return _interrupted()
-    except (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError) as e:
-        if cut_short():
-            return _interrupted()
-        _error(_message(e))
-        return 1
-    except Exception as e:  # a bug in octofuse, not bad input
+    except Exception as e:
         if cut_short():
             return _interrupted()
         if _bad_input(e):
             _error(_message(e))
             return 1
+        # a bug in octofuse, not bad input
         if os.environ.get("OCTOFUSE_DEBUG"):
             raise
         _error(f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
@@ -74,7 +70,10 @@ def main(argv: Optional[list[str]] = None) -> int:
 
 
 def _bad_input(e: BaseException) -> bool:
-    """A bag or transform error (bad input); their modules are imported only if they ran."""
+    """An error bad input gives: one of the kinds below, or a bag's or transform's error (their
+    modules are imported only if they ran)."""
+    if isinstance(e, (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError)):
+        return True
     for module, name in (("octofuse.scans.bags", "BagError"), ("octofuse.scans.tf", "TransformError")):
         cls = getattr(sys.modules.get(module), name, None)
         if cls is not None and isinstance(e, cls):
