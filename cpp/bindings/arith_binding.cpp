@@ -22,6 +22,13 @@ void define_arith(py::module_& m) {
       },
       py::arg("map"));
   m.def(
+      "_clamped_copy",
+      [](const OccupancyMap& map) {
+        py::gil_scoped_release release;
+        return clamped_copy(map);
+      },
+      py::arg("map"));
+  m.def(
       "_assign_values",
       [](OccupancyMap& map, OccupancyMap& channel, const OccupancyMap& msg) {
         py::gil_scoped_release release;

@@ -1,10 +1,88 @@
 // octofuse: log-odds arithmetic on whole maps (see arith.hpp).
 #include "octofuse/arith.hpp"
 
+#include "octofuse/detail/lazy_tree.hpp"
+
 #include <algorithm>
+#include <array>
 #include <stdexcept>
 
 namespace octofuse {
+
+namespace {
+
+using OcNode = OccupancyNode;
+
+/// copy + clamp_values in one walk of the source tree, twice: first without allocating, to
+/// find the levels OctoMap's prune() reaches (from the finest up, until a level prunes
+/// nothing), then building the copy bottom-up with those levels' collapses built in.
+class ClampedCopier {
+ public:
+  ClampedCopier(const OccupancyTree& src, OccupancyTree& dst)
+      : src_(src), dst_(dst), lo_(dst.getClampingThresMinLog()),
+        hi_(dst.getClampingThresMaxLog()) {}
+
+  void run() {
+    const OcNode* root = src_.getRoot();
+    if (root == nullptr) return;
+    detail::Lazy<OccupancyTree> top{nullptr, 0, nullptr};
+    if (!src_.nodeHasChildren(root)) {
+      top.get(dst_)->setLogOdds(clamp(root->getLogOdds()));
+      return;
+    }
+    float v;
+    visit<false>(root, 0, top, v);
+    for (unsigned d = src_.getTreeDepth() - 1; d > 0; --d) {
+      if (collapsible_[d] == 0) {
+        lowest_pruned_ = d + 1;
+        break;
+      }
+    }
+    visit<true>(root, 0, top, v);
+  }
+
+ private:
+  float clamp(float v) const { return std::min(std::max(v, lo_), hi_); }
+
+  // The inner node s at `depth`: true if its subtree collapses to one leaf of value v. The
+  // first walk counts, per depth, the nodes that collapse once every finer level has; the
+  // second builds, collapsing only at the levels prune() reaches (never the root).
+  template <bool kBuild>
+  bool visit(const OcNode* s, unsigned depth, detail::Lazy<OccupancyTree>& self, float& v) {
+    detail::Kids k;
+    for (unsigned i = 0; i < 8; ++i) {
+      if (!src_.nodeChildExists(s, i)) continue;
+      const OcNode* c = src_.getNodeChild(s, i);
+      k.present |= static_cast<std::uint8_t>(1u << i);
+      if (!src_.nodeHasChildren(c)) {
+        k.value[i] = clamp(c->getLogOdds());
+        continue;
+      }
+      detail::Lazy<OccupancyTree> child{&self, i, nullptr};
+      if (!visit<kBuild>(c, depth + 1, child, k.value[i]))
+        k.inner |= static_cast<std::uint8_t>(1u << i);
+    }
+    if constexpr (!kBuild) {
+      const bool collapses = depth > 0 && k.collapsible();
+      collapsible_[depth] += collapses;
+      v = k.value[0];
+      return collapses;
+    } else {
+      const bool leaf = k.finish(dst_, self, [](OcNode* n, float x) { n->setLogOdds(x); },
+                                 depth > 0 && depth >= lowest_pruned_);
+      v = k.value[0];
+      return leaf;
+    }
+  }
+
+  const OccupancyTree& src_;
+  OccupancyTree& dst_;
+  const float lo_, hi_;
+  std::array<std::size_t, 17> collapsible_{};  // per depth, in the first walk
+  unsigned lowest_pruned_ = 1;  // the coarsest depth prune() collapses nodes at
+};
+
+}  // namespace
 
 void open_clamping(OccupancyMap& map) {
   // OctoMap stores logodds(p) as float: p = 0 and p = 1 give -inf and +inf.
@@ -30,6 +108,12 @@ void clamp_values(OccupancyMap& map) {
   }
   t.updateInnerOccupancy();
   t.prune();
+}
+
+std::unique_ptr<OccupancyMap> clamped_copy(const OccupancyMap& map) {
+  auto out = std::make_unique<OccupancyMap>(map.params());
+  ClampedCopier(map.tree(), out->tree()).run();
+  return out;
 }
 
 std::size_t assign_values(OccupancyMap& map, OccupancyMap& channel, const OccupancyMap& msg) {

@@ -5,6 +5,7 @@
 #include "octofuse/occupancy_map.hpp"
 
 #include <cstddef>
+#include <memory>
 
 namespace octofuse {
 
@@ -21,6 +22,11 @@ void negate_values(OccupancyMap& map);
 /// inner nodes and prunes. A copy of an opened map has its parameters' thresholds again, so
 /// copy + clamp_values gives the map that scoring and files expect.
 void clamp_values(OccupancyMap& map);
+
+/// A copy of `map` clamped to its parameters' thresholds: node for node what copy +
+/// clamp_values gives (OctoMap's prune() included, which stops at the first level where it
+/// prunes nothing), built without the nodes pruning would delete.
+std::unique_ptr<OccupancyMap> clamped_copy(const OccupancyMap& map);
 
 /// For every voxel of `msg` (a coarse leaf stands for all its voxels): map += msg - channel,
 /// then channel = msg, both at that voxel (a voxel `channel` does not know counts as 0). This

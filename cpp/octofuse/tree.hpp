@@ -12,7 +12,9 @@
 #include <octomap/OccupancyOcTreeBase.h>
 
 #include <cstddef>
+#include <limits>
 #include <string>
+#include <type_traits>
 
 namespace octofuse {
 
@@ -49,6 +51,13 @@ class OccupancyNode : public PooledTreeNode<octomap::OcTreeNode, OccupancyNode> 
 
 /// octomap::OcTreeDataNode<float>, pooled: one float per voxel (e.g. information loss).
 class ScalarNode : public PooledTreeNode<octomap::OcTreeDataNode<float>, ScalarNode> {};
+
+/// Where the max of a node's children starts (OctoMap's getMaxChildLogOdds starts from
+/// -FLT_MAX; octofuse's scalar trees from -inf).
+template <class Node>
+inline constexpr float kMaxOfNoChildren = std::is_same_v<Node, OccupancyNode>
+                                              ? -std::numeric_limits<float>::max()
+                                              : -std::numeric_limits<float>::infinity();
 
 static_assert(sizeof(OccupancyNode) == detail::NodePool::kBlock &&
                   sizeof(ScalarNode) == detail::NodePool::kBlock,

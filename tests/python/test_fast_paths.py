@@ -246,3 +246,97 @@ def test_public_fuse_into_on_threads_equals_one_thread(threads):
     assert_same_map(one, many)
     assert (l1.voxels_fused, l1.voxels_copied) == (l2.voxels_fused, l2.voxels_copied)
     assert l1.loss_sum == pytest.approx(l2.loss_sum, rel=1e-12)
+
+
+# -- clamped copies ------------------------------------------------------------------------
+
+def _plain_clamped(m: OccupancyMap) -> OccupancyMap:
+    """OctoMap's way: a copy, its leaves clamped, inner nodes recomputed, prune()."""
+    return m.copy().clamp_values()
+
+
+def assert_same_stream(a: OccupancyMap, b: OccupancyMap) -> None:
+    """Node for node: every node's value and child mask (the .ot stream), and the node count."""
+    assert a.to_bytes() == b.to_bytes()
+    assert a.num_nodes == b.num_nodes
+    assert a.clamping_logodds == b.clamping_logodds
+
+
+def test_clamped_copy_equals_copy_and_clamp_on_open_maps():
+    maps = [OccupancyMap(0.1).open_clamping(), OccupancyMap(0.05).open_clamping()]
+    for k, pts_origin in enumerate(random_scans(7, 12) + warehouse_scans(3)):
+        pts, origin = pts_origin
+        for m in maps:  # every scan 3 times: values well past the thresholds
+            for _ in range(3):
+                m.insert_scan(pts, origin)
+    empty = OccupancyMap(0.1)
+    for m in [*maps, maps[0].copy().negate_values(), empty]:
+        want = _plain_clamped(m)
+        assert_same_stream(m.clamped_copy(), want)
+        assert m.clamped_copy().clamping_logodds == OccupancyMap(m.resolution).clamping_logodds
+    assert maps[0].clamped_copy().num_nodes < maps[0].num_nodes  # clamping made leaves equal
+
+
+LO, HI = OccupancyMap(0.1).clamping_logodds  # the default thresholds, about -2 and 3.5
+VALUES = [-9.0, LO - 0.5, LO, -1.0, 0.0, 0.4, HI, HI + 0.5, 7.0, 12.0]
+
+
+def _stream(value: float, children) -> bytes:
+    """OctoMap's node data of one node and its subtree: value, child mask, children."""
+    mask = sum(1 << i for i, c in enumerate(children) if c is not None)
+    return (np.float32(value).tobytes() + bytes([mask])
+            + b"".join(c for c in children if c is not None))
+
+
+def _chain(depth: int, below: bytes) -> bytes:
+    """The node data of a tree whose root leads down child 0 to ``below`` at ``depth``."""
+    for _ in range(depth):
+        below = _stream(0.0, [below] + [None] * 7)
+    return below
+
+
+def test_clamped_copy_keeps_prune_stopping_at_a_level_that_prunes_nothing():
+    # 8 coarse leaves at depth 15, all past the upper threshold: clamped, they are equal, but
+    # OctoMap's prune() starts at the finest level, prunes nothing there and stops
+    leaves = [_stream(v, [None] * 8) for v in (4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0)]
+    m = OccupancyMap.from_tree_data(_chain(14, _stream(0.0, leaves)), 0.1)
+    want = _plain_clamped(m)
+    assert want.num_nodes == m.num_nodes  # not collapsed
+    assert_same_stream(m.clamped_copy(), want)
+    # with one finest node that collapses as well, prune() goes on and collapses both levels
+    finest = _stream(0.0, [_stream(v, [None] * 8) for v in (5.0, 6.0, 7.0, 8.0, 4.0, 4.0, 4.0, 4.0)])
+    leaves[1] = finest
+    m = OccupancyMap.from_tree_data(_chain(14, _stream(0.0, leaves)), 0.1)
+    want = _plain_clamped(m)
+    assert want.num_nodes == 15  # the chain to depth 14, whose node is now a leaf
+    assert_same_stream(m.clamped_copy(), want)
+
+
+def _subtrees(height: int):
+    """Random subtrees at most ``height`` levels deep, often with all 8 children (so that
+    clamping makes them collapse), leaves from VALUES."""
+    from hypothesis import strategies as st
+
+    leaf = st.sampled_from(VALUES).map(lambda v: _stream(v, [None] * 8))
+    if height == 0:
+        return leaf
+    child = _subtrees(height - 1)
+    masks = st.one_of(st.just(0xFF), st.integers(1, 0xFF))
+    inner = masks.flatmap(lambda mask: st.tuples(*[
+        child if mask >> i & 1 else st.none() for i in range(8)])).map(
+        lambda kids: _stream(0.0, list(kids)))
+    return st.one_of(leaf, inner, inner)
+
+
+def test_clamped_copy_equals_copy_and_clamp_on_random_trees():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=150, deadline=None)
+    @given(st.integers(12, 16).flatmap(lambda d: st.tuples(st.just(d), _subtrees(min(16 - d, 3)))))
+    def check(case):
+        depth, below = case
+        m = OccupancyMap.from_tree_data(_chain(depth, below), 0.1)
+        assert_same_stream(m.clamped_copy(), _plain_clamped(m))
+
+    check()

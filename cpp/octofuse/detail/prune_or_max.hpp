@@ -4,9 +4,6 @@
 #include "octofuse/tree.hpp"
 #include "octofuse/tree_access.hpp"
 
-#include <limits>
-#include <type_traits>
-
 namespace octofuse::detail {
 
 /// The children pointer of a node, which OctoMap keeps protected.
@@ -18,17 +15,14 @@ struct ChildrenAccess : Node {
 /// What a walk does to an inner node once its children are done, as OctoMap does it (`if
 /// (!pruneNode(n)) n->setLogOdds(n->getMaxChildLogOdds())`), in one pass over the children:
 /// the 8 children collapse into `n` if they are equal leaves (isNodeCollapsible, pruneNode);
-/// otherwise `n` holds the max of its children's values, starting from OctoMap's -FLT_MAX for
-/// occupancy and from -inf for scalar trees. A node without children is left as it is.
-/// `t` is the tree whose methods count the nodes (see LossAdder). Returns whether it pruned.
+/// otherwise `n` holds the max of its children's values (from kMaxOfNoChildren). A node
+/// without children is left as it is. `t` is the tree whose methods count the nodes (see
+/// LossAdder). Returns whether it pruned.
 template <class Tree>
 bool prune_or_max(Tree& t, typename TreeAccess<Tree>::Node* n) {
   using Node = typename TreeAccess<Tree>::Node;
-  constexpr float kLowest = std::is_same_v<Node, OccupancyNode>
-                                ? -std::numeric_limits<float>::max()
-                                : -std::numeric_limits<float>::infinity();
   if (!ChildrenAccess<Node>::has_array(n)) return false;
-  float mx = kLowest;
+  float mx = kMaxOfNoChildren<Node>;
   bool any = false;
   bool collapsible = t.nodeChildExists(n, 0);
   const float first = collapsible ? t.getNodeChild(n, 0)->getValue() : 0.0f;

@@ -82,7 +82,7 @@ def unclamped_copy(m: OccupancyMap) -> OccupancyMap:
 
 def clamped(m: OccupancyMap) -> OccupancyMap:
     """A copy of ``m`` clamped to its configured thresholds: what scoring and files see."""
-    return m.copy().clamp_values()
+    return m.clamped_copy()
 
 
 def negated(m: OccupancyMap) -> OccupancyMap:

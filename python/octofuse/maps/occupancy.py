@@ -239,6 +239,11 @@ class OccupancyMap:
         _core._clamp_values(self._m)
         return self
 
+    def clamped_copy(self) -> "OccupancyMap":
+        """A copy clamped to the configured thresholds: ``copy().clamp_values()``, node for
+        node, in one walk."""
+        return OccupancyMap._wrap(_core._clamped_copy(self._m))
+
     def negate_values(self) -> "OccupancyMap":
         """Negate every stored log-odds, in place."""
         _core._negate_values(self._m)
