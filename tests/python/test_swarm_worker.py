@@ -26,7 +26,7 @@ def test_a_message_is_the_senders_map_and_is_fused_as_in_process():
     w.fused["a"]["chernoff"], w.fused["b"]["chernoff"] = a.copy(), b.copy()
     msg = w.send("a", ["b"])
     assert msg == [a.to_bytes()]
-    w.receive("b", ["a"], msg)
+    w.receive("b", ["a"], 0.0, msg)
     want, loss = b.copy(), InfoLossMap(0.1)
     fuse_into(want, a, rule="chernoff", loss=loss)
     assert w.fused["b"]["chernoff"].to_bytes() == want.to_bytes()

@@ -19,11 +19,14 @@ those of :func:`~octofuse.fusion.simulate.simulate`.
 
 Agents may map in frames of their own (``fuse.agent_frames``), as in the simulation: a receiver
 moves each message into its frame before fusing it, the centralized worker takes each scan moved
-into the common frame, and scores compare the maps moved into it.
+into the common frame, and scores compare the maps moved into it. With alignment on first
+contact (``fuse.align``) a receiver registers its map against each message of a link not
+aligned yet, before it fuses any message of the group, as the simulation does; the link's
+transform stays with the receiver's worker.
 
-Not supported here: robust fusion (the vote needs every robot's map in one place), alignment on
-first contact (``fuse.align``: a link aligns on both ends' maps at once) and the KL timeline
-(``samples``).
+Not supported here: robust fusion (the vote needs every robot's map in one place), alignment
+with deltas (a link that failed to register would next see only a delta, where the
+simulation registers on the sender's whole map) and the KL timeline (``samples``).
 """
 
 from __future__ import annotations
@@ -138,18 +141,25 @@ class SwarmWorker:
         self._check_memory()
         return out
 
-    def receive(self, receiver: str, senders: list[str], *messages) -> int:
-        """Fuse the messages (one list of per-rule streams per sender, in event order), each
-        moved into the receiver's frame first."""
+    def receive(self, receiver: str, senders: list[str], time_s: float, *messages) -> int:
+        """Fuse the messages of the group at ``time_s`` (one list of per-rule streams per
+        sender, in event order), each moved into the receiver's frame first. With alignment,
+        the links not aligned yet register first, all on the receiver's map as it was when
+        the group started; a link that fails to is counted, not fused."""
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
         from ..maps.tree_fusion import fuse_into
 
         t0 = time.perf_counter()
+        if self.frames.align != "off":
+            self._align(receiver, senders, time_s, messages)
         for sender, msg in zip(senders, messages):
+            fused = self.frames.aligned(sender, receiver)
             for r, data in zip(self.rules, msg):
                 m = OccupancyMap.from_bytes(data)
                 self.received[r][receiver] += message_bytes(m)
+                if not fused:
+                    continue
                 m = self.frames.to_receiver(sender, receiver, m, self.resolution)
                 loss = self.loss[receiver].get(r)
                 if loss is None:
@@ -158,6 +168,10 @@ class SwarmWorker:
         self.seconds["fusion"] += time.perf_counter() - t0
         self._check_memory()
         return len(messages)
+
+    def alignment(self) -> list[dict]:
+        """The alignment of the links into this worker's agents (:meth:`AgentFrames.report`)."""
+        return self.frames.report()
 
     def central_bytes(self) -> bytes:
         return self.central.to_bytes()
@@ -208,6 +222,17 @@ class SwarmWorker:
                 "seconds": dict(self.seconds)}
 
     # -- internals ------------------------------------------------------------------------------
+    def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> None:
+        """Register the links of ``senders`` not aligned yet on the first rule's maps: the
+        receiver's, and the sender's as its message carries it."""
+        from ..maps.occupancy import OccupancyMap
+
+        own = self.fused[receiver][self.rules[0]]
+        for sender, msg in zip(senders, messages):
+            if not self.frames.aligned(sender, receiver):
+                self.frames.align_links([(sender, receiver, False, time_s)],
+                                        {receiver: own, sender: OccupancyMap.from_bytes(msg[0])})
+
     def _count(self, r: str, sender: str, m) -> None:
         nbytes = message_bytes(m)
         self.sent[r][sender] += nbytes
@@ -240,6 +265,8 @@ class SwarmResult:
     stream_bytes: int = 0  #: bytes of the .ot streams sent
     maps: Optional[dict] = None  #: agent -> rule|local-only -> .ot bytes (collect_maps)
     central: Optional[bytes] = None
+    #: per link that received a message (with ``fuse.align``): as the simulation's ``alignment``
+    alignment: list[dict] = field(default_factory=list)
 
     @property
     def messages_per_second(self) -> float:
@@ -276,9 +303,10 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
         raise ValueError("channel filters and message loss are not available in a swarm; use "
                          "simulate")
-    if fuse_cfg.align != "off":
-        raise ValueError("alignment on first contact (fuse.align) is not available in a swarm "
-                         "(a link aligns on the maps of both its ends at once); use simulate")
+    if fuse_cfg.align != "off" and fuse_cfg.delta:
+        raise ValueError("alignment on first contact (fuse.align) with deltas (fuse.delta) is "
+                         "not available in a swarm (a link that failed to register would next "
+                         "see only a delta); use simulate, or whole messages")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -368,7 +396,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
             for e in group:
                 s, d = agents[e.sender], agents[e.receiver]
                 inbox.setdefault(d, []).append(s)
-            in_flight.extend(home[d].receive.remote(d, senders, *[refs[(s, d)] for s in senders])
+            in_flight.extend(home[d].receive.remote(d, senders, group[0].time_s,
+                                                    *[refs[(s, d)] for s in senders])
                              for d, senders in inbox.items())
             delivered[0] += len(group)
             timings["exchange calls (driver)"] += time.perf_counter() - t1
@@ -420,6 +449,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
                         getattr(tr, k)[a] += v
                 tr.messages += t["messages"]
         stats = ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
+        alignment = sorted((d for part in ray.get([w.alignment.remote() for w in workers])
+                            for d in part), key=lambda d: (d["sender"], d["receiver"]))
         maps = None
         if collect_maps:
             maps = {}
@@ -430,4 +461,4 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     timings["total"] = time.perf_counter() - t_all
     return SwarmResult(agents, rules, graph, events, scores, traffic, stats, dict(timings),
                        messages=delivered[0], stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
-                       maps=maps, central=cbytes if collect_maps else None)
+                       maps=maps, central=cbytes if collect_maps else None, alignment=alignment)
