@@ -13,7 +13,8 @@ from conftest import random_map  # noqa: E402
 from octofuse import InfoLossMap, fuse_into  # noqa: E402
 from octofuse.config import BuildConfig, FuseConfig, MapConfig  # noqa: E402
 from octofuse.fusion.network import message_bytes  # noqa: E402
-from octofuse.fusion.swarm import SwarmWorker, simulate_swarm  # noqa: E402
+from octofuse.fusion.swarm import simulate_swarm  # noqa: E402
+from octofuse.fusion.swarm_worker import SwarmWorker  # noqa: E402
 
 
 def worker(names, delta=False, cap=None):

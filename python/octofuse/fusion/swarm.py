@@ -2,9 +2,9 @@
 
 The in-process simulation (:func:`octofuse.fusion.simulate.simulate`) holds every map in one
 process; a swarm of a few hundred agents does not fit one machine. Here the agents live in
-Ray actors (workers), each holding its agents' maps (one per rule, the local-only map and the
-accumulated information loss), and a message is what a robot would send: the sender's map as
-an OctoMap ``.ot`` stream (:meth:`OccupancyMap.to_bytes`), carried by Ray's object store
+Ray actors (workers, :mod:`.swarm_worker`), each holding its agents' maps (one per rule, the
+local-only map and the accumulated information loss), and a message is what a robot would
+send: the sender's map as an OctoMap ``.ot`` stream (:meth:`OccupancyMap.to_bytes`), carried by Ray's object store
 straight from the sender's worker to the receiver's, wherever they run. The centralized map
 lives in a worker of its own. The driver only reads the bags, hands each scan to its agent's
 worker and tells senders and receivers when to act.
@@ -32,221 +32,17 @@ simulation registers on the sender's whole map) and the KL timeline (``samples``
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from itertools import groupby
 from typing import Callable, Optional
 
-from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig, MapConfig
-from ..memory import return_freed_memory
+from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from .agent_frames import AgentFrames
 from .executors import ray_session
-from .network import message_bytes
 from .results import LOCAL, Traffic
-
-
-def _rss_bytes() -> tuple[int, int, int]:
-    """(private, total, peak total) resident memory of this process, bytes (Linux /proc; 0
-    elsewhere). Private memory leaves out shared memory (Ray's object store is mapped into
-    every worker that reads an object from it, and counts in the total)."""
-    vals: dict[str, int] = {}
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                key, _, rest = line.partition(":")
-                if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile"):
-                    vals[key] = int(rest.split()[0]) * 1024
-    except OSError:
-        pass
-    return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)
-
-
-class SwarmWorker:
-    """Agents' maps in one process (a Ray actor; also usable directly, in process).
-
-    ``memory_cap`` (bytes, optional): after every call the worker checks its private resident
-    memory (not counting the shared object store) and raises ``MemoryError`` naming itself
-    once it is over the cap. ``frames``: the run's agent frames (default: every agent in the
-    common frame)."""
-
-    def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
-                 unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
-                 central: bool = False, frames: Optional[AgentFrames] = None):
-        from ..maps.occupancy import OccupancyMap
-
-        self.index, self.names, self.rules = index, list(names), list(rules)
-        self.frames = frames or AgentFrames(self.names)
-        self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
-        mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
-        self.resolution = map_cfg.resolution
-        self.central = mk() if central else None
-        self.fused = {a: {r: mk() for r in rules} for a in self.names}
-        self.local = {a: mk() for a in self.names}
-        self.loss: dict[str, dict] = {a: {} for a in self.names}  # agent -> rule -> InfoLossMap
-        self.snapshots: dict[tuple, object] = {}  # (rule, sender, receiver) -> last map sent
-        self.sent = {r: defaultdict(int) for r in rules}
-        self.sent_32b = {r: defaultdict(int) for r in rules}
-        self.received = {r: defaultdict(int) for r in rules}
-        self.messages = {r: 0 for r in rules}
-        self.stream_bytes_sent = 0
-        self.seconds: dict[str, float] = defaultdict(float)
-        self.peak_private = 0
-
-    # -- the calls the driver makes ----------------------------------------------------------
-    def insert(self, scans: list) -> int:
-        """Insert scans (``(agent_name, Scan)``; the central worker takes every scan) in order."""
-        from ..maps.build import insert_scans
-
-        t0 = time.perf_counter()
-        if self.central is not None:
-            insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads)
-        else:
-            targets = [[self.fused[a][r] for r in self.rules] + [self.local[a]] for a, _ in scans]
-            insert_scans([s for _, s in scans], targets, self.threads)
-        self.seconds["insertion"] += time.perf_counter() - t0
-        self._check_memory()
-        return len(scans)
-
-    def send(self, sender: str, receivers: list[str]):
-        """The messages of ``sender`` at the start of a group: per rule, its map as an ``.ot``
-        stream (a delta since the last message on the link with ``delta``). Without deltas one
-        message (a list of streams, one per rule) serves every receiver; with deltas there is
-        one per receiver (a tuple, one return value each)."""
-        t0 = time.perf_counter()
-        maps = self.fused[sender]
-        if not self.delta:
-            msg = [maps[r].to_bytes() for r in self.rules]
-            for r in self.rules:
-                for _ in receivers:
-                    self._count(r, sender, maps[r])
-            self.stream_bytes_sent += sum(map(len, msg)) * len(receivers)
-            out = msg
-        else:
-            per = []
-            for d in receivers:
-                msg = []
-                for r in self.rules:
-                    snapshot = maps[r].copy()
-                    prev = self.snapshots.get((r, sender, d))
-                    m = snapshot.changed_since(prev) if prev is not None else snapshot
-                    self.snapshots[(r, sender, d)] = snapshot
-                    self._count(r, sender, m)
-                    msg.append(m.to_bytes())
-                self.stream_bytes_sent += sum(map(len, msg))
-                per.append(msg)
-            out = per[0] if len(per) == 1 else tuple(per)
-        self.seconds["serialise"] += time.perf_counter() - t0
-        self._check_memory()
-        return out
-
-    def receive(self, receiver: str, senders: list[str], time_s: float, *messages) -> int:
-        """Fuse the messages of the group at ``time_s`` (one list of per-rule streams per
-        sender, in event order), each moved into the receiver's frame first. With alignment,
-        the links not aligned yet register first, all on the receiver's map as it was when
-        the group started; a link that fails to is counted, not fused."""
-        from ..maps.infoloss import InfoLossMap
-        from ..maps.occupancy import OccupancyMap
-        from ..maps.tree_fusion import fuse_into
-
-        t0 = time.perf_counter()
-        if self.frames.align != "off":
-            self._align(receiver, senders, time_s, messages)
-        for sender, msg in zip(senders, messages):
-            fused = self.frames.aligned(sender, receiver)
-            for r, data in zip(self.rules, msg):
-                m = OccupancyMap.from_bytes(data)
-                self.received[r][receiver] += message_bytes(m)
-                if not fused:
-                    continue
-                m = self.frames.to_receiver(sender, receiver, m, self.resolution)
-                loss = self.loss[receiver].get(r)
-                if loss is None:
-                    loss = self.loss[receiver][r] = InfoLossMap(m.resolution)
-                fuse_into(self.fused[receiver][r], m, rule=r, unknown=self.unknown, loss=loss)
-        self.seconds["fusion"] += time.perf_counter() - t0
-        self._check_memory()
-        return len(messages)
-
-    def alignment(self) -> list[dict]:
-        """The alignment of the links into this worker's agents (:meth:`AgentFrames.report`)."""
-        return self.frames.report()
-
-    def central_bytes(self) -> bytes:
-        return self.central.to_bytes()
-
-    def score(self, central: bytes, tol: float, truth=None) -> dict:
-        """Scores of this worker's agents against the centralized map (as in
-        :func:`octofuse.fusion.results.score_result`), with their traffic."""
-        from ..maps.compare import compare_many, score
-        from ..maps.infoloss import InfoLossMap
-        from ..maps.occupancy import OccupancyMap
-
-        c = OccupancyMap.from_bytes(central)
-        jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
-        agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
-        maps = [self.frames.to_common(a, agent_map(r, a)) for r, a in jobs]  # as scored
-        compared = compare_many(c, maps, tol, self.threads)
-        out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
-        for (r, a), m, s in zip(jobs, maps, compared):
-            if r == LOCAL:
-                out[r][a] = score(m, c, tol=tol, truth=truth, compared=s)
-                continue
-            loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
-            out[r][a] = score(m, c, tol=tol, loss=loss, truth=truth, compared=s,
-                              bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
-                              bytes_sent_32b=self.sent_32b[r][a])
-        self._check_memory()
-        return out
-
-    def traffic(self) -> dict:
-        return {r: {"sent": dict(self.sent[r]), "received": dict(self.received[r]),
-                    "sent_32b": dict(self.sent_32b[r]), "messages": self.messages[r]}
-                for r in self.rules}
-
-    def maps(self) -> dict:
-        """Every map of this worker as ``.ot`` streams: agent -> rule|local-only -> bytes."""
-        return {a: {**{r: self.fused[a][r].to_bytes() for r in self.rules},
-                    LOCAL: self.local[a].to_bytes()} for a in self.names}
-
-    def stats(self) -> dict:
-        private, cur, peak = _rss_bytes()
-        self.peak_private = max(self.peak_private, private)
-        maps_bytes = sum(m.memory_bytes for a in self.names for m in [*self.fused[a].values(), self.local[a]])
-        if self.central is not None:
-            maps_bytes += self.central.memory_bytes
-        return {"worker": self.index, "agents": len(self.names), "pid": os.getpid(), "rss": cur,
-                "peak_rss": peak, "private": private, "peak_private": self.peak_private,
-                "memory_cap": self.cap, "maps_bytes": maps_bytes, "stream_bytes_sent": self.stream_bytes_sent,
-                "seconds": dict(self.seconds)}
-
-    # -- internals ------------------------------------------------------------------------------
-    def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> None:
-        """Register the links of ``senders`` not aligned yet on the first rule's maps: the
-        receiver's, and the sender's as its message carries it."""
-        from ..maps.occupancy import OccupancyMap
-
-        own = self.fused[receiver][self.rules[0]]
-        for sender, msg in zip(senders, messages):
-            if not self.frames.aligned(sender, receiver):
-                self.frames.align_links([(sender, receiver, False, time_s)],
-                                        {receiver: own, sender: OccupancyMap.from_bytes(msg[0])})
-
-    def _count(self, r: str, sender: str, m) -> None:
-        nbytes = message_bytes(m)
-        self.sent[r][sender] += nbytes
-        self.sent_32b[r][sender] += 32 * m.num_leaves
-        self.messages[r] += 1
-
-    def _check_memory(self) -> None:
-        return_freed_memory(pools=False)
-        cur = _rss_bytes()[0]
-        self.peak_private = max(self.peak_private, cur)
-        if self.cap:
-            if cur > self.cap:
-                raise MemoryError(f"swarm worker {self.index} ({len(self.names)} agent(s)) uses "
-                                  f"{cur / 2**20:.0f} MiB, over its cap of {self.cap / 2**20:.0f} MiB")
+from .swarm_worker import SwarmWorker
 
 
 @dataclass
