@@ -65,7 +65,7 @@ class ClampedCopier {
     if constexpr (!kBuild) {
       const bool collapses = depth > 0 && k.collapsible();
       collapsible_[depth] += collapses;
-      v = k.value[0];
+      if (collapses) v = k.value[0];  // an inner node's value is not needed
       return collapses;
     } else {
       const bool leaf = k.finish(dst_, self, [](OcNode* n, float x) { n->setLogOdds(x); },
