@@ -30,6 +30,11 @@ def python_c(script: str, timeout: float = 120) -> subprocess.CompletedProcess:
                           timeout=timeout, env=ENV)
 
 
+def assert_interrupted(p: subprocess.CompletedProcess) -> None:
+    """How an interrupted command ends: one line, exit code 130, no traceback."""
+    assert (p.returncode, p.stderr) == (130, "error: interrupted\n")
+
+
 def octofuse(*args, cwd=None) -> subprocess.CompletedProcess:
     """The installed console script, as a user runs it."""
     assert OCTOFUSE.is_file(), f"the octofuse command is not installed at {OCTOFUSE}"
@@ -400,8 +405,7 @@ def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
               "            raise KeyboardInterrupt\n"
               "sys.meta_path.insert(0, Interrupt())\n"
               "octofuse.program.run()\n")
-    out = python_c(script)
-    assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
+    assert_interrupted(python_c(script))
 
 
 def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
@@ -426,8 +430,7 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
               f"sys.argv = ['octofuse', 'run', {str(lab8)!r}, '--rule', 'naive-bayes', "
               f"'--topology', 'ring', '--every', '50', '--samples', '2', '--out', {str(out)!r}]\n"
               "octofuse.program.run()\n")
-    done = python_c(script, timeout=300)
-    assert (done.returncode, done.stderr) == (130, "error: interrupted\n")
+    assert_interrupted(python_c(script, timeout=300))
     assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
 
 
@@ -463,8 +466,7 @@ def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
               "if interrupted():\n"
               "    sys.stderr.write('error: interrupted\\n')\n"
               "    sys.exit(130)\n")
-    out = python_c(script)
-    assert (out.returncode, out.stderr) == (130, "error: interrupted\n")
+    assert_interrupted(python_c(script))
 
 
 @pytest.mark.parametrize("code", [0, 130])

@@ -124,12 +124,11 @@ class SwarmWorker:
         from ..maps.tree_fusion import fuse_into
 
         t0 = time.perf_counter()
-        if self.frames.align != "off":
-            self._align(receiver, senders, time_s, messages)
+        first = self._align(receiver, senders, time_s, messages)
         for sender, msg in zip(senders, messages):
             fused = self.frames.aligned(sender, receiver)
-            for r, data in zip(self.rules, msg):
-                m = OccupancyMap.from_bytes(data)
+            for k, (r, data) in enumerate(zip(self.rules, msg)):
+                m = first[sender] if k == 0 and sender in first else OccupancyMap.from_bytes(data)
                 self.received[r][receiver] += message_bytes(m)
                 if not fused:
                     continue
@@ -195,16 +194,19 @@ class SwarmWorker:
                 "seconds": dict(self.seconds)}
 
     # -- internals ------------------------------------------------------------------------------
-    def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> None:
+    def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> dict:
         """Register the links of ``senders`` not aligned yet on the first rule's maps: the
-        receiver's, and the sender's as its message carries it."""
+        receiver's, and the sender's as its message carries it. Returns those senders' maps,
+        read once for the fusion too (none with alignment off)."""
         from ..maps.occupancy import OccupancyMap
 
-        own = self.fused[receiver][self.rules[0]]
-        for sender, msg in zip(senders, messages):
-            if not self.frames.aligned(sender, receiver):
-                self.frames.align_links([(sender, receiver, False, time_s)],
-                                        {receiver: own, sender: OccupancyMap.from_bytes(msg[0])})
+        if self.frames.align == "off":
+            return {}
+        first = {s: OccupancyMap.from_bytes(msg[0]) for s, msg in zip(senders, messages)
+                 if not self.frames.aligned(s, receiver)}
+        self.frames.align_links([(s, receiver, False, time_s) for s in senders if s in first],
+                                {receiver: self.fused[receiver][self.rules[0]], **first})
+        return first
 
     def _count(self, r: str, sender: str, m) -> None:
         nbytes = message_bytes(m)
