@@ -404,7 +404,7 @@ def octofuse_command() -> list[str]:
     for exe in (REPO / ".venv" / "bin" / "octofuse", Path(sys.executable).parent / "octofuse"):
         if exe.is_file():
             return [str(exe)]
-    return [sys.executable, "-m", "octofuse.cli"]
+    return [sys.executable, "-m", "octofuse"]
 
 
 def test_command_line_process(tmp_path):

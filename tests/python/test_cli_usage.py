@@ -408,6 +408,22 @@ def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
     assert_interrupted(python_c(script))
 
 
+def test_python_m_octofuse_is_the_program():
+    """``python -m octofuse`` runs the program: its usage, and a Ctrl-C while it imports the
+    command line ends as the program's does."""
+    p = subprocess.run([sys.executable, "-m", "octofuse", "--help"], capture_output=True,
+                       text=True, timeout=120, env=ENV)
+    assert p.returncode == 0 and "Usage: octofuse" in p.stdout, p.stdout + p.stderr
+    script = ("import runpy, sys\n"
+              "class Interrupt:  # Ctrl-C as the command line is imported\n"
+              "    def find_spec(self, name, path=None, target=None):\n"
+              "        if name == 'octofuse.cli':\n"
+              "            raise KeyboardInterrupt\n"
+              "sys.meta_path.insert(0, Interrupt())\n"
+              "runpy.run_module('octofuse', run_name='__main__')\n")
+    assert_interrupted(python_c(script))
+
+
 def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     """A Ctrl-C whose KeyboardInterrupt is swallowed where it lands (numpy's compiled modules,
     imported on first use, do so in their initialisation) still ends the command: one line,

@@ -1,7 +1,7 @@
-"""``python -m octofuse.cli``: the ``octofuse`` command."""
+"""``python -m octofuse.cli``: the ``octofuse`` program (:func:`octofuse.program.run`). Python
+imports the command line before this module runs, so a Ctrl-C in those first moments is a
+traceback; ``python -m octofuse`` imports nothing first."""
 
-from ..interrupts import remember_interrupts
-from . import entry
+from ..program import run
 
-remember_interrupts()
-entry()
+run()

@@ -1,0 +1,5 @@
+"""``python -m octofuse``: the ``octofuse`` program (:func:`octofuse.program.run`)."""
+
+from .program import run
+
+run()
