@@ -288,12 +288,3 @@ def test_a_config_file_pose_of_the_wrong_length_names_the_key():
                   where="cfg")
     with pytest.raises(ValueError, match="cfg.fuse.align = 'yes'"):
         from_dict(FuseConfig, {"align": "yes"}, where="cfg.fuse")
-
-
-def test_the_swarm_refuses_alignment_with_deltas_up_front():
-    from octofuse.fusion.swarm import simulate_swarm
-
-    bcfg = make_build_config("unused.bag")
-    fcfg = dataclasses.replace(FuseConfig(), align="planar", delta=True)
-    with pytest.raises(ValueError, match="with deltas .* not available in a swarm"):
-        simulate_swarm(bcfg, fcfg)

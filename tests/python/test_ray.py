@@ -88,12 +88,13 @@ def test_the_executor_reports_a_crashed_worker():
 
 @pytest.mark.parametrize("delta, per_worker, framed, align", [
     (False, 2, False, "off"), (True, 4, False, "off"), (False, 2, True, "off"),
-    (True, 1, True, "off"), (False, 2, True, "planar")])
+    (True, 1, True, "off"), (False, 2, True, "planar"), (True, 2, True, "planar")])
 def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed, align):
     """Also with two agents mapping in frames of their own (their scans are taken as given in
     those frames): messages moved into the receiver's, the centralized map and the scores in
     the common frame, as in the simulation. And with alignment on first contact: each link
-    registers (or fails to, and tries again) on the same maps and at the same times."""
+    registers (or fails to, and tries again) on the same maps and at the same times; with
+    deltas, a link sends whole maps until it aligns."""
     cfg = config(bag)
     frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
               AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []

@@ -22,11 +22,13 @@ moves each message into its frame before fusing it, the centralized worker takes
 into the common frame, and scores compare the maps moved into it. With alignment on first
 contact (``fuse.align``) a receiver registers its map against each message of a link not
 aligned yet, before it fuses any message of the group, as the simulation does; the link's
-transform stays with the receiver's worker.
+transform stays with the receiver's worker. With deltas too, a link carries whole maps until
+it aligns: the receiver's call returns the links that aligned, and the sender's next call on
+such a link takes that result as an argument (Ray runs it once the result is there), so that
+it knows which whole map its deltas start from.
 
-Not supported here: robust fusion (the vote needs every robot's map in one place), alignment
-with deltas (a link that failed to register would next see only a delta, where the
-simulation registers on the sender's whole map) and the KL timeline (``samples``).
+Not supported here: robust fusion (the vote needs every robot's map in one place) and the KL
+timeline (``samples``).
 """
 
 from __future__ import annotations
@@ -99,10 +101,6 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
         raise ValueError("channel filters and message loss are not available in a swarm; use "
                          "simulate")
-    if fuse_cfg.align != "off" and fuse_cfg.delta:
-        raise ValueError("alignment on first contact (fuse.align) with deltas (fuse.delta) is "
-                         "not available in a swarm (a link that failed to register would next "
-                         "see only a delta); use simulate, or whole messages")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -170,6 +168,20 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
             bound()
 
         delivered = [0]
+        # with alignment and deltas: per link not known to have aligned, the receivers' calls
+        # its sender has still to see, and those calls not yet read here
+        news: dict[tuple[str, str], list] = defaultdict(list)
+        unread: list = []
+        aligned_links: set[tuple[str, str]] = set()
+        track = fuse_cfg.align != "off" and fuse_cfg.delta
+
+        def read_news() -> None:
+            """The links that aligned, from the receivers' calls that have finished."""
+            if unread:
+                done, _ = ray.wait(list(unread), num_returns=len(unread), timeout=0)
+                for ref in done:
+                    aligned_links.update(map(tuple, ray.get(ref)))
+                    unread.remove(ref)
 
         def exchange(group) -> None:
             # no waiting: the calls of one submitter on one actor run in submission order,
@@ -181,20 +193,28 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
             for e in group:
                 receivers_of.setdefault(agents[e.sender], []).append(agents[e.receiver])
             refs: dict[tuple[str, str], object] = {}
+            read_news()
             for s, recv in receivers_of.items():  # every sender before any receiver
+                seen = list(dict.fromkeys(r for d in recv for r in news.pop((s, d), ())))
                 if fuse_cfg.delta and len(recv) > 1:
-                    out = home[s].send.options(num_returns=len(recv)).remote(s, recv)
+                    out = home[s].send.options(num_returns=len(recv)).remote(s, recv, *seen)
                 else:
-                    out = [home[s].send.remote(s, recv)] * len(recv)
+                    out = [home[s].send.remote(s, recv, *seen)] * len(recv)
                 for d, ref in zip(recv, out):
                     refs[(s, d)] = ref
             inbox: dict[str, list] = {}
             for e in group:
                 s, d = agents[e.sender], agents[e.receiver]
                 inbox.setdefault(d, []).append(s)
-            in_flight.extend(home[d].receive.remote(d, senders, group[0].time_s,
-                                                    *[refs[(s, d)] for s in senders])
-                             for d, senders in inbox.items())
+            for d, senders in inbox.items():
+                ref = home[d].receive.remote(d, senders, group[0].time_s,
+                                             *[refs[(s, d)] for s in senders])
+                in_flight.append(ref)
+                if track:
+                    unread.append(ref)
+                    for s in senders:
+                        if (s, d) not in aligned_links:
+                            news[(s, d)].append(ref)
             delivered[0] += len(group)
             timings["exchange calls (driver)"] += time.perf_counter() - t1
             bound()

@@ -59,6 +59,10 @@ class SwarmWorker:
         self.local = {a: mk() for a in self.names}
         self.loss: dict[str, dict] = {a: {} for a in self.names}  # agent -> rule -> InfoLossMap
         self.snapshots: dict[tuple, object] = {}  # (rule, sender, receiver) -> last map sent
+        # with alignment and deltas: the links of this worker's senders known to have aligned,
+        # and the whole maps last sent on the others ((rule, sender, receiver) -> map)
+        self.aligned_out: set[tuple[str, str]] = set()
+        self.unconfirmed: dict[tuple, object] = {}
         self.sent = {r: defaultdict(int) for r in rules}
         self.sent_32b = {r: defaultdict(int) for r in rules}
         self.received = {r: defaultdict(int) for r in rules}
@@ -82,12 +86,18 @@ class SwarmWorker:
         self._check_memory()
         return len(scans)
 
-    def send(self, sender: str, receivers: list[str]):
+    def send(self, sender: str, receivers: list[str], *aligned: list):
         """The messages of ``sender`` at the start of a group: per rule, its map as an ``.ot``
         stream (a delta since the last message on the link with ``delta``). Without deltas one
         message (a list of streams, one per rule) serves every receiver; with deltas there is
-        one per receiver (a tuple, one return value each)."""
+        one per receiver (a tuple, one return value each).
+
+        With alignment, a link sends whole maps until it has aligned, as in the simulation, and
+        its first delta is taken against the whole map that aligned it. ``aligned``: what the
+        receivers' calls since this sender's last message returned (the links that aligned)."""
         t0 = time.perf_counter()
+        for links in aligned:
+            self._confirm(links)
         maps = self.fused[sender]
         if not self.delta:
             msg = [maps[r].to_bytes() for r in self.rules]
@@ -100,11 +110,15 @@ class SwarmWorker:
             per = []
             for d in receivers:
                 msg = []
+                whole = self.frames.align != "off" and (sender, d) not in self.aligned_out
                 for r in self.rules:
                     snapshot = maps[r].copy()
-                    prev = self.snapshots.get((r, sender, d))
-                    m = snapshot.changed_since(prev) if prev is not None else snapshot
-                    self.snapshots[(r, sender, d)] = snapshot
+                    if whole:  # the base of the link's deltas if it aligns on this one
+                        self.unconfirmed[(r, sender, d)] = m = snapshot
+                    else:
+                        prev = self.snapshots.get((r, sender, d))
+                        m = snapshot.changed_since(prev) if prev is not None else snapshot
+                        self.snapshots[(r, sender, d)] = snapshot
                     self._count(r, sender, m)
                     msg.append(m.to_bytes())
                 self.stream_bytes_sent += sum(map(len, msg))
@@ -114,11 +128,13 @@ class SwarmWorker:
         self._check_memory()
         return out
 
-    def receive(self, receiver: str, senders: list[str], time_s: float, *messages) -> int:
+    def receive(self, receiver: str, senders: list[str], time_s: float,
+                *messages) -> list[tuple[str, str]]:
         """Fuse the messages of the group at ``time_s`` (one list of per-rule streams per
         sender, in event order), each moved into the receiver's frame first. With alignment,
         the links not aligned yet register first, all on the receiver's map as it was when
-        the group started; a link that fails to is counted, not fused."""
+        the group started; a link that fails to is counted, not fused. Returns the links that
+        aligned in this call (``(sender, receiver)``)."""
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
         from ..maps.tree_fusion import fuse_into
@@ -139,7 +155,7 @@ class SwarmWorker:
                 fuse_into(self.fused[receiver][r], m, rule=r, unknown=self.unknown, loss=loss)
         self.seconds["fusion"] += time.perf_counter() - t0
         self._check_memory()
-        return len(messages)
+        return [(s, receiver) for s in first if self.frames.aligned(s, receiver)]
 
     def alignment(self) -> list[dict]:
         """The alignment of the links into this worker's agents (:meth:`AgentFrames.report`)."""
@@ -207,6 +223,15 @@ class SwarmWorker:
         self.frames.align_links([(s, receiver, False, time_s) for s in senders if s in first],
                                 {receiver: self.fused[receiver][self.rules[0]], **first})
         return first
+
+    def _confirm(self, links: list) -> None:
+        """The links of ``links`` from this worker's agents have aligned: their deltas start
+        from the whole maps last sent on them."""
+        for s, d in links:
+            if s in self.names and (s, d) not in self.aligned_out:
+                self.aligned_out.add((s, d))
+                for r in self.rules:
+                    self.snapshots[(r, s, d)] = self.unconfirmed.pop((r, s, d))
 
     def _count(self, r: str, sender: str, m) -> None:
         nbytes = message_bytes(m)
