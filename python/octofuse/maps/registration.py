@@ -6,16 +6,18 @@ frame, so that ``B.transformed(result.matrix)`` lies on ``A``:
 1. the centres of the occupied finest voxels of each map, thinned to one point per
    ``voxel`` metres (default: two map voxels), with normals;
 2. FPFH features (open3d) on the same points thinned further to about
-   :data:`FEATURE_POINTS` points for large maps, and a RANSAC search over feature
-   correspondences for a coarse transform (fixed seed, so the result is reproducible);
-3. ICP refinement on the step-1 points: point-to-plane ICP (open3d) in the full mode; in the
+   :data:`FEATURE_POINTS` points for large maps, and a RANSAC search over mutual feature
+   matches for a coarse transform (a fixed seed, on one thread: the same maps always give the
+   same transform; open3d's own RANSAC runs on several threads and does not);
+3. ICP refinement on the step-1 points: point-to-plane ICP in the full mode; in the
    planar mode (ground robots: ``roll = pitch = 0``) only ``x, y, z`` and ``yaw`` are
    estimated: the coarse transform reduced to its yaw, and a yaw-only 2-point RANSAC over
    mutual feature matches, each refined by point-to-point ICP solved in closed form for a
    rotation about z; the one with the higher fitness is kept.
 
 ``fitness`` is the fraction of B's points that have a point of A within ``max(voxel, 1.5 map
-resolutions)`` after alignment (open3d's fitness). ``conflict`` is what geometry alone does
+resolutions)`` after alignment (as open3d counts it). Every step after the features (open3d's)
+runs in numpy and scipy on one thread. ``conflict`` is what geometry alone does
 not see: the fraction of B's occupied voxels, moved into A and landing in space A knows, that
 land where A saw free space with no occupied voxel beside it (a wall of B in A's empty room).
 The result is refused with ``ValueError`` (one line saying why) when either map has too few
@@ -37,6 +39,8 @@ import numpy as np
 
 from .frames import matrix_pose
 
+#: samples the coarse RANSAC draws
+RANSAC_TRIES = 20000
 #: fewest occupied points (after thinning) either map must have
 MIN_POINTS = 60
 #: fewest correspondences within the ICP distance that must support the transform
@@ -116,8 +120,6 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
              max_conflict: float = MAX_CONFLICT) -> Registration:
     """The transform that takes a point of ``b``'s frame into ``a``'s frame (see the module
     documentation); ``ValueError`` if the maps overlap too little to trust it."""
-    import open3d as o3d
-
     res = max(a.resolution, b.resolution)
     v = 2.0 * res if voxel is None else float(voxel)
     if not (math.isfinite(v) and v > 0):
@@ -125,6 +127,8 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     for name, value in (("min_fitness", min_fitness), ("max_conflict", max_conflict)):
         if not (0.0 <= value <= 1.0):
             raise ValueError(f"{name} must lie in [0, 1], got {value!r}")
+    from scipy.spatial import cKDTree
+
     ca, cb = occupied_centers(a), occupied_centers(b)
     pa, pb = _cloud(ca, v), _cloud(cb, v)
     na, nb = len(pa.points), len(pb.points)
@@ -140,16 +144,10 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     ga, gb = (pa, pb) if vc == v else (_cloud(ca, vc), _cloud(cb, vc))
     fa, fb = _features(ga, vc), _features(gb, vc)
     dist = max(2.0 * vc, 3.0 * res)
-    o3d.utility.random.seed(seed)
-    reg = o3d.pipelines.registration
-    r = reg.registration_ransac_based_on_feature_matching(
-        gb, ga, fb, fa, True, 1.5 * vc,
-        reg.TransformationEstimationPointToPoint(False), 3,
-        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-         reg.CorrespondenceCheckerBasedOnDistance(1.5 * vc)],
-        reg.RANSACConvergenceCriteria(100000, 0.999))
-    coarse = np.asarray(r.transformation)
     src, dst = np.asarray(pb.points), np.asarray(pa.points)
+    coarse = _rigid_ransac(np.asarray(gb.points), np.asarray(ga.points), fb, fa, 1.5 * vc, seed)
+    tree = cKDTree(dst)
+    fit = max(v, 1.5 * res)  # aligned voxel centres of the same surface lie this close
     if planar:
         # the 6-DoF estimate projected to a yaw, and a yaw-only search; the better one wins
         R = coarse[:3, :3]
@@ -159,21 +157,14 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
                                          dist, seed))
         except ValueError:
             pass
-        fit = max(v, 1.5 * res)
-        T = max((_planar_icp(src, dst, S, dist, res) for S in starts),
-                key=lambda X: reg.evaluate_registration(pb, pa, fit, X).fitness)
+        T = max((_planar_icp(src, tree, S, dist, res) for S in starts),
+                key=lambda X: _evaluate(src, tree, X, fit)[0])
     else:
-        T = coarse
-        for d in (dist, 0.5 * dist + 0.5 * res, res):  # coarse to fine
-            T = np.asarray(reg.registration_icp(
-                pb, pa, d, T, reg.TransformationEstimationPointToPlane(),
-                reg.ICPConvergenceCriteria(max_iteration=60)).transformation)
+        T = _plane_icp(src, tree, np.asarray(pa.normals), coarse, dist, res)
     T = _orthonormal(T)
-    fit = max(v, 1.5 * res)  # aligned voxel centres of the same surface lie this close
-    ev = o3d.pipelines.registration.evaluate_registration(pb, pa, fit, T)
-    pairs = np.asarray(ev.correspondence_set)
+    fitness, rmse, pairs = _evaluate(src, tree, T, fit)
     inliers = len(pairs)
-    out = Registration(T, float(ev.fitness), float(ev.inlier_rmse), inliers, na, nb, planar)
+    out = Registration(T, fitness, rmse, inliers, na, nb, planar)
     if inliers < MIN_INLIERS or out.fitness < min_fitness:
         raise ValueError(f"cannot register: the best transform matches {out.fitness:.0%} of B's "
                          f"occupied points ({inliers} points within {fit:g} m; at least "
@@ -268,6 +259,64 @@ def _fit_planar(src: np.ndarray, dst: np.ndarray, w=None) -> np.ndarray:
     return T
 
 
+def _kabsch(ps: np.ndarray, pt: np.ndarray) -> np.ndarray:
+    """Rigid transforms (k, 4, 4) taking the point sets ``ps`` (k, n, 3) onto ``pt``, least
+    squares."""
+    cs, ct = ps.mean(axis=1), pt.mean(axis=1)
+    H = np.einsum("kni,knj->kij", ps - cs[:, None], pt - ct[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("kij,kjl->kil", U, Vt)))
+    D = np.tile(np.eye(3), (len(ps), 1, 1))
+    D[:, 2, 2] = d
+    R = np.einsum("kji,kjl,kml->kim", Vt, D, U)  # V D U^T
+    T = np.tile(np.eye(4), (len(ps), 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = ct - np.einsum("kij,kj->ki", R, cs)
+    return T
+
+
+def _rigid_ransac(src, dst, fs, ft, dist, seed, tries: int = RANSAC_TRIES) -> np.ndarray:
+    """A coarse rigid transform from feature correspondences: 3-point RANSAC over mutual
+    feature matches, the samples drawn from ``seed`` and every step on one thread, so that
+    the same maps always give the same transform. A sample is kept if its edges have about
+    the same lengths in both clouds (within 10%) and its own points land within ``dist``; the
+    transform that carries the most matches within ``dist`` wins (the first drawn, on a tie).
+    The search stops once, at the best inlier ratio so far, a sample of inliers only would
+    have been drawn with 99.9% confidence. The identity if no sample passes."""
+    pairs = _mutual_matches(fs, ft)
+    if len(pairs) < 3:
+        return np.eye(4)
+    ps, pt = src[pairs[:, 0]], dst[pairs[:, 1]]
+    idx = np.random.default_rng(seed).integers(0, len(pairs), size=(tries, 3))
+    drawn = np.arange(tries)  # when each sample was drawn
+    a, b = ps[idx], pt[idx]  # (tries, 3, 3)
+    edges = [(0, 1), (1, 2), (2, 0)]
+    la = np.stack([np.linalg.norm(a[:, i] - a[:, j], axis=1) for i, j in edges], axis=1)
+    lb = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in edges], axis=1)
+    ok = np.all((la >= 0.9 * lb) & (lb >= 0.9 * la) & (la > 0), axis=1)
+    drawn, a, b = drawn[ok], a[ok], b[ok]
+    if not len(drawn):
+        return np.eye(4)
+    T = _kabsch(a, b)
+    moved = np.einsum("kij,knj->kni", T[:, :3, :3], a) + T[:, None, :3, 3]
+    ok = np.all(np.linalg.norm(moved - b, axis=2) < dist, axis=1)
+    drawn, T = drawn[ok], T[ok]
+    best, best_n = None, 0
+    for k0 in range(0, len(T), 256):  # matches within dist, a chunk of transforms at a time
+        Tc = T[k0:k0 + 256]
+        err = np.linalg.norm(np.einsum("kij,nj->kni", Tc[:, :3, :3], ps) + Tc[:, None, :3, 3]
+                             - pt, axis=2)
+        n = np.sum(err < dist, axis=1)
+        k = int(np.argmax(n))
+        if n[k] > best_n:
+            best, best_n = Tc[k], int(n[k])
+        w = best_n / len(pairs)
+        needed = math.log(1e-3) / math.log1p(-w ** 3) if 0 < w < 1 else 0.0
+        if drawn[min(k0 + 256, len(T)) - 1] + 1 >= needed:
+            break
+    return np.eye(4) if best is None else best
+
+
 def _planar_ransac(src, dst, fs, ft, dist, seed) -> np.ndarray:
     """Yaw + translation from feature correspondences: 2-point RANSAC in the plane."""
     pairs = _mutual_matches(fs, ft)
@@ -292,11 +341,54 @@ def _planar_ransac(src, dst, fs, ft, dist, seed) -> np.ndarray:
     return _fit_planar(ps[inl], pt[inl]) if inl.sum() >= 3 else best
 
 
-def _planar_icp(src, dst, T, dist, res) -> np.ndarray:
-    """Point-to-point ICP restricted to yaw + translation, with a shrinking match distance."""
-    from scipy.spatial import cKDTree
+def _evaluate(src, tree, T, fit) -> tuple[float, float, np.ndarray]:
+    """B's points ``src`` moved by ``T`` against A's (``tree``): the fraction with a point of
+    A within ``fit`` (fitness), their RMS distance and the pairs (B's index, A's index)."""
+    e, j = tree.query(src @ T[:3, :3].T + T[:3, 3], distance_upper_bound=fit)
+    ok = np.isfinite(e)
+    rmse = float(np.sqrt(np.mean(e[ok] ** 2))) if ok.any() else 0.0
+    return float(ok.sum() / len(src)), rmse, np.stack([np.flatnonzero(ok), j[ok]], axis=1)
 
-    tree = cKDTree(dst)
+
+def _plane_icp(src, tree, normals, T, dist, res) -> np.ndarray:
+    """Point-to-plane ICP (A's normals), linearised about the current transform, with a
+    shrinking match distance; up to 60 steps per distance, until the fitness and RMS change by
+    less than 1e-6."""
+    dst = tree.data
+    for d in (dist, 0.5 * dist + 0.5 * res, res):
+        last = None
+        for _ in range(60):
+            moved = src @ T[:3, :3].T + T[:3, 3]
+            e, j = tree.query(moved, distance_upper_bound=d)
+            ok = np.isfinite(e)
+            if ok.sum() < 6:
+                break
+            p, q, n = moved[ok], dst[j[ok]], normals[j[ok]]
+            J = np.hstack([np.cross(p, n), n])
+            x = np.linalg.lstsq(J.T @ J, -J.T @ np.einsum("ij,ij->i", p - q, n), rcond=None)[0]
+            T = _small_motion(x) @ T
+            now = (ok.mean(), float(np.sqrt(np.mean(e[ok] ** 2))))
+            if last is not None and abs(now[0] - last[0]) < 1e-6 and abs(now[1] - last[1]) < 1e-6:
+                break
+            last = now
+    return T
+
+
+def _small_motion(x) -> np.ndarray:
+    """The transform of rotations ``x[:3]`` about x, y and z (applied in that order) and
+    translation ``x[3:]``."""
+    cx, sx, cy, sy, cz, sz = (f(v) for v in x[:3] for f in (math.cos, math.sin))
+    T = np.eye(4)
+    T[:3, :3] = (np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+                 @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+                 @ np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]]))
+    T[:3, 3] = x[3:]
+    return T
+
+
+def _planar_icp(src, tree, T, dist, res) -> np.ndarray:
+    """Point-to-point ICP restricted to yaw + translation, with a shrinking match distance."""
+    dst = tree.data
     for d in (dist, 0.5 * dist + 0.5 * res, res):
         for _ in range(40):
             moved = src @ T[:3, :3].T + T[:3, 3]
