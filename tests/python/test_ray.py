@@ -94,19 +94,21 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     those frames): messages moved into the receiver's, the centralized map and the scores in
     the common frame, as in the simulation. And with alignment on first contact: each link
     registers (or fails to, and tries again) on the same maps and at the same times; with
-    deltas, a link sends whole maps until it aligns."""
+    deltas, a link sends whole maps until it aligns. The KL timeline is the simulation's."""
     cfg = config(bag)
     frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
               AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []
     fuse = FuseConfig(rules=list(RULES), topology="ring", schedule="periodic:0.33", delta=delta,
                       agent_frames=frames, align=align)
-    ref = simulate(cfg.build, fuse, samples=0)
+    ref = simulate(cfg.build, fuse, samples=3)
     assert ref.frames.keys() == ({"a", "c"} if framed else set())
     if align != "off":  # links that align after a few tries, and links that never do
         assert {(d["aligned"], d["attempts"] > 1) for d in ref.alignment} == {
             (True, True), (False, True)}
-    sw = simulate_swarm(cfg.build, fuse, collect_maps=True, agents_per_worker=per_worker)
+    sw = simulate_swarm(cfg.build, fuse, samples=3, collect_maps=True,
+                        agents_per_worker=per_worker)
     assert sw.alignment == ref.alignment
+    assert len(sw.timeline) == 3 * 3 * 4 and sw.timeline == ref.timeline
     assert sw.agents == ref.agents and sw.events == ref.events and sw.messages == len(ref.events)
     assert len(sw.workers) == -(-len(ref.agents) // per_worker) + 1
     assert sw.central == ref.central.to_bytes()

@@ -27,8 +27,10 @@ it aligns: the receiver's call returns the links that aligned, and the sender's 
 such a link takes that result as an argument (Ray runs it once the result is there), so that
 it knows which whole map its deltas start from.
 
-Not supported here: robust fusion (the vote needs every robot's map in one place) and the KL
-timeline (``samples``).
+The KL timeline (``samples`` points in time) is taken as in the simulation: at each point the
+centralized worker sends its map as it is then, and every worker compares its maps with it.
+
+Not supported here: robust fusion (the vote needs every robot's map in one place).
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ class SwarmResult:
     central: Optional[bytes] = None
     #: per link that received a message (with ``fuse.align``): as the simulation's ``alignment``
     alignment: list[dict] = field(default_factory=list)
+    #: KL to the centralized map at ``samples`` points in time: as the simulation's ``timeline``
+    timeline: list[dict] = field(default_factory=list)
 
     @property
     def messages_per_second(self) -> float:
@@ -73,8 +77,8 @@ class SwarmResult:
         return self.messages / t if t > 0 else float("nan")
 
 
-def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
-                   agents_per_worker: int = 1, memory_per_worker: Optional[int] = None,
+def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 0,
+                   truth=None, agents_per_worker: int = 1, memory_per_worker: Optional[int] = None,
                    cpus_per_worker: float = 0.0, address: Optional[str] = None,
                    num_cpus: Optional[int] = None, collect_maps: bool = False,
                    max_in_flight: Optional[int] = None, score: bool = True,
@@ -88,7 +92,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     share a core). A local Ray (``num_cpus`` CPUs) is started unless one is running or
     ``address`` names a cluster. ``max_in_flight`` bounds the calls submitted and not yet
     finished (default: 4 per worker). ``score=False`` skips the scores (each agent's map is
-    compared with the whole centralized map: on a large floor that dominates the time).
+    compared with the whole centralized map: on a large floor that dominates the time), as
+    ``samples=0`` (the default) skips the KL timeline.
     """
     from ..scans.source import ScanSource, prefetch
     from .graph import make_graph
@@ -106,6 +111,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
     if agents_per_worker < 1:
         raise ValueError(f"agents_per_worker must be >= 1, got {agents_per_worker}")
+    if not 0 <= samples <= 10_000:
+        raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
     say = log or (lambda _m: None)
     rules = list(fuse_cfg.rules)
     t_all = time.perf_counter()
@@ -115,7 +122,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
         frames = AgentFrames.from_config(agents, fuse_cfg)
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
         start = src.bags.start_ns
-        _, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
+        duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
 
         opts: dict = {"num_cpus": cpus_per_worker, "max_restarts": 0}
         if memory_per_worker:
@@ -219,16 +226,38 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
             timings["exchange calls (driver)"] += time.perf_counter() - t1
             bound()
 
-        timed = [(g[0].time_s, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+        taken: list = []  # (time, each worker's sample)
+
+        def sample(t: float) -> None:
+            flush()
+            cref = central.central_bytes.remote()
+            parts = [w.sample.remote(cref, fuse_cfg.overconfidence_tol) for w in workers]
+            taken.append((t, parts))
+            in_flight.extend(parts)
+            bound()
+
+        # exchange groups and KL samples in time order, a group before a sample of its time
+        timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+        timed += [(duration * (k + 1) / samples, 1, None) for k in range(samples)]
+        timed.sort(key=lambda x: (x[0], x[1]))
         next_i = 0
         pending = 0
+
+        def advance(until: float) -> None:
+            nonlocal next_i, pending
+            while next_i < len(timed) and timed[next_i][0] < until:
+                t, kind, group = timed[next_i]
+                if kind == 0:
+                    exchange(group)
+                else:
+                    sample(t)
+                next_i += 1
+                pending = 0
+
         t_loop = time.perf_counter()
         for scan in prefetch(src.scans()):
             t = (scan.stamp_ns - start) / 1e9
-            while next_i < len(timed) and timed[next_i][0] < t:
-                exchange(timed[next_i][1])
-                next_i += 1
-                pending = 0
+            advance(t)
             name = agents[scan.agent]
             buffers[scan.agent // agents_per_worker].append((name, scan))
             all_scans.append((name, frames.scan_in_common(scan)))
@@ -236,9 +265,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
             if pending >= build_cfg.batch_size * max(1, n_workers):
                 flush()
                 pending = 0
-        while next_i < len(timed):
-            exchange(timed[next_i][1])
-            next_i += 1
+        advance(math.inf)
         flush()
         ray.get(in_flight)
         in_flight.clear()
@@ -267,6 +294,15 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
         stats = ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
         alignment = sorted((d for part in ray.get([w.alignment.remote() for w in workers])
                             for d in part), key=lambda d: (d["sender"], d["receiver"]))
+        timeline = []
+        for t, parts in taken:
+            got: dict = {}
+            for p in ray.get(parts):
+                for r, per in p.items():
+                    got.setdefault(r, {}).update(per)
+            timeline += [{"t": t, "rule": r, "agent": a, "kl": got[r][a][0],
+                          "overconfidence": got[r][a][1], "coverage": got[r][a][2]}
+                         for r in [LOCAL, *rules] for a in agents]
         maps = None
         if collect_maps:
             maps = {}
@@ -277,4 +313,5 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, truth=None,
     timings["total"] = time.perf_counter() - t_all
     return SwarmResult(agents, rules, graph, events, scores, traffic, stats, dict(timings),
                        messages=delivered[0], stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
-                       maps=maps, central=cbytes if collect_maps else None, alignment=alignment)
+                       maps=maps, central=cbytes if collect_maps else None, alignment=alignment,
+                       timeline=timeline)

@@ -164,18 +164,26 @@ class SwarmWorker:
     def central_bytes(self) -> bytes:
         return self.central.to_bytes()
 
+    def sample(self, central: bytes, tol: float) -> dict:
+        """This worker's agents' maps against the centralized map now, as the simulation's
+        timeline samples them: rule|local-only -> agent -> (KL, over-confident, coverage)."""
+        from ..maps.occupancy import OccupancyMap
+
+        out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
+        for (r, a), _, s in zip(*self._compared(OccupancyMap.from_bytes(central), tol)):
+            out[r][a] = (s.kl_mean, s.overconfidence, s.coverage)
+        self._check_memory()
+        return out
+
     def score(self, central: bytes, tol: float, truth=None) -> dict:
         """Scores of this worker's agents against the centralized map (as in
         :func:`octofuse.fusion.results.score_result`), with their traffic."""
-        from ..maps.compare import compare_many, score
+        from ..maps.compare import score
         from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
 
         c = OccupancyMap.from_bytes(central)
-        jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
-        agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
-        maps = [self.frames.to_common(a, agent_map(r, a)) for r, a in jobs]  # as scored
-        compared = compare_many(c, maps, tol, self.threads)
+        jobs, maps, compared = self._compared(c, tol)
         out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
         for (r, a), m, s in zip(jobs, maps, compared):
             if r == LOCAL:
@@ -210,6 +218,16 @@ class SwarmWorker:
                 "seconds": dict(self.seconds)}
 
     # -- internals ------------------------------------------------------------------------------
+    def _compared(self, central, tol: float) -> tuple[list, list, list]:
+        """Every map of this worker (local-only first, then rule by rule; agents in order),
+        moved into the common frame as scored, and its comparison with ``central``."""
+        from ..maps.compare import compare_many
+
+        jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
+        agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
+        maps = [self.frames.to_common(a, agent_map(r, a)) for r, a in jobs]
+        return jobs, maps, compare_many(central, maps, tol, self.threads)
+
     def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> dict:
         """Register the links of ``senders`` not aligned yet on the first rule's maps: the
         receiver's, and the sender's as its message carries it. Returns those senders' maps,
