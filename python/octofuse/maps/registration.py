@@ -341,11 +341,23 @@ def _planar_ransac(src, dst, fs, ft, dist, seed) -> np.ndarray:
     return _fit_planar(ps[inl], pt[inl]) if inl.sum() >= 3 else best
 
 
+def _nearest(src, tree, T, d):
+    """B's points ``src`` moved by ``T``, the distance to and index of each one's nearest
+    point of A (``tree``) within ``d``, and which have one."""
+    moved = src @ T[:3, :3].T + T[:3, 3]
+    e, j = tree.query(moved, distance_upper_bound=d)
+    return moved, e, j, np.isfinite(e)
+
+
+def _shrinking(dist: float, res: float) -> tuple[float, float, float]:
+    """The match distances of ICP, coarse to fine."""
+    return dist, 0.5 * dist + 0.5 * res, res
+
+
 def _evaluate(src, tree, T, fit) -> tuple[float, float, np.ndarray]:
     """B's points ``src`` moved by ``T`` against A's (``tree``): the fraction with a point of
     A within ``fit`` (fitness), their RMS distance and the pairs (B's index, A's index)."""
-    e, j = tree.query(src @ T[:3, :3].T + T[:3, 3], distance_upper_bound=fit)
-    ok = np.isfinite(e)
+    _, e, j, ok = _nearest(src, tree, T, fit)
     rmse = float(np.sqrt(np.mean(e[ok] ** 2))) if ok.any() else 0.0
     return float(ok.sum() / len(src)), rmse, np.stack([np.flatnonzero(ok), j[ok]], axis=1)
 
@@ -355,12 +367,10 @@ def _plane_icp(src, tree, normals, T, dist, res) -> np.ndarray:
     shrinking match distance; up to 60 steps per distance, until the fitness and RMS change by
     less than 1e-6."""
     dst = tree.data
-    for d in (dist, 0.5 * dist + 0.5 * res, res):
+    for d in _shrinking(dist, res):
         last = None
         for _ in range(60):
-            moved = src @ T[:3, :3].T + T[:3, 3]
-            e, j = tree.query(moved, distance_upper_bound=d)
-            ok = np.isfinite(e)
+            moved, e, j, ok = _nearest(src, tree, T, d)
             if ok.sum() < 6:
                 break
             p, q, n = moved[ok], dst[j[ok]], normals[j[ok]]
@@ -389,11 +399,9 @@ def _small_motion(x) -> np.ndarray:
 def _planar_icp(src, tree, T, dist, res) -> np.ndarray:
     """Point-to-point ICP restricted to yaw + translation, with a shrinking match distance."""
     dst = tree.data
-    for d in (dist, 0.5 * dist + 0.5 * res, res):
+    for d in _shrinking(dist, res):
         for _ in range(40):
-            moved = src @ T[:3, :3].T + T[:3, 3]
-            e, j = tree.query(moved, distance_upper_bound=d)
-            ok = np.isfinite(e)
+            moved, _, j, ok = _nearest(src, tree, T, d)
             if ok.sum() < 3:
                 break
             step = _fit_planar(moved[ok], dst[j[ok]])
