@@ -1,7 +1,8 @@
-"""``python -m octofuse.cli``: the ``octofuse`` program (:func:`octofuse.program.run`). Python
-imports the command line before this module runs, so a Ctrl-C in those first moments is a
-traceback; ``python -m octofuse`` imports nothing first."""
+"""``python -m octofuse.cli``: the ``octofuse`` command (Python imports the command line before
+this runs; ``python -m octofuse`` installs the Ctrl-C handler first)."""
 
-from ..program import run
+from ..interrupts import remember_interrupts
+from . import entry
 
-run()
+remember_interrupts()
+entry()
