@@ -58,3 +58,9 @@ def test_a_swarm_refuses_what_it_cannot_run_before_starting(fuse):
     # checked before Ray starts or a bag opens (the bag does not exist)
     with pytest.raises(ValueError, match="not available in a swarm"):
         simulate_swarm(BuildConfig(bags=["no-such.bag"]), fuse)
+
+
+def test_a_swarm_refuses_a_bad_number_of_samples_before_starting():
+    with pytest.raises(ValueError, match="samples = -1: expected 0 to 10000"):
+        simulate_swarm(BuildConfig(bags=["no-such.bag"]),
+                       FuseConfig(rules=["chernoff"], schedule="periodic:1"), samples=-1)
