@@ -53,14 +53,13 @@ class ClampedCopier {
     for (unsigned i = 0; i < 8; ++i) {
       if (!src_.nodeChildExists(s, i)) continue;
       const OcNode* c = src_.getNodeChild(s, i);
-      k.present |= static_cast<std::uint8_t>(1u << i);
       if (!src_.nodeHasChildren(c)) {
+        k.mark(i);
         k.value[i] = clamp(c->getLogOdds());
         continue;
       }
       detail::Lazy<OccupancyTree> child{&self, i, nullptr};
-      if (!visit<kBuild>(c, depth + 1, child, k.value[i]))
-        k.inner |= static_cast<std::uint8_t>(1u << i);
+      k.mark(i, !visit<kBuild>(c, depth + 1, child, k.value[i]));
     }
     if constexpr (!kBuild) {
       const bool collapses = depth > 0 && k.collapsible();

@@ -3,8 +3,6 @@
 
 #include "octofuse/detail/lazy_tree.hpp"
 
-#include <cstdint>
-#include <limits>
 #include <memory>
 #include <type_traits>
 
@@ -68,9 +66,9 @@ struct Walker {
       const OcNode* ca = child(ta, a, a_leaf, i, ca_leaf);
       const OcNode* cb = child(tb, b, b_leaf, i, cb_leaf);
       if (ca == nullptr && cb == nullptr) continue;
-      km.present |= static_cast<std::uint8_t>(1u << i);
-      kl.present |= static_cast<std::uint8_t>(1u << i);
       if (ca_leaf && cb_leaf) {
+        km.mark(i);
+        kl.mark(i);
         leaf(ca, cb, depth + 1, km.value[i], kl.value[i]);
         continue;
       }
@@ -78,8 +76,8 @@ struct Walker {
       Lazy<ScalarTree> cl{&ol, i, nullptr};
       bool lm, ll;
       walk(ca, ca_leaf, cb, cb_leaf, depth + 1, cm, cl, lm, km.value[i], ll, kl.value[i]);
-      if (!lm) km.inner |= static_cast<std::uint8_t>(1u << i);
-      if (!ll) kl.inner |= static_cast<std::uint8_t>(1u << i);
+      km.mark(i, !lm);
+      kl.mark(i, !ll);
     }
     leaf_m = km.finish(out, om, set_logodds);
     vm = km.value[0];

@@ -36,6 +36,12 @@ struct Kids {
   std::uint8_t present = 0;  // bit i: child i exists
   std::uint8_t inner = 0;    // bit i: child i is an allocated inner node
 
+  /// Child i exists; it is an allocated inner node too with `inner`.
+  void mark(unsigned i, bool is_inner = false) {
+    present |= static_cast<std::uint8_t>(1u << i);
+    if (is_inner) inner |= static_cast<std::uint8_t>(1u << i);
+  }
+
   /// Whether the children are 8 equal leaves (OctoMap's isNodeCollapsible).
   bool collapsible() const {
     if (present != 0xFF || inner != 0) return false;

@@ -101,6 +101,13 @@ class SimResult:
         return per[agent]
 
 
+def timeline_point(t: float, rule: str, agent: str, compared) -> dict:
+    """One point of a run's KL timeline: ``agent``'s map of ``rule`` compared with the
+    centralized map at time ``t`` (a :class:`~octofuse.maps.compare.Comparison`)."""
+    return {"t": t, "rule": rule, "agent": agent, "kl": compared.kl_mean,
+            "overconfidence": compared.overconfidence, "coverage": compared.coverage}
+
+
 def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
                  local: bool = True) -> dict[str, dict[str, Score]]:
     """Scores of every agent for every rule, and (``local``) of the local-only maps (the

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from itertools import groupby
 
 import numpy as np
 
@@ -65,6 +66,31 @@ def drop_messages(events, loss: float, seed: int) -> list[Exchange]:
     draws = np.random.default_rng([int(seed), 1055]).random(len(events))
     return [Exchange(e.time_s, e.sender, e.receiver, True) if u < loss else e
             for e, u in zip(events, draws.tolist())]
+
+
+#: what happens at an instant of a run in time, in the order it happens there: the robust vote
+#: (before the exchanges of its instant), the exchange groups, the KL samples
+VOTE, EXCHANGE, SAMPLE = -1, 0, 1
+
+
+def check_samples(samples: int) -> None:
+    """``ValueError`` unless ``samples`` (points of a KL timeline) lies in 0..10000."""
+    if not 0 <= samples <= 10_000:
+        raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
+
+
+def moments(events: list, duration: float, samples: int,
+            vote_time: float | None = None) -> list[tuple[float, int, list | None]]:
+    """A run's moments in time order, ``(time, kind, exchange group or None)``: its groups of
+    simultaneous exchanges, ``samples`` KL samples evenly over ``duration`` (the last at its
+    end) and the robust vote at ``vote_time`` (if given); at one instant in the order of
+    :data:`VOTE`, :data:`EXCHANGE`, :data:`SAMPLE`."""
+    out = [(g[0].time_s, EXCHANGE, g)
+           for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+    out += [(duration * (k + 1) / samples, SAMPLE, None) for k in range(samples)]
+    if vote_time is not None:
+        out.append((vote_time, VOTE, None))
+    return sorted(out, key=lambda x: (x[0], x[1]))
 
 
 def mission_events(spec: "ScheduleSpec", graph, fuse_cfg, start_ns: int | None,

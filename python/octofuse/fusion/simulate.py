@@ -6,7 +6,6 @@ import contextlib
 import threading
 import time
 from dataclasses import replace
-from itertools import groupby
 from typing import Callable, Iterator, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
@@ -23,8 +22,9 @@ from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
 from .graph import make_graph
 from .network import Network
-from .results import LOCAL, SimResult, rule_groups, score_agent, with_traffic
-from .schedule import mission_events, parse_schedule
+from .results import (LOCAL, SimResult, rule_groups, score_agent, timeline_point,
+                      with_traffic)
+from .schedule import EXCHANGE, VOTE, check_samples, mission_events, moments, parse_schedule
 
 #: the lane of the maps in the common frame (centralized) and the agents' own maps
 COMMON = "common frame"
@@ -68,8 +68,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     bytes a leaf), instead of letting them go once scored.
     """
     fuse_cfg.validate("fuse")
-    if not 0 <= samples <= 10_000:
-        raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
+    check_samples(samples)
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
     if fuse_cfg.robust.enabled and not local:
@@ -101,7 +100,6 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # the maps of the common frame mapped in this pass
         common = ([] if replayed else [central]) + ([exact] if exact is not None else [])
         inserted: dict[str, int] = {a: 0 for a in agents}
-        sample_times = [duration * (k + 1) / samples for k in range(samples)] if samples else []
         timings = net.timings
         clock = threading.Lock()  # timings are added to on the lanes' threads
 
@@ -181,13 +179,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 scored.append((r, sampled[lane]))
             taken.append((t, scored))
 
-        # exchange groups and KL samples, merged in time order: (time, kind, payload)
-        timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
-        timed += [(t, 1, None) for t in sample_times]
         vote: list = []  # robust fusion: the vote, once taken
-        if fuse_cfg.robust.enabled:  # before the exchanges of its instant
-            timed.append((min(fuse_cfg.robust.time, duration), -1, None))
-        timed.sort(key=lambda x: (x[0], x[1]))
+        timed = moments(events, duration, samples, vote_time=min(fuse_cfg.robust.time, duration)
+                        if fuse_cfg.robust.enabled else None)
         next_i = 0
         trimmed: list = []  # the replayed rays' memory given back, once
 
@@ -229,12 +223,12 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             nonlocal next_i
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
-                if kind == -1:
+                if kind == VOTE:
                     # on the agents' own maps in the common frame
                     vote.append(submit(COMMON, lambda t=t: _vote(
                         {a: frames.to_common(a, m) for a, m in own.items()}, graph, fuse_cfg,
                         t)).result())
-                elif kind == 0:
+                elif kind == EXCHANGE:
                     if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
                         out = set(vote[0].excluded) if vote else set()
                         held = fuse_cfg.robust.hold and not vote
@@ -281,8 +275,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             central_replay.end_pass(central)
         src.check_placed()
         stats, notes = src.stats, src.notes()
-    timeline = [{"t": t, "rule": r, "agent": a, "kl": s.kl_mean, "overconfidence": s.overconfidence,
-                 "coverage": s.coverage}
+    timeline = [timeline_point(t, r, a, s)
                 for t, scored in taken for r, fut in scored for a, s in zip(agents, fut.result())]
     final = {_scored_as(lane): fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order

@@ -39,13 +39,13 @@ import math
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
-from itertools import groupby
 from typing import Callable, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from .agent_frames import AgentFrames
 from .executors import ray_session
 from .results import LOCAL, Traffic
+from .schedule import EXCHANGE, check_samples, mission_events, moments, parse_schedule
 from .swarm_worker import SwarmWorker
 
 
@@ -97,7 +97,6 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     """
     from ..scans.source import ScanSource, prefetch
     from .graph import make_graph
-    from .schedule import mission_events, parse_schedule
 
     fuse_cfg.validate("fuse")
     if fuse_cfg.robust.enabled:
@@ -111,8 +110,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
     if agents_per_worker < 1:
         raise ValueError(f"agents_per_worker must be >= 1, got {agents_per_worker}")
-    if not 0 <= samples <= 10_000:
-        raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
+    check_samples(samples)
     say = log or (lambda _m: None)
     rules = list(fuse_cfg.rules)
     t_all = time.perf_counter()
@@ -226,20 +224,17 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             timings["exchange calls (driver)"] += time.perf_counter() - t1
             bound()
 
-        taken: list = []  # (time, each worker's sample)
+        taken: list = []  # per sample, each worker's points of the timeline
 
         def sample(t: float) -> None:
             flush()
             cref = central.central_bytes.remote()
-            parts = [w.sample.remote(cref, fuse_cfg.overconfidence_tol) for w in workers]
-            taken.append((t, parts))
+            parts = [w.sample.remote(cref, fuse_cfg.overconfidence_tol, t) for w in workers]
+            taken.append(parts)
             in_flight.extend(parts)
             bound()
 
-        # exchange groups and KL samples in time order, a group before a sample of its time
-        timed = [(g[0].time_s, 0, g) for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
-        timed += [(duration * (k + 1) / samples, 1, None) for k in range(samples)]
-        timed.sort(key=lambda x: (x[0], x[1]))
+        timed = moments(events, duration, samples)
         next_i = 0
         pending = 0
 
@@ -247,7 +242,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             nonlocal next_i, pending
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
-                if kind == 0:
+                if kind == EXCHANGE:
                     exchange(group)
                 else:
                     sample(t)
@@ -295,14 +290,9 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         alignment = sorted((d for part in ray.get([w.alignment.remote() for w in workers])
                             for d in part), key=lambda d: (d["sender"], d["receiver"]))
         timeline = []
-        for t, parts in taken:
-            got: dict = {}
-            for p in ray.get(parts):
-                for r, per in p.items():
-                    got.setdefault(r, {}).update(per)
-            timeline += [{"t": t, "rule": r, "agent": a, "kl": got[r][a][0],
-                          "overconfidence": got[r][a][1], "coverage": got[r][a][2]}
-                         for r in [LOCAL, *rules] for a in agents]
+        for parts in taken:  # in the simulation's order: time, rule, agent
+            got = {(p["rule"], p["agent"]): p for part in ray.get(parts) for p in part}
+            timeline += [got[r, a] for r in [LOCAL, *rules] for a in agents]
         maps = None
         if collect_maps:
             maps = {}

@@ -17,7 +17,7 @@ from ..config import MapConfig
 from ..memory import return_freed_memory
 from .agent_frames import AgentFrames
 from .network import message_bytes
-from .results import LOCAL
+from .results import LOCAL, timeline_point
 
 
 def _rss_bytes() -> tuple[int, int, int]:
@@ -102,8 +102,7 @@ class SwarmWorker:
         if not self.delta:
             msg = [maps[r].to_bytes() for r in self.rules]
             for r in self.rules:
-                for _ in receivers:
-                    self._count(r, sender, maps[r])
+                self._count(r, sender, maps[r], copies=len(receivers))
             self.stream_bytes_sent += sum(map(len, msg)) * len(receivers)
             out = msg
         else:
@@ -164,16 +163,14 @@ class SwarmWorker:
     def central_bytes(self) -> bytes:
         return self.central.to_bytes()
 
-    def sample(self, central: bytes, tol: float) -> dict:
-        """This worker's agents' maps against the centralized map now, as the simulation's
-        timeline samples them: rule|local-only -> agent -> (KL, over-confident, coverage)."""
+    def sample(self, central: bytes, tol: float, t: float) -> list[dict]:
+        """This worker's agents' maps against the centralized map now (time ``t``): their
+        points of the KL timeline (:func:`~.results.timeline_point`)."""
         from ..maps.occupancy import OccupancyMap
 
-        out: dict = {LOCAL: {}, **{r: {} for r in self.rules}}
-        for (r, a), _, s in zip(*self._compared(OccupancyMap.from_bytes(central), tol)):
-            out[r][a] = (s.kl_mean, s.overconfidence, s.coverage)
+        jobs, _, compared = self._compared(OccupancyMap.from_bytes(central), tol)
         self._check_memory()
-        return out
+        return [timeline_point(t, r, a, s) for (r, a), s in zip(jobs, compared)]
 
     def score(self, central: bytes, tol: float, truth=None) -> dict:
         """Scores of this worker's agents against the centralized map (as in
@@ -251,11 +248,11 @@ class SwarmWorker:
                 for r in self.rules:
                     self.snapshots[(r, s, d)] = self.unconfirmed.pop((r, s, d))
 
-    def _count(self, r: str, sender: str, m) -> None:
-        nbytes = message_bytes(m)
-        self.sent[r][sender] += nbytes
-        self.sent_32b[r][sender] += 32 * m.num_leaves
-        self.messages[r] += 1
+    def _count(self, r: str, sender: str, m, copies: int = 1) -> None:
+        """``copies`` messages of the map ``m`` sent (its leaves counted once)."""
+        self.sent[r][sender] += copies * message_bytes(m)
+        self.sent_32b[r][sender] += copies * 32 * m.num_leaves
+        self.messages[r] += copies
 
     def _check_memory(self) -> None:
         return_freed_memory(pools=False)

@@ -104,8 +104,7 @@ def free_space_conflict(a, b, T: np.ndarray) -> float:
     """Of ``b``'s occupied finest voxels moved by ``T`` into ``a`` that land in space ``a``
     knows, the fraction that land in a free voxel of ``a`` none of whose six face neighbours
     is occupied (0 when none lands in known space)."""
-    pts = occupied_centers(b)
-    pts = pts @ T[:3, :3].T + T[:3, 3]
+    pts = _moved(occupied_centers(b), T)
     lv, res = a.leaves(), a.resolution
     here = lv.values_at(pts, res)
     known = ~np.isnan(here)
@@ -145,7 +144,9 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     fa, fb = _features(ga, vc), _features(gb, vc)
     dist = max(2.0 * vc, 3.0 * res)
     src, dst = np.asarray(pb.points), np.asarray(pa.points)
-    coarse = _rigid_ransac(np.asarray(gb.points), np.asarray(ga.points), fb, fa, 1.5 * vc, seed)
+    pairs = _mutual_matches(fb, fa)  # B's and A's feature points matched, for both searches
+    ps, pt = np.asarray(gb.points)[pairs[:, 0]], np.asarray(ga.points)[pairs[:, 1]]
+    coarse = _rigid_ransac(ps, pt, 1.5 * vc, seed)
     tree = cKDTree(dst)
     fit = max(v, 1.5 * res)  # aligned voxel centres of the same surface lie this close
     if planar:
@@ -153,8 +154,7 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
         R = coarse[:3, :3]
         starts = [_yaw_matrix(math.atan2(R[1, 0], R[0, 0]), coarse[:3, 3])]
         try:
-            starts.append(_planar_ransac(np.asarray(gb.points), np.asarray(ga.points), fb, fa,
-                                         dist, seed))
+            starts.append(_planar_ransac(ps, pt, dist, seed))
         except ValueError:
             pass
         T = max((_planar_icp(src, tree, S, dist, res) for S in starts),
@@ -275,19 +275,17 @@ def _kabsch(ps: np.ndarray, pt: np.ndarray) -> np.ndarray:
     return T
 
 
-def _rigid_ransac(src, dst, fs, ft, dist, seed, tries: int = RANSAC_TRIES) -> np.ndarray:
-    """A coarse rigid transform from feature correspondences: 3-point RANSAC over mutual
-    feature matches, the samples drawn from ``seed`` and every step on one thread, so that
+def _rigid_ransac(ps, pt, dist, seed, tries: int = RANSAC_TRIES) -> np.ndarray:
+    """A coarse rigid transform taking the matched points ``ps`` onto ``pt``: 3-point RANSAC
+    over the matches, the samples drawn from ``seed`` and every step on one thread, so that
     the same maps always give the same transform. A sample is kept if its edges have about
     the same lengths in both clouds (within 10%) and its own points land within ``dist``; the
     transform that carries the most matches within ``dist`` wins (the first drawn, on a tie).
     The search stops once, at the best inlier ratio so far, a sample of inliers only would
     have been drawn with 99.9% confidence. The identity if no sample passes."""
-    pairs = _mutual_matches(fs, ft)
-    if len(pairs) < 3:
+    if len(ps) < 3:
         return np.eye(4)
-    ps, pt = src[pairs[:, 0]], dst[pairs[:, 1]]
-    idx = np.random.default_rng(seed).integers(0, len(pairs), size=(tries, 3))
+    idx = np.random.default_rng(seed).integers(0, len(ps), size=(tries, 3))
     drawn = np.arange(tries)  # when each sample was drawn
     a, b = ps[idx], pt[idx]  # (tries, 3, 3)
     edges = [(0, 1), (1, 2), (2, 0)]
@@ -310,41 +308,45 @@ def _rigid_ransac(src, dst, fs, ft, dist, seed, tries: int = RANSAC_TRIES) -> np
         k = int(np.argmax(n))
         if n[k] > best_n:
             best, best_n = Tc[k], int(n[k])
-        w = best_n / len(pairs)
+        w = best_n / len(ps)
         needed = math.log(1e-3) / math.log1p(-w ** 3) if 0 < w < 1 else 0.0
         if drawn[min(k0 + 256, len(T)) - 1] + 1 >= needed:
             break
     return np.eye(4) if best is None else best
 
 
-def _planar_ransac(src, dst, fs, ft, dist, seed) -> np.ndarray:
-    """Yaw + translation from feature correspondences: 2-point RANSAC in the plane."""
-    pairs = _mutual_matches(fs, ft)
-    if len(pairs) < 3:
+def _planar_ransac(ps, pt, dist, seed) -> np.ndarray:
+    """Yaw + translation taking the matched points ``ps`` onto ``pt``: 2-point RANSAC in the
+    plane."""
+    if len(ps) < 3:
         raise ValueError("cannot register: the maps share no distinctive structure (fewer than "
                          "3 feature matches); the maps overlap too little to trust a transform")
     rng = np.random.default_rng(seed)
-    ps, pt = src[pairs[:, 0]], dst[pairs[:, 1]]
     best, best_n = np.eye(4), -1
     for _ in range(5000):
-        i, j = rng.choice(len(pairs), 2, replace=False)
+        i, j = rng.choice(len(ps), 2, replace=False)
         ds, dt = ps[j, :2] - ps[i, :2], pt[j, :2] - pt[i, :2]
         ls, lt = np.hypot(*ds), np.hypot(*dt)
         if ls < 2 * dist or abs(ls - lt) > dist:
             continue
         T = _fit_planar(ps[[i, j]], pt[[i, j]])
-        err = np.linalg.norm(ps @ T[:3, :3].T + T[:3, 3] - pt, axis=1)
+        err = np.linalg.norm(_moved(ps, T) - pt, axis=1)
         n = int(np.sum(err < dist))
         if n > best_n:
             best, best_n = T, n
-    inl = np.linalg.norm(ps @ best[:3, :3].T + best[:3, 3] - pt, axis=1) < dist
+    inl = np.linalg.norm(_moved(ps, best) - pt, axis=1) < dist
     return _fit_planar(ps[inl], pt[inl]) if inl.sum() >= 3 else best
+
+
+def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``points`` (n, 3) moved by the transform ``T``."""
+    return points @ T[:3, :3].T + T[:3, 3]
 
 
 def _nearest(src, tree, T, d):
     """B's points ``src`` moved by ``T``, the distance to and index of each one's nearest
     point of A (``tree``) within ``d``, and which have one."""
-    moved = src @ T[:3, :3].T + T[:3, 3]
+    moved = _moved(src, T)
     e, j = tree.query(moved, distance_upper_bound=d)
     return moved, e, j, np.isfinite(e)
 
