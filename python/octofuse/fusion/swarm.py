@@ -30,7 +30,8 @@ it knows which whole map its deltas start from.
 The KL timeline (``samples`` points in time) is taken as in the simulation: at each point the
 centralized worker sends its map as it is then, and every worker compares its maps with it.
 
-Not supported here: robust fusion (the vote needs every robot's map in one place).
+Refused here, with one line before anything starts: robust fusion (the vote needs every
+robot's map in one place), the channel filter and message loss.
 """
 
 from __future__ import annotations
