@@ -10,6 +10,7 @@
 #include <Eigen/Core>
 
 #include <algorithm>
+#include <cstddef>
 #include <map>
 #include <stdexcept>
 #include <string>
@@ -70,16 +71,18 @@ std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float*
   return items;
 }
 
-// Applies items (ascending codes, each voxel once) to a tree in one depth-first pass. The
-// result is the tree that OctoMap's updateNode(key, hit, lazy_eval = false) gives when
-// called for every item in turn: each voxel receives exactly one update, so its value does
-// not depend on the order; a voxel whose leaf is already at the clamping threshold in the
-// update's direction is skipped without touching the tree (updateNode's early abort);
-// pruned leaves are expanded and missing children created as updateNodeRecurs() does; and
-// every node on the path of an applied update is pruned if collapsible, or else gets the
-// maximum of its children, once its subtree is final - which is the state updateNode leaves
-// it in after the last update below it. Nodes are walked once per batch of keys instead of
-// twice (search + update) per key from the root.
+// Applies items (ascending codes; a voxel's updates, one per scan, in scan order) to a tree
+// in one depth-first pass. The result is the tree that OctoMap's updateNode(key, hit,
+// lazy_eval = false) gives when called for every item of each scan in turn, scan after scan:
+// within a scan each voxel receives one update, so its value does not depend on the order,
+// and across scans a voxel's updates come in scan order; a voxel whose leaf is already at the
+// clamping threshold in an update's direction skips that update without touching the tree
+// (updateNode's early abort); pruned leaves are expanded and missing children created as
+// updateNodeRecurs() does; and every node on the path of an applied update is pruned if
+// collapsible, or else gets the maximum of its children, once its subtree is final - which
+// is the state updateNode leaves it in after the last update below it (a node pruned by one
+// scan and expanded by the next ends as if never pruned). Nodes are walked once per batch of
+// keys instead of twice (search + update) per key from the root.
 class BatchApplier {
  public:
   explicit BatchApplier(OccupancyTree& tree)
@@ -107,26 +110,45 @@ class BatchApplier {
     return (u >= 0 && value >= cmax_) || (u <= 0 && value <= cmin_);
   }
 
+  // Whether a voxel has had an update that changes it, item by item in code order: the
+  // voxel's (the item's code's) earlier items and this one, given which of them are no-ops.
+  struct Moved {
+    std::uint64_t code = ~std::uint64_t{0};
+    bool moved = false;
+    bool operator()(std::uint64_t item, bool no_op) {
+      if ((item & kCode) != code) {
+        code = item & kCode;
+        moved = false;
+      }
+      moved = moved || !no_op;
+      return moved;
+    }
+  };
+
   // Returns whether any item below `node` was applied.
   bool visit(OccupancyNode* node, bool just_created, unsigned depth,
              const std::uint64_t* b, const std::uint64_t* e) {
     std::vector<std::uint64_t> kept;
     if (!just_created && !t_.nodeHasChildren(node)) {
-      // an existing leaf (pruned or finest) holds these voxels: updateNode's early abort
+      // an existing leaf (pruned or finest) holds these voxels: a voxel's first updates that
+      // find it at the clamping threshold in their direction change nothing (updateNode's
+      // early abort); from its first update that does, all of its updates apply
       const float v = node->getLogOdds();
-      std::size_t skip = 0;
-      for (const std::uint64_t* p = b; p != e; ++p) skip += at_threshold(v, update_of(*p));
-      if (skip == static_cast<std::size_t>(e - b)) return false;
-      if (skip > 0) {
-        kept.reserve(static_cast<std::size_t>(e - b) - skip);
+      std::size_t live = 0;
+      Moved moved;
+      for (const std::uint64_t* p = b; p != e; ++p) live += moved(*p, at_threshold(v, update_of(*p)));
+      if (live == 0) return false;
+      if (live < static_cast<std::size_t>(e - b)) {
+        kept.reserve(live);
+        moved = Moved{};
         for (const std::uint64_t* p = b; p != e; ++p)
-          if (!at_threshold(v, update_of(*p))) kept.push_back(*p);
+          if (moved(*p, at_threshold(v, update_of(*p)))) kept.push_back(*p);
         b = kept.data();
         e = b + kept.size();
       }
     }
-    if (depth == depth_) {  // one voxel: e == b + 1
-      t_.updateNodeLogOdds(node, update_of(*b));
+    if (depth == depth_) {  // one voxel: its updates in scan order
+      for (const std::uint64_t* p = b; p != e; ++p) t_.updateNodeLogOdds(node, update_of(*p));
       return true;
     }
     const unsigned shift = 3 * (depth_ - 1 - depth);
@@ -173,6 +195,60 @@ void apply_items(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
     apply_each(tree, items);
   } else {
     BatchApplier(tree).apply(items.data(), items.data() + items.size());
+  }
+}
+
+// Scans applied in one walk at most (their items merged): consecutive scans of a robot
+// mostly update the same voxels, which one walk then visits once.
+constexpr std::size_t kScansPerWalk = 8;
+
+// The items of `scans` (indices into `per_scan`, in order) as one batch for BatchApplier:
+// ascending codes, a voxel's updates in scan order (a stable merge of the sorted scans).
+std::vector<std::uint64_t> merged_items(const std::vector<std::vector<std::uint64_t>>& per_scan,
+                                        const std::size_t* scans, std::size_t count) {
+  std::vector<std::uint64_t> a;
+  std::vector<std::size_t> bounds{0};
+  for (std::size_t k = 0; k < count; ++k) {
+    a.insert(a.end(), per_scan[scans[k]].begin(), per_scan[scans[k]].end());
+    bounds.push_back(a.size());
+  }
+  std::vector<std::uint64_t> b(a.size());
+  const auto by_code = [](std::uint64_t x, std::uint64_t y) { return (x & kCode) < (y & kCode); };
+  while (bounds.size() > 2) {  // neighbouring runs merged pairwise; std::merge keeps the
+    std::vector<std::size_t> next{0};  // first run's items first among equal codes
+    for (std::size_t k = 0; k + 1 < bounds.size(); k += 2) {
+      const auto lo = a.begin() + static_cast<std::ptrdiff_t>(bounds[k]);
+      const auto mid = a.begin() + static_cast<std::ptrdiff_t>(bounds[k + 1]);
+      const auto out = b.begin() + static_cast<std::ptrdiff_t>(bounds[k]);
+      if (k + 2 < bounds.size()) {
+        std::merge(lo, mid, mid, a.begin() + static_cast<std::ptrdiff_t>(bounds[k + 2]), out,
+                   by_code);
+        next.push_back(bounds[k + 2]);
+      } else {
+        std::copy(lo, mid, out);
+        next.push_back(bounds[k + 1]);
+      }
+    }
+    a.swap(b);
+    bounds.swap(next);
+  }
+  return a;
+}
+
+// Applies the scans `scans` (indices into `per_scan`) to a tree in order: up to
+// kScansPerWalk of them per walk (one at a time with change detection, which needs OctoMap's
+// per-key updates).
+void apply_scans(OccupancyTree& tree, const std::vector<std::vector<std::uint64_t>>& per_scan,
+                 const std::vector<std::size_t>& scans) {
+  const std::size_t step = tree.isChangeDetectionEnabled() ? 1 : kScansPerWalk;
+  for (std::size_t k = 0; k < scans.size(); k += step) {
+    const std::size_t count = std::min(step, scans.size() - k);
+    if (count == 1) {
+      apply_items(tree, per_scan[scans[k]]);
+    } else {
+      const std::vector<std::uint64_t> items = merged_items(per_scan, &scans[k], count);
+      BatchApplier(tree).apply(items.data(), items.data() + items.size());
+    }
   }
 }
 
@@ -261,7 +337,7 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
   detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
-    for (std::size_t i : per_map[maps[k]]) apply_items(maps[k]->tree(), items.per_scan[i]);
+    apply_scans(maps[k]->tree(), items.per_scan, per_map[maps[k]]);
   });
 }
 

@@ -46,9 +46,10 @@ RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& gri
                     unsigned threads, bool targeted_only = false);
 
 /// Applies `items.per_scan[i]` to every map of `targets[i]`: each map receives its scans in
-/// batch order, different maps in parallel (the most work first). The maps must be on the
-/// items' grid (the caller checks). An exception of a worker thread (std::bad_alloc) is
-/// rethrown on the calling thread; the maps may then hold part of the batch.
+/// batch order, several in one walk of its tree (a voxel's updates in scan order: the same
+/// tree as scan after scan), different maps in parallel (the most work first). The maps must
+/// be on the items' grid (the caller checks). An exception of a worker thread (std::bad_alloc)
+/// is rethrown on the calling thread; the maps may then hold part of the batch.
 void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMap*>>& targets,
                 unsigned threads);
 

@@ -89,11 +89,14 @@ def test_insert_scan_equals_insert_point_cloud(dtype, max_range):
 
 
 def test_insert_scan_equals_insert_point_cloud_on_warehouse_scans():
-    fast, plain = OccupancyMap(0.05), OccupancyMap(0.05)
-    for pts, origin in warehouse_scans():
+    fast, together, plain = OccupancyMap(0.05), OccupancyMap(0.05), OccupancyMap(0.05)
+    scans = warehouse_scans()
+    together.insert_scans(scans, threads=2)  # the scans walked together
+    for pts, origin in scans:
         fast.insert_scan(pts, origin)
         plain_insert(plain, pts, origin)
     assert_same_map(fast, plain)
+    assert_same_map(together, plain)
     assert fast.num_leaves > 10_000
 
 
@@ -119,6 +122,31 @@ def test_insert_scans_equals_scan_by_scan():
             else:
                 plain_insert(plain, pts, where, 2.0)
         assert_same_map(batch, plain)
+
+
+def test_scans_walked_together_equal_scan_by_scan_at_the_clamping_thresholds():
+    """insert_scans walks several scans at once (a voxel's updates in scan order): equal, bit
+    for bit, to insertPointCloud scan by scan where voxels reach the clamping thresholds, are
+    pruned, and are expanded again by a later scan (walls that appear and vanish)."""
+    rng = np.random.default_rng(21)
+    scans = []
+    for k in range(30):
+        origin = np.array([0.05, 0.05, 0.05]) + rng.normal(scale=0.02, size=3)
+        a = rng.uniform(-np.pi, np.pi, 400)
+        e = rng.uniform(-0.3, 0.3, 400)
+        d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
+        r = np.where(k % 3 == 2, 0.8, 1.6)  # a wall at 1.6 m, every third scan one at 0.8 m
+        scans.append((origin + d * r, origin))
+    for clamping in ((0.1192, 0.971), (0.3, 0.7)):
+        batch, plain = OccupancyMap(0.1, clamping=clamping), OccupancyMap(0.1, clamping=clamping)
+        batch.insert_scans(scans, threads=1)
+        for pts, origin in scans:
+            plain_insert(plain, pts, origin)
+        assert_same_map(batch, plain)
+        lv = plain.leaves()
+        cmin, cmax = (float(np.float32(np.log(p / (1 - p)))) for p in clamping)
+        assert np.any(lv.values == np.float32(cmin)) and np.any(lv.values == np.float32(cmax))
+        assert np.any(lv.depths < 16)  # pruned leaves
 
 
 def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
