@@ -203,16 +203,24 @@ void apply_items(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
 constexpr std::size_t kScansPerWalk = 8;
 
 // The items of `scans` (indices into `per_scan`, in order) as one batch for BatchApplier:
-// ascending codes, a voxel's updates in scan order (a stable merge of the sorted scans).
-std::vector<std::uint64_t> merged_items(const std::vector<std::vector<std::uint64_t>>& per_scan,
-                                        const std::size_t* scans, std::size_t count) {
-  std::vector<std::uint64_t> a;
+// ascending codes, a voxel's updates in scan order (a stable merge of the sorted scans). The
+// buffers stay with the thread between calls (a run applies batch after batch), up to
+// kKeptMergeItems items each.
+constexpr std::size_t kKeptMergeItems = std::size_t{4} << 20;
+
+const std::vector<std::uint64_t>& merged_items(
+    const std::vector<std::vector<std::uint64_t>>& per_scan, const std::size_t* scans,
+    std::size_t count) {
+  thread_local std::vector<std::uint64_t> a, b;
+  if (a.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(a);
+  if (b.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(b);
+  a.clear();
   std::vector<std::size_t> bounds{0};
   for (std::size_t k = 0; k < count; ++k) {
     a.insert(a.end(), per_scan[scans[k]].begin(), per_scan[scans[k]].end());
     bounds.push_back(a.size());
   }
-  std::vector<std::uint64_t> b(a.size());
+  b.resize(a.size());
   const auto by_code = [](std::uint64_t x, std::uint64_t y) { return (x & kCode) < (y & kCode); };
   while (bounds.size() > 2) {  // neighbouring runs merged pairwise; std::merge keeps the
     std::vector<std::size_t> next{0};  // first run's items first among equal codes
@@ -246,7 +254,7 @@ void apply_scans(OccupancyTree& tree, const std::vector<std::vector<std::uint64_
     if (count == 1) {
       apply_items(tree, per_scan[scans[k]]);
     } else {
-      const std::vector<std::uint64_t> items = merged_items(per_scan, &scans[k], count);
+      const std::vector<std::uint64_t>& items = merged_items(per_scan, &scans[k], count);
       BatchApplier(tree).apply(items.data(), items.data() + items.size());
     }
   }
