@@ -11,8 +11,10 @@
      computed once per scan, scans in parallel, applied to both maps, maps in parallel), on 2
      threads and on 1;
 
-   and the same again into the agent's map only. Before the figures are reported the maps
-   of both ways are compared leaf by leaf (centres, sizes and log-odds, bit for bit).
+   and the same again into the agent's map only; and the rays of each batch traced once and
+   applied to the agents' maps on one thread (as a run's lanes apply them), a map's scans of
+   a batch walked together against one walk per scan. Before the figures are reported the
+   maps of all ways are compared leaf by leaf (centres, sizes and log-odds, bit for bit).
 
 2. The whole build: ``octofuse.maps.build.build()`` end to end (read + decode + transforms +
    insertion, decoding overlapped with insertion) and ``write_maps()``, and each stage timed
@@ -51,7 +53,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from octofuse.maps.build import build, insert_scans, make_build_config, write_maps
+from octofuse.maps.build import build, insert_scans, make_build_config, trace_scans, write_maps
+from octofuse.maps.ray_batches import apply_rays
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.source import SCAN_TYPES, Scan, ScanSource
 from bench_common import log, machine, peak_rss_mib  # noqa: E402
@@ -88,6 +91,28 @@ def batched_insert(scans: Sequence[Scan], cfg, n_agents: int, central: bool, thr
         insert_scans(batch, [(maps[s.agent], cmap) if central else (maps[s.agent],) for s in batch],
                      threads)
     return time.perf_counter() - t0, maps, cmap
+
+
+def traced_batches(scans: Sequence[Scan], cfg) -> list:
+    """Each batch of cfg.batch_size scans with its rays traced once (as a run traces them)."""
+    grid = OccupancyMap.from_config(cfg.map)
+    size = cfg.batch_size
+    return [(b, trace_scans(b, grid, 2)) for b in (scans[i:i + size] for i in range(0, len(scans), size))]
+
+
+def apply_traced(traced: list, cfg, n_agents: int, together: bool):
+    """Traced batches applied to the agents' maps on one thread, as a run's lanes apply them:
+    each batch in one call (a map's scans walked together, up to 8 per walk) or scan by scan
+    (one walk per scan: the baseline)."""
+    maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
+    t0 = time.perf_counter()
+    for batch, rays in traced:
+        if together:
+            apply_rays(rays, [[maps[s.agent]] for s in batch], 1)
+            continue
+        for k, s in enumerate(batch):
+            apply_rays(rays, [[maps[s.agent]] if i == k else [] for i in range(len(batch))], 1)
+    return time.perf_counter() - t0, maps, None
 
 
 def to_map_frame(scans: Sequence[Scan]) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -244,6 +269,7 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
 
     # 1. insertion, scans in memory
     world = to_map_frame(scans)
+    traced = traced_batches(scans, cfg)
     methods: dict[str, Callable] = {
         "public-octomap": lambda: public_plain(scans, world, cfg, n_agents),
         "public-insert_scan": lambda: public_insert_scan(scans, world, cfg, n_agents),
@@ -255,6 +281,8 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
         "octomap-1": lambda: baseline(scans, cfg, n_agents, False),
         "octofuse-1-t2": lambda: batched_insert(scans, cfg, n_agents, False, 2),
         "octofuse-1-t1": lambda: batched_insert(scans, cfg, n_agents, False, 1),
+        "apply-scan-by-scan": lambda: apply_traced(traced, cfg, n_agents, False),
+        "apply-together": lambda: apply_traced(traced, cfg, n_agents, True),
     }
     times: dict[str, list[float]] = {k: [] for k in methods}
     last: dict[str, tuple] = {}
@@ -273,7 +301,10 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
         "one_map": all(same_maps(last["octomap-1"], last[k], False) for k in ("octofuse-1-t2", "octofuse-1-t1")),
         "public_api": all(same_maps(last["public-octomap"], last[k], False)
                           for k in ("public-insert_scan", "public-insert_scans-t1", "public-insert_scans-t2")),
+        "walks": same_maps(last["apply-scan-by-scan"], last["apply-together"], False)
+        and same_maps(last["octomap-1"], last["apply-together"], False),
     }
+    del traced
     central_leaves = last["octomap-2"][2].num_leaves
     central_ref = last["octomap-2"][2]
     del last
@@ -374,6 +405,14 @@ def print_tables(res: dict, out=sys.stdout) -> None:
             r = ins[name]
             p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
               f"{ins[b]['median_s'] / r['median_s']:8.2f}x")
+    if "apply-together" in ins:
+        p(f"   traced rays applied to the agents' maps, 1 thread (a run's lanes); same maps: "
+          f"{'yes' if res['same_maps'].get('walks') else 'NO'}")
+        for name, label in (("apply-scan-by-scan", "one walk per scan (baseline)"),
+                            ("apply-together", "a map's scans of a batch walked together")):
+            r = ins[name]
+            p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
+              f"{ins['apply-scan-by-scan']['median_s'] / r['median_s']:8.2f}x")
     p()
     if "build" not in res:
         return
