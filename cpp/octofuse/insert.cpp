@@ -136,7 +136,8 @@ class BatchApplier {
       const float v = node->getLogOdds();
       std::size_t live = 0;
       Moved moved;
-      for (const std::uint64_t* p = b; p != e; ++p) live += moved(*p, at_threshold(v, update_of(*p)));
+      for (const std::uint64_t* p = b; p != e; ++p)
+        live += moved(*p, at_threshold(v, update_of(*p)));
       if (live == 0) return false;
       if (live < static_cast<std::size_t>(e - b)) {
         kept.reserve(live);
@@ -202,18 +203,26 @@ void apply_items(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
 // mostly update the same voxels, which one walk then visits once.
 constexpr std::size_t kScansPerWalk = 8;
 
-// The items of `scans` (indices into `per_scan`, in order) as one batch for BatchApplier:
-// ascending codes, a voxel's updates in scan order (a stable merge of the sorted scans). The
-// buffers stay with the thread between calls (a run applies batch after batch), up to
-// kKeptMergeItems items each.
+// The buffers of merged_items(): each thread keeps its own between walks (a run applies batch
+// after batch), as long as they hold at most kKeptMergeItems items each.
 constexpr std::size_t kKeptMergeItems = std::size_t{4} << 20;
 
+struct MergeBuffers {
+  std::vector<std::uint64_t> a, b;
+  void trim() {
+    if (a.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(a);
+    if (b.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(b);
+  }
+};
+
+// The items of `scans` (indices into `per_scan`, in order) as one batch for BatchApplier:
+// ascending codes, a voxel's updates in scan order (a stable merge of the sorted scans), in
+// `buf.a` (`buf.b` is the merge's other buffer).
 const std::vector<std::uint64_t>& merged_items(
     const std::vector<std::vector<std::uint64_t>>& per_scan, const std::size_t* scans,
-    std::size_t count) {
-  thread_local std::vector<std::uint64_t> a, b;
-  if (a.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(a);
-  if (b.capacity() > kKeptMergeItems) std::vector<std::uint64_t>().swap(b);
+    std::size_t count, MergeBuffers& buf) {
+  std::vector<std::uint64_t>& a = buf.a;
+  std::vector<std::uint64_t>& b = buf.b;
   a.clear();
   std::vector<std::size_t> bounds{0};
   for (std::size_t k = 0; k < count; ++k) {
@@ -254,8 +263,10 @@ void apply_scans(OccupancyTree& tree, const std::vector<std::vector<std::uint64_
     if (count == 1) {
       apply_items(tree, per_scan[scans[k]]);
     } else {
-      const std::vector<std::uint64_t>& items = merged_items(per_scan, &scans[k], count);
+      thread_local MergeBuffers buf;
+      const std::vector<std::uint64_t>& items = merged_items(per_scan, &scans[k], count, buf);
       BatchApplier(tree).apply(items.data(), items.data() + items.size());
+      buf.trim();
     }
   }
 }
