@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from octofuse import _core
 from octofuse.maps.infoloss import InfoLossMap
@@ -147,6 +149,28 @@ def test_scans_walked_together_equal_scan_by_scan_at_the_clamping_thresholds():
         cmin, cmax = (float(np.float32(np.log(p / (1 - p)))) for p in clamping)
         assert np.any(lv.values == np.float32(cmin)) and np.any(lv.values == np.float32(cmax))
         assert np.any(lv.depths < 16)  # pruned leaves
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_scans=st.integers(2, 12),
+       clamping=st.sampled_from([(0.1192, 0.971), (0.3, 0.7), (0.45, 0.55)]),
+       hit=st.floats(0.55, 0.95), miss=st.floats(0.1, 0.45))
+def test_scans_walked_together_equal_scan_by_scan_for_any_sensor_model(seed, n_scans, clamping,
+                                                                        hit, miss):
+    """Random scans from nearby origins into maps of any sensor model and clamping: the scans
+    walked together (insert_scans) give insertPointCloud's tree scan by scan, bit for bit."""
+    rng = np.random.default_rng(seed)
+    scans = []
+    for _ in range(n_scans):
+        origin = rng.uniform(-0.2, 0.2, 3)
+        d = rng.normal(size=(60, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        scans.append((origin + d * rng.choice([0.5, 0.9, 1.3], size=(60, 1)), origin))
+    made = [OccupancyMap(0.1, prob_hit=hit, prob_miss=miss, clamping=clamping) for _ in range(2)]
+    made[0].insert_scans(scans, threads=1)
+    for pts, origin in scans:
+        plain_insert(made[1], pts, origin)
+    assert_same_map(*made)
 
 
 def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
