@@ -88,6 +88,24 @@ void ScanCheck::check(std::size_t row, const octomap::point3d& p) const {
   }
   const long voxels = std::labs(key[0] - origin_key_[0]) + std::labs(key[1] - origin_key_[1]) +
                       std::labs(key[2] - origin_key_[2]);
+  if (voxels > 0) {
+    // computeRayKeys() normalises the ray in float: a ray so short that its length rounds to
+    // zero (the sensor origin on a voxel face, the end just across) steps forever
+    octomap::point3d direction = end - origin_;
+    const float length = static_cast<float>(direction.norm());
+    direction /= length;
+    if (!(length > 0.0f) || !finite(direction)) {
+      const std::string from = detail::shortest(length) + " m from the sensor origin " +
+                               point_text(origin_) + " but in another voxel: ";
+      throw std::invalid_argument(
+          end == p ? at() + " " + point_text(p) + " lies " + from +
+                         "too short a ray for OctoMap to trace; drop points at the sensor origin"
+                   : at() + " " + point_text(p) + ": its ray cut to max_range (" +
+                         detail::shortest(max_range_) + " m) ends " + from +
+                         "too short for OctoMap to trace; give a max_range of at least the "
+                         "voxel size, or <= 0 for no limit");
+    }
+  }
   if (static_cast<std::size_t>(voxels) > max_ray_voxels()) {
     const double r = grid_.getResolution();
     const double safe = std::floor(static_cast<double>(max_ray_voxels()) * r / std::sqrt(3.0));

@@ -543,6 +543,13 @@ API_CASES = {
                  "[-1600, -1600, -1600])"),
     "long fine ray": ("octofuse.OccupancyMap(0.005).insert_scan(np.array([[100., 100, 100]]), "
                       "[-100, -100, -100])"),
+    # rays whose float length is 0 but which end across a voxel face from the origin
+    "tiny max_range": ("octofuse.OccupancyMap(0.1).insert_scan(np.array([[-1.0, -1.0, 0.0]]), "
+                       "[0, 0, 0], 1e-30)"),
+    "tiny max_range, OctoMap's path": ("octofuse.OccupancyMap(0.1).insert_scan_from_sensor("
+                                       "np.array([[-1.0, -1.0, 0.0]]), np.eye(4), 1e-30)"),
+    "point beside the origin": ("octofuse.OccupancyMap(0.1).insert_scan("
+                                "np.array([[-1e-30, -1e-30, 0.0]]), [0, 0, 0])"),
 }
 
 
