@@ -47,14 +47,18 @@ def plain_insert(m: OccupancyMap, points, origin, max_range=-1.0) -> None:
     m._m.insert_scan(pts, np.asarray(origin, dtype=np.float64).reshape(-1), float(max_range), False)
 
 
-def random_scans(seed: int, n_scans: int, dtype=np.float64):
+def random_scans(seed: int, n_scans: int, dtype=np.float64, spread: float = 1.0,
+                 points: int = 300, ranges=None):
+    """Scans from origins within ``spread`` of the map origin, their points at random
+    directions and at distances from ``ranges`` (default: uniform in 0.2-3 m)."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n_scans):
-        origin = rng.uniform(-1.0, 1.0, 3)
-        d = rng.normal(size=(300, 3))
+        origin = rng.uniform(-spread, spread, 3)
+        d = rng.normal(size=(points, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        r = rng.uniform(0.2, 3.0, (300, 1))
+        r = (rng.uniform(0.2, 3.0, (points, 1)) if ranges is None
+             else rng.choice(ranges, (points, 1)))
         out.append(((origin + d * r).astype(dtype), origin))
     return out
 
@@ -159,13 +163,7 @@ def test_scans_walked_together_equal_scan_by_scan_for_any_sensor_model(seed, n_s
                                                                         hit, miss):
     """Random scans from nearby origins into maps of any sensor model and clamping: the scans
     walked together (insert_scans) give insertPointCloud's tree scan by scan, bit for bit."""
-    rng = np.random.default_rng(seed)
-    scans = []
-    for _ in range(n_scans):
-        origin = rng.uniform(-0.2, 0.2, 3)
-        d = rng.normal(size=(60, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        scans.append((origin + d * rng.choice([0.5, 0.9, 1.3], size=(60, 1)), origin))
+    scans = random_scans(seed, n_scans, spread=0.2, points=60, ranges=[0.5, 0.9, 1.3])
     made = [OccupancyMap(0.1, prob_hit=hit, prob_miss=miss, clamping=clamping) for _ in range(2)]
     made[0].insert_scans(scans, threads=1)
     for pts, origin in scans:
