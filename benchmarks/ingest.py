@@ -105,13 +105,16 @@ def apply_traced(traced: list, cfg, n_agents: int, together: bool):
     each batch in one call (a map's scans walked together, up to 8 per walk) or scan by scan
     (one walk per scan: the baseline)."""
     maps = [OccupancyMap.from_config(cfg.map) for _ in range(n_agents)]
-    t0 = time.perf_counter()
+    calls = []  # (rays, each scan's targets), the target lists built before the clock starts
     for batch, rays in traced:
+        targets = [[maps[s.agent]] for s in batch]
         if together:
-            apply_rays(rays, [[maps[s.agent]] for s in batch], 1)
-            continue
-        for k, s in enumerate(batch):
-            apply_rays(rays, [[maps[s.agent]] if i == k else [] for i in range(len(batch))], 1)
+            calls.append((rays, targets))
+        else:
+            calls += [(rays, [t if i == k else [] for i, t in enumerate(targets)]) for k in range(len(batch))]
+    t0 = time.perf_counter()
+    for rays, targets in calls:
+        apply_rays(rays, targets, 1)
     return time.perf_counter() - t0, maps, None
 
 
