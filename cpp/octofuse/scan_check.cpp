@@ -88,9 +88,10 @@ void ScanCheck::check(std::size_t row, const octomap::point3d& p) const {
   }
   const long voxels = std::labs(key[0] - origin_key_[0]) + std::labs(key[1] - origin_key_[1]) +
                       std::labs(key[2] - origin_key_[2]);
-  if (voxels > 0) {
+  if (voxels > 0 && voxels <= 3) {
     // computeRayKeys() normalises the ray in float: a ray so short that its length rounds to
-    // zero (the sensor origin on a voxel face, the end just across) steps forever
+    // zero (the sensor origin on a voxel face or corner, the end just across: at most one
+    // voxel away along each axis) steps forever
     octomap::point3d direction = end - origin_;
     const float length = static_cast<float>(direction.norm());
     direction /= length;

@@ -121,7 +121,7 @@ def test_a_similar_place_is_refused(a_map):
 @pytest.mark.parametrize("planar", [False, True], ids=["full", "planar"])
 def test_the_same_maps_give_the_same_transform_bit_for_bit(a_map, planar):
     """The coarse search is seeded and runs on one thread: call after call, the same maps
-    give the same transform and the same refusals."""
+    give the same transform."""
     T = pose_matrix(0.7, -0.4, 0.0, 0, 0, math.radians(20))
     b = room_map(SENSORS[1:], T=T)
     first = register(room_map(SENSORS[:3]), b, planar=planar).matrix

@@ -79,8 +79,9 @@ class OccupancyMap:
         ``scans`` is a sequence of ``(points, origin_or_pose)``: with a 3-vector origin the
         points are in the map frame, with a 4x4 sensor-to-map pose in the sensor frame. The
         scans' ray keys are computed on ``threads`` threads (default: one per core), then
-        applied to the map in order, several scans per walk of the tree; the GIL is released. Every scan is checked before the map
-        changes (``ValueError`` naming the scan and point row).
+        applied to the map in order, several scans per walk of the tree; the GIL is released.
+        Every scan is checked before the map changes (``ValueError`` naming the scan and point
+        row).
         """
         pts_list, poses, map_frame = [], [], []
         for k, item in enumerate(scans):

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import matrix_pose
+from .frames import matrix_pose, pose_matrix
 
 #: samples the coarse RANSAC draws
 RANSAC_TRIES = 20000
@@ -152,7 +152,7 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     if planar:
         # the 6-DoF estimate projected to a yaw, and a yaw-only search; the better one wins
         R = coarse[:3, :3]
-        starts = [_yaw_matrix(math.atan2(R[1, 0], R[0, 0]), coarse[:3, 3])]
+        starts = [pose_matrix(*coarse[:3, 3], yaw=math.atan2(R[1, 0], R[0, 0]))]
         try:
             starts.append(_planar_ransac(ps, pt, dist, seed))
         except ValueError:
@@ -226,14 +226,6 @@ def _orthonormal(T: np.ndarray) -> np.ndarray:
     return T
 
 
-def _yaw_matrix(yaw: float, t) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:3, 3] = t
-    return T
-
-
 def _mutual_matches(fs, ft) -> np.ndarray:
     """Pairs (i, j) of source and target points whose FPFH features are mutual nearest
     neighbours."""
@@ -254,7 +246,7 @@ def _fit_planar(src: np.ndarray, dst: np.ndarray, w=None) -> np.ndarray:
     s, d = src[:, :2] - cs[:2], dst[:, :2] - cd[:2]
     yaw = math.atan2(np.sum(w * (s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0])),
                      np.sum(w * (s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1])))
-    T = _yaw_matrix(yaw, (0, 0, 0))
+    T = pose_matrix(yaw=yaw)
     T[:3, 3] = cd - T[:3, :3] @ cs
     return T
 
@@ -296,14 +288,12 @@ def _rigid_ransac(ps, pt, dist, seed, tries: int = RANSAC_TRIES) -> np.ndarray:
     if not len(drawn):
         return np.eye(4)
     T = _kabsch(a, b)
-    moved = np.einsum("kij,knj->kni", T[:, :3, :3], a) + T[:, None, :3, 3]
-    ok = np.all(np.linalg.norm(moved - b, axis=2) < dist, axis=1)
+    ok = np.all(np.linalg.norm(_moved_by_each(T, a) - b, axis=2) < dist, axis=1)
     drawn, T = drawn[ok], T[ok]
     best, best_n = None, 0
     for k0 in range(0, len(T), 256):  # matches within dist, a chunk of transforms at a time
         Tc = T[k0:k0 + 256]
-        err = np.linalg.norm(np.einsum("kij,nj->kni", Tc[:, :3, :3], ps) + Tc[:, None, :3, 3]
-                             - pt, axis=2)
+        err = np.linalg.norm(_moved_by_each(Tc, ps) - pt, axis=2)
         n = np.sum(err < dist, axis=1)
         k = int(np.argmax(n))
         if n[k] > best_n:
@@ -343,6 +333,12 @@ def _moved(points: np.ndarray, T: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def _moved_by_each(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points moved by each of the transforms ``T`` (k, 4, 4): the same points (n, 3) by
+    every one, or each transform's own (k, n, 3); (k, n, 3)."""
+    return points @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]
+
+
 def _nearest(src, tree, T, d):
     """B's points ``src`` moved by ``T``, the distance to and index of each one's nearest
     point of A (``tree``) within ``d``, and which have one."""
@@ -378,23 +374,11 @@ def _plane_icp(src, tree, normals, T, dist, res) -> np.ndarray:
             p, q, n = moved[ok], dst[j[ok]], normals[j[ok]]
             J = np.hstack([np.cross(p, n), n])
             x = np.linalg.lstsq(J.T @ J, -J.T @ np.einsum("ij,ij->i", p - q, n), rcond=None)[0]
-            T = _small_motion(x) @ T
+            T = pose_matrix(*x[3:], *x[:3]) @ T  # the small step: rotations x[:3], shift x[3:]
             now = (ok.mean(), float(np.sqrt(np.mean(e[ok] ** 2))))
             if last is not None and abs(now[0] - last[0]) < 1e-6 and abs(now[1] - last[1]) < 1e-6:
                 break
             last = now
-    return T
-
-
-def _small_motion(x) -> np.ndarray:
-    """The transform of rotations ``x[:3]`` about x, y and z (applied in that order) and
-    translation ``x[3:]``."""
-    cx, sx, cy, sy, cz, sz = (f(v) for v in x[:3] for f in (math.cos, math.sin))
-    T = np.eye(4)
-    T[:3, :3] = (np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-                 @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-                 @ np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]]))
-    T[:3, 3] = x[3:]
     return T
 
 
