@@ -4,6 +4,7 @@
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
+#include "octofuse/detail/ray_codes.hpp"
 #include "octofuse/scan_check.hpp"
 #include "octofuse/tree_access.hpp"
 
@@ -25,6 +26,7 @@ using detail::kCode;
 using detail::kHit;
 using detail::morton;
 using detail::sort_unique;
+using detail::trace_ray_codes;
 using detail::unmorton;
 
 // The update of one scan as items in ascending code order (free and occupied merged;
@@ -38,23 +40,19 @@ std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float*
   for (std::size_t i = 0; i < n; ++i) {
     check.check(i, octomap::point3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]));
   }
-  octomap::KeyRay ray;
   CodeSet free(n * 4);
+  const auto add_free = [&free](std::uint64_t code) { free.insert(code); };
   std::vector<std::uint64_t> occ;
   occ.reserve(n);
   for (std::size_t i = 0; i < n; ++i) {
     const octomap::point3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
     if (max_range < 0.0 || (p - o).norm() <= max_range) {
-      if (grid.computeRayKeys(o, p, ray)) {
-        for (const auto& k : ray) free.insert(morton(k));
-      }
+      trace_ray_codes(grid, o, p, add_free);
       octomap::OcTreeKey key;
       if (grid.coordToKeyChecked(p, key)) occ.push_back(morton(key));
     } else {
       const octomap::point3d end = o + (p - o).normalized() * static_cast<float>(max_range);
-      if (grid.computeRayKeys(o, end, ray)) {
-        for (const auto& k : ray) free.insert(morton(k));
-      }
+      trace_ray_codes(grid, o, end, add_free);
     }
   }
   sort_unique(occ);

@@ -1,13 +1,15 @@
 // octofuse: voxel keys as Morton codes, and a set of them, for the batched scan update.
 #pragma once
 
-#include <octomap/OcTreeKey.h>
-
+// the standard headers first: OcTreeKey.h uses uint16_t, size_t and std::vector without
+// including them
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <iterator>
 #include <vector>
+
+#include <octomap/OcTreeKey.h>
 
 namespace octofuse::detail {
 
@@ -46,7 +48,7 @@ inline octomap::OcTreeKey unmorton(std::uint64_t m) {
 constexpr std::uint64_t kHit = 1ULL << 63;
 constexpr std::uint64_t kCode = kHit - 1;
 
-void sort_unique(std::vector<std::uint64_t>& v) {
+inline void sort_unique(std::vector<std::uint64_t>& v) {
   std::sort(v.begin(), v.end());
   v.erase(std::unique(v.begin(), v.end()), v.end());
 }
