@@ -5,6 +5,7 @@
 
 #include <octomap/octomap_types.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -69,19 +70,28 @@ bool trace_ray_codes(const Tree& tree, const octomap::point3d& origin,
       t_delta[i] = std::numeric_limits<double>::max();
     }
   }
-  const std::uint64_t masks[3] = {axis_mask(0), axis_mask(1), axis_mask(2)};
+  // the walk with each axis's t in a register of its own (an array indexed by the axis would
+  // put every step's update through memory); the same comparisons and sums as OctoMap's
+  double t0 = t_max[0], t1 = t_max[1], t2 = t_max[2];
+  const auto advance = [&code](double& t, double delta, unsigned axis, int dir) {
+    code = morton_step(code, axis_mask(axis), dir);
+    t += delta;
+  };
   while (--steps_left > 0) {
-    unsigned dim;
-    if (t_max[0] < t_max[1]) {
-      dim = t_max[0] < t_max[2] ? 0 : 2;
+    if (t0 < t1) {
+      if (t0 < t2) {
+        advance(t0, t_delta[0], 0, step[0]);
+      } else {
+        advance(t2, t_delta[2], 2, step[2]);
+      }
+    } else if (t1 < t2) {
+      advance(t1, t_delta[1], 1, step[1]);
     } else {
-      dim = t_max[1] < t_max[2] ? 1 : 2;
+      advance(t2, t_delta[2], 2, step[2]);
     }
-    code = morton_step(code, masks[dim], step[dim]);
-    t_max[dim] += t_delta[dim];
     if (code == code_end) break;
     // past the ray's length: rounding made the walk miss the end's voxel
-    if (std::min(std::min(t_max[0], t_max[1]), t_max[2]) > length) break;
+    if (std::min(std::min(t0, t1), t2) > length) break;
     emit(code);
   }
   return true;
