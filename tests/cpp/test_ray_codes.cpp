@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <octomap/OcTree.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <random>
 #include <vector>
@@ -102,6 +103,23 @@ TEST(RayCodes, MortonStepMovesOneAxisOnly) {
         down[axis] = static_cast<octomap::key_type>(a - 1);
         EXPECT_EQ(octofuse::detail::morton_step(morton(k), mask, -1), morton(down));
       }
+    }
+  }
+}
+
+TEST(RayCodes, SortCodesSortsLikeStdSort) {
+  std::mt19937_64 rng(3);
+  for (std::size_t n : {0u, 1u, 255u, 256u, 1000u, 70000u}) {
+    for (std::uint64_t spread : {std::uint64_t{1} << 48, std::uint64_t{1} << 20, std::uint64_t{300}}) {
+      // codes of a narrow region (most bytes shared, the passes skipped) and of the whole range
+      const std::uint64_t room = (std::uint64_t{1} << 48) - spread;
+      const std::uint64_t base = room == 0 ? 0 : rng() % room;
+      std::vector<std::uint64_t> v(n);
+      for (auto& c : v) c = base + rng() % spread;
+      std::vector<std::uint64_t> expected = v;
+      std::sort(expected.begin(), expected.end());
+      octofuse::detail::sort_codes(v);
+      EXPECT_EQ(v, expected) << n << " codes within " << spread;
     }
   }
 }
