@@ -2,7 +2,8 @@
 //
 // OctoMap traces each ray into a fixed buffer of keys (octomap::KeyRay, 100,000 keys) whose
 // bound is only asserted, and converts coordinates to keys through an int cast that is
-// undefined beyond the tree's extent. Every ray is checked here before OctoMap sees it.
+// undefined beyond the tree's extent. Every ray is checked here before it is traced, by
+// OctoMap or by octofuse's own tracer (detail/ray_codes.hpp), which takes OctoMap's steps.
 #pragma once
 
 #include "octofuse/tree.hpp"

@@ -61,12 +61,13 @@ class OccupancyMap:
     # -- insertion ---------------------------------------------------------------------
     def insert_scan(self, points, origin, max_range: float = -1.0) -> None:
         """Insert one scan with OctoMap's ray casting update (the map is the one
-        ``insertPointCloud`` gives, computed by octofuse's depth-first batch update).
+        ``insertPointCloud`` gives: the rays traced with OctoMap's steps and arithmetic, the
+        voxels updated by octofuse's depth-first batch update).
 
         ``points`` is an (N, 3) float32 or float64 array in the map frame (passed to C++
         without a copy when C-contiguous), ``origin`` the sensor position. Rays longer than
         ``max_range`` (if > 0) only clear free space up to ``max_range``. The GIL is
-        released while OctoMap works.
+        released while the core works.
         """
         pts = _points(points)
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
