@@ -99,6 +99,7 @@ TEST(RayCodes, MortonStepMovesOneAxisOnly) {
       octomap::OcTreeKey up = k, down = k;
       up[axis] = static_cast<octomap::key_type>(a + 1);
       EXPECT_EQ(octofuse::detail::morton_step(morton(k), mask, 1), morton(up));
+      EXPECT_EQ(octofuse::detail::morton_step(morton(k), mask, 0), morton(k));
       if (a > 0) {
         down[axis] = static_cast<octomap::key_type>(a - 1);
         EXPECT_EQ(octofuse::detail::morton_step(morton(k), mask, -1), morton(down));

@@ -16,9 +16,11 @@ namespace octofuse::detail {
 // The bits of one axis in a Morton code (x: bits 0, 3, 6, ...).
 inline std::uint64_t axis_mask(unsigned axis) { return spread3(0xffff) << axis; }
 
-// The Morton code with one axis's key moved by +1 or -1 (the other axes' bits kept).
+// The Morton code with one axis's key moved by `step` (+1, -1 or 0; the other axes' bits kept).
 inline std::uint64_t morton_step(std::uint64_t m, std::uint64_t mask, int step) {
-  const std::uint64_t moved = step > 0 ? ((m | ~mask) + 1) & mask : ((m & mask) - 1) & mask;
+  const std::uint64_t moved = step > 0   ? ((m | ~mask) + 1) & mask
+                              : step < 0 ? ((m & mask) - 1) & mask
+                                         : m & mask;
   return moved | (m & ~mask);
 }
 
