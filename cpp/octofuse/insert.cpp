@@ -47,9 +47,9 @@ std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float*
   for (std::size_t i = 0; i < n; ++i) {
     const octomap::point3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
     if (max_range < 0.0 || (p - o).norm() <= max_range) {
-      trace_ray_codes(grid, o, p, add_free);
-      octomap::OcTreeKey key;
-      if (grid.coordToKeyChecked(p, key)) occ.push_back(morton(key));
+      std::uint64_t hit = ~std::uint64_t{0};  // stays so if p lies outside the key range
+      trace_ray_codes(grid, o, p, add_free, &hit);
+      if (hit != ~std::uint64_t{0}) occ.push_back(hit);
     } else {
       const octomap::point3d end = o + (p - o).normalized() * static_cast<float>(max_range);
       trace_ray_codes(grid, o, end, add_free);
