@@ -84,6 +84,30 @@ TEST(RayCodes, RaysOnVoxelFacesAlongAxesAndDiagonals) {
   }
 }
 
+TEST(RayCodes, EndsWhereTheWalkReachesTheRaysLengthExactly) {
+  // At resolutions a binary float holds exactly, a ray from a voxel centre to a voxel face
+  // along an axis (or a diagonal) reaches a voxel border at exactly its length: OctoMap keeps
+  // the voxel before the end's (its test is "past the length", not "at it")
+  std::size_t voxels = 0;
+  for (double res : {1.0, 0.5, 0.25, 0.125}) {
+    octomap::OcTree tree(res);
+    const auto centre = [res](int k) { return static_cast<float>((k + 0.5) * res); };
+    const auto face = [res](int k) { return static_cast<float>(k * res); };
+    for (int k0 : {-7, -1, 0, 3}) {
+      for (int n : {1, 2, 5, 40}) {
+        for (int dir : {1, -1}) {
+          const float o = centre(k0), e = face(dir > 0 ? k0 + n + 1 : k0 - n);
+          voxels += expect_same_ray(tree, point3d(o, 0.3f, -0.2f), point3d(e, 0.3f, -0.2f));
+          voxels += expect_same_ray(tree, point3d(0.1f, o, 0.7f), point3d(0.1f, e, 0.7f));
+          voxels += expect_same_ray(tree, point3d(-0.4f, 1.1f, o), point3d(-0.4f, 1.1f, e));
+          voxels += expect_same_ray(tree, point3d(o, o, 0.0f), point3d(e, e, 0.0f));
+        }
+      }
+    }
+  }
+  EXPECT_GT(voxels, 1000u);
+}
+
 TEST(RayCodes, EndpointsOutsideTheTreeAndInOneVoxel) {
   octomap::OcTree tree(0.05);
   expect_same_ray(tree, point3d(0, 0, 0), point3d(5000.0f, 0, 0));    // outside: false
