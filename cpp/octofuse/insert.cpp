@@ -24,6 +24,7 @@ namespace {
 using detail::CodeSet;
 using detail::kCode;
 using detail::kHit;
+using detail::kNoCode;
 using detail::morton;
 using detail::sort_unique;
 using detail::trace_ray_codes;
@@ -47,9 +48,9 @@ std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float*
   for (std::size_t i = 0; i < n; ++i) {
     const octomap::point3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
     if (max_range < 0.0 || (p - o).norm() <= max_range) {
-      std::uint64_t hit = ~std::uint64_t{0};  // stays so if p lies outside the key range
+      std::uint64_t hit;
       trace_ray_codes(grid, o, p, add_free, &hit);
-      if (hit != ~std::uint64_t{0}) occ.push_back(hit);
+      if (hit != kNoCode) occ.push_back(hit);
     } else {
       const octomap::point3d end = o + (p - o).normalized() * static_cast<float>(max_range);
       trace_ray_codes(grid, o, end, add_free);
@@ -111,7 +112,7 @@ class BatchApplier {
   // Whether a voxel has had an update that changes it, item by item in code order: the
   // voxel's (the item's code's) earlier items and this one, given which of them are no-ops.
   struct Moved {
-    std::uint64_t code = ~std::uint64_t{0};
+    std::uint64_t code = kNoCode;
     bool moved = false;
     bool operator()(std::uint64_t item, bool no_op) {
       if ((item & kCode) != code) {

@@ -22,12 +22,13 @@ std::size_t expect_same_ray(const octomap::OcTree& tree, const point3d& o, const
   std::vector<std::uint64_t> expected;
   for (const auto& k : ray) expected.push_back(morton(k));
   std::vector<std::uint64_t> got;
-  std::uint64_t end_code = ~std::uint64_t{0};
+  std::uint64_t end_code = 0;  // the tracer always sets it
   const bool ok =
       trace_ray_codes(tree, o, e, [&got](std::uint64_t c) { got.push_back(c); }, &end_code);
   EXPECT_EQ(ok, octomap_ok) << o << " -> " << e;
   octomap::OcTreeKey end_key;
-  EXPECT_EQ(end_code, tree.coordToKeyChecked(e, end_key) ? morton(end_key) : ~std::uint64_t{0})
+  EXPECT_EQ(end_code,
+            tree.coordToKeyChecked(e, end_key) ? morton(end_key) : octofuse::detail::kNoCode)
       << "the end's voxel of " << o << " -> " << e;
   EXPECT_EQ(got, expected) << o << " -> " << e << " at resolution " << tree.getResolution();
   return got.size();

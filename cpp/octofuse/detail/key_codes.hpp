@@ -47,6 +47,8 @@ inline octomap::OcTreeKey unmorton(std::uint64_t m) {
 // miss (free). Codes use 48 bits, so the flag never collides with them.
 constexpr std::uint64_t kHit = 1ULL << 63;
 constexpr std::uint64_t kCode = kHit - 1;
+// No voxel: all 64 bits set, which no 48-bit code is.
+constexpr std::uint64_t kNoCode = ~std::uint64_t{0};
 
 // Sorts Morton codes (at most 48 bits): a counting pass per byte, least significant first,
 // skipping the bytes that every code shares. For the thousands of distinct codes of a scan

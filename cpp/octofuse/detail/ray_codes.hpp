@@ -31,7 +31,7 @@ inline std::uint64_t morton_step(std::uint64_t m, std::uint64_t mask, int step) 
 // differs is that no KeyRay is filled and read back, and the code is stepped along one axis
 // instead of interleaved anew for every key. Returns false where computeRayKeys() does (an
 // endpoint outside the tree's key range). If `end_code` is given, it receives the code of the
-// end's voxel whenever that lies in the key range (a scan's occupied voxel, found on the way).
+// end's voxel (a scan's occupied voxel, found on the way), or kNoCode if that lies outside.
 // A ray whose float length rounds to zero but whose end lies in another voxel makes OctoMap's
 // loop run on past its buffer; ScanCheck refuses such rays before tracing, and here the walk
 // stops after twice the key distance in any case.
@@ -41,8 +41,8 @@ bool trace_ray_codes(const Tree& tree, const octomap::point3d& origin,
                      std::uint64_t* end_code = nullptr) {
   octomap::OcTreeKey key_origin, key_end;
   const bool end_in_range = tree.coordToKeyChecked(end, key_end);
-  const std::uint64_t code_end = end_in_range ? morton(key_end) : 0;
-  if (end_in_range && end_code != nullptr) *end_code = code_end;
+  const std::uint64_t code_end = end_in_range ? morton(key_end) : kNoCode;
+  if (end_code != nullptr) *end_code = code_end;
   if (!tree.coordToKeyChecked(origin, key_origin) || !end_in_range) return false;
   if (key_origin == key_end) return true;
   std::uint64_t code = morton(key_origin);
