@@ -28,7 +28,7 @@ from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.scans.source import ScanSource  # noqa: E402
 from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
-from octofuse.fusion.results import LOCAL
+from octofuse.fusion.results import LOCAL, rule_time_part
 from octofuse.fusion.rounds import fuse_finished
 from octofuse.fusion.simulate import simulate  # noqa: E402
 
@@ -422,6 +422,10 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
         assert got.timeline == one.timeline
         assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in got.scores.items()} \
             == {r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()}
+        # each rule's time, added to from the lanes' threads, holds its exchanges and fusions
+        per_rule = [got.timings[rule_time_part(r)] for r in rules]
+        assert min(per_rule) > 0
+        assert sum(per_rule) >= got.timings["fusion"] + got.timings["exchange"] > 0
 
 
 @pytest.mark.parametrize("per_pass", [1, 2])

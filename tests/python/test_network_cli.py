@@ -357,6 +357,11 @@ def test_demo_in_passes_writes_what_one_pass_writes(tmp_path, capsys):
             assert (outs["0"] / f).read_bytes() == (outs["2"] / f).read_bytes(), f
     one, two = (json.loads((outs[k] / "summary.json").read_text()) for k in ("0", "2"))
     assert (one["config"]["fuse"]["rules_per_pass"], two["config"]["fuse"]["rules_per_pass"]) == (0, 2)
+    # each rule's own time after the other parts, in the order of the rules, in both runs
+    for s in (one, two):
+        parts = list(s["timings_s"])
+        assert parts[-4:] == [f"exchange + fusion: {r}" for r in rules.split(",")], parts
+        assert all(s["timings_s"][p] > 0 for p in parts[-4:])
     for s in (one, two):
         del s["timings_s"], s["config"]["fuse"]["rules_per_pass"], s["config"]["out"]
     assert one == two

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
@@ -13,7 +14,7 @@ from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import exchange_maps, fuse_into
 from ..threads import thread_map
 from .agent_frames import AgentFrames
-from .results import FusionEvent, Traffic
+from .results import FusionEvent, Traffic, rule_time_part
 from .schedule import Exchange
 
 
@@ -35,7 +36,9 @@ class Network:
         self.loss: dict[str, dict[str, InfoLossMap]] = {r: {} for r in rules}
         self.traffic = {r: Traffic() for r in rules}
         self.sent_snapshot: dict[tuple, OccupancyMap] = {}  # (rule, sender, receiver) -> map
+        #: seconds per part, summed over threads: added to through :meth:`add_time` only
         self.timings: dict[str, float] = defaultdict(float)
+        self._clock = threading.Lock()
         self.threads = threads
         self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
         self.fuse_threads = max(1, threads // max(1, len(rules)))  # threads of one fuse_into
@@ -117,7 +120,7 @@ class Network:
             # the group together
             order = sorted(self.rules, key=lambda r: -self._rule_seconds[r])
             list(self.pool.map(lambda r: self.exchange_rule(r, group), order))
-        self.timings["exchange + fusion (wall)"] += time.perf_counter() - t0
+        self.add_time("exchange + fusion (wall)", t0)
 
     def align(self, group: Sequence[Exchange]) -> None:
         """Align the links of a group's messages that have not aligned yet (with
@@ -129,7 +132,16 @@ class Network:
         """One rule's messages of a group (after :meth:`align`); rules may run in parallel."""
         t0 = time.perf_counter()
         self._exchange_rule(r, group)
-        self._rule_seconds[r] = time.perf_counter() - t0
+        self._rule_seconds[r] = self.add_time(rule_time_part(r), t0)
+
+    def add_time(self, part: str, since: float) -> float:
+        """Adds the seconds from ``since`` (``time.perf_counter()``) to now to ``part`` of
+        :attr:`timings` and returns them; safe on any thread (the rules' exchanges run in
+        parallel)."""
+        seconds = time.perf_counter() - since
+        with self._clock:
+            self.timings[part] += seconds
+        return seconds
 
     def close(self) -> None:
         if self.pool is not None:
@@ -175,15 +187,15 @@ class Network:
         t0 = time.perf_counter()
         msgs = [(e, cf.compose(self.agents[e.sender], self.agents[e.receiver]))
                 for e in group if cf.uses(e.sender, e.receiver)]
+        self.add_time("exchange", t0)
         t1 = time.perf_counter()
-        self.timings["exchange"] += t1 - t0
         for e, msg in msgs:
             self._count(r, msg.sender, msg.receiver, msg.payload, lost=e.lost)
             if not e.lost:
                 cf.deliver(msg)
                 self.traffic[r].fusions.append(
                     FusionEvent(e.time_s, r, msg.sender, msg.receiver, None, None))
-        self.timings["fusion"] += time.perf_counter() - t1
+        self.add_time("fusion", t1)
 
     def _exchange_rule(self, r: str, group: Sequence[Exchange]) -> None:
         """One rule's maps. A message carries its sender's map as it was when the group
@@ -227,7 +239,7 @@ class Network:
                 # the walk counts the leaves each map had: the two messages' voxels
                 n_d, n_s = exchange_maps(maps[d], maps[s], rule=r, unknown=cfg.unknown,
                                          loss_a=loss_d, loss_b=loss_s)
-                self.timings["fusion"] += time.perf_counter() - t1
+                self.add_time("fusion", t1)
                 self._count_sizes(r, s, d, sizes[0], n_s)
                 self._count_sizes(r, d, s, sizes[1], n_d)
                 for x, n in ((s, n_s), (d, n_d)):  # a later message of x sends its copy
@@ -244,7 +256,7 @@ class Network:
             if not self.frames.aligned(s, d):  # sent, but no transform to fuse it with yet
                 sends_left[s] -= 1
                 self._count(r, s, d, m, lost=group[k].lost, leaves=leaves)
-                self.timings["exchange"] += time.perf_counter() - t0
+                self.add_time("exchange", t0)
                 k += 1
                 continue
             seq = ack = 0
@@ -264,7 +276,7 @@ class Network:
             sends_left[s] -= 1
             if group[k].lost:
                 self._count(r, s, d, m, lost=True, leaves=None if cfg.delta else leaves)
-                self.timings["exchange"] += time.perf_counter() - t0
+                self.add_time("exchange", t0)
                 k += 1
                 continue
             if seq:
@@ -277,13 +289,13 @@ class Network:
             before_modifying(d)
             self._count(r, s, d, m, leaves=None if cfg.delta else leaves)
             m = self.frames.to_receiver(s, d, m, maps[d].resolution)
+            self.add_time("exchange", t0)
             t1 = time.perf_counter()
-            self.timings["exchange"] += t1 - t0
             loss_d = self._loss(r, d, m.resolution)
             before = _loss_totals(loss_d)
             fuse_into(maps[d], m, rule=r, unknown=cfg.unknown, loss=loss_d,
                       threads=self.fuse_threads)
-            self.timings["fusion"] += time.perf_counter() - t1
+            self.add_time("fusion", t1)
             self._record(r, group[k], loss_d, before)
             modified.add(d)
             k += 1

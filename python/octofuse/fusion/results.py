@@ -101,6 +101,20 @@ class SimResult:
         return per[agent]
 
 
+def rule_time_part(rule: str) -> str:
+    """The part of a run's timings that holds one rule's exchanges and fusions (the time of
+    the thread that ran them, summed over the run)."""
+    return f"exchange + fusion: {rule}"
+
+
+def ordered_timings(res: SimResult) -> dict[str, float]:
+    """``res.timings`` with each rule's own part after the others, in the order of its rules."""
+    own = [rule_time_part(r) for r in res.rules]
+    out = {k: v for k, v in res.timings.items() if k not in own}
+    out.update((k, res.timings[k]) for k in own if k in res.timings)
+    return out
+
+
 def timeline_point(t: float, rule: str, agent: str, compared) -> dict:
     """One point of a run's KL timeline: ``agent``'s map of ``rule`` compared with the
     centralized map at time ``t`` (a :class:`~octofuse.maps.compare.Comparison`)."""

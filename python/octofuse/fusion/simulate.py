@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import threading
 import time
 from dataclasses import replace
 from typing import Callable, Iterator, Optional
@@ -100,8 +99,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # the maps of the common frame mapped in this pass
         common = ([] if replayed else [central]) + ([exact] if exact is not None else [])
         inserted: dict[str, int] = {a: 0 for a in agents}
-        timings = net.timings
-        clock = threading.Lock()  # timings are added to on the lanes' threads
+        timings = net.timings  # added to on the lanes' threads through net.add_time
 
         # Each rule's maps are a lane of their own (inserted into, fused, scored, in order),
         # and so are the maps of the common frame with the agents' own maps: the lanes meet
@@ -119,8 +117,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     return fn()
                 finally:
                     if key is not None:
-                        with clock:
-                            timings[key] += time.perf_counter() - t0
+                        net.add_time(key, t0)
 
             return lanes.submit(lane, run, after)
 
@@ -196,8 +193,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             scans, per_scan = frames.scan_targets(batch, targets, common)
             traced = trace(scans, central, build_cfg.workers)  # its grid only, not its nodes
-            with clock:
-                timings["insertion"] += time.perf_counter() - t0
+            net.add_time("insertion", t0)
             applied = []
             for lane, ids in lane_maps.items():
                 if not ids:  # the common lane of a pass that replays the centralized map
@@ -269,7 +265,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                                after=() if lane == COMMON else [ref], key="final scores")
                   for lane in lane_maps if lane != COMMON or local}
         lanes.wait()
-        timings["mapping + fusion (wall)"] += time.perf_counter() - t_run
+        net.add_time("mapping + fusion (wall)", t_run)
         net.close()
         if central_replay is not None:
             central_replay.end_pass(central)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
-from ..fusion.results import LOCAL, SimResult
+from ..fusion.results import LOCAL, SimResult, ordered_timings
 from ..maps.frames import matrix_pose
 from .loss_histogram import count_loss_histograms, plot_loss_histograms
 from .map_exports import MapExports
@@ -229,7 +229,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "mean": means,
         "scores": {r: {a: s.to_dict() for a, s in per.items()} for r, per in res.scores.items()},
         "timeline": res.timeline,
-        "timings_s": dict(res.timings),
+        "timings_s": ordered_timings(res),
         "findings": findings(means, exact) if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
@@ -291,7 +291,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
             rows = {a: s.to_dict() for a, s in per.items()}
             lines += [f"### {r}", "", markdown_table(rows, first="agent"), ""]
     lines += ["## Time", "", "| part | seconds |", "|---|---|"]
-    lines += [f"| {k} | {v:.2f} |" for k, v in res.timings.items()]
+    lines += [f"| {k} | {v:.2f} |" for k, v in ordered_timings(res).items()]
     lines += ["", "The parts that run on several threads are summed over them (so they can add up "
               "to more than the wall time); `(wall)` and `total` are wall time.", ""]
     lines += [files_note(cfg), ""]
