@@ -210,6 +210,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         maps.add(res)
     exported = maps.finish()
     res.timings["export"] = res.timings.get("export", 0.0) + maps.seconds
+    timings = ordered_timings(res)  # every part timed by now
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
@@ -229,7 +230,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "mean": means,
         "scores": {r: {a: s.to_dict() for a, s in per.items()} for r, per in res.scores.items()},
         "timeline": res.timeline,
-        "timings_s": ordered_timings(res),
+        "timings_s": timings,
         "findings": findings(means, exact) if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
@@ -291,7 +292,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
             rows = {a: s.to_dict() for a, s in per.items()}
             lines += [f"### {r}", "", markdown_table(rows, first="agent"), ""]
     lines += ["## Time", "", "| part | seconds |", "|---|---|"]
-    lines += [f"| {k} | {v:.2f} |" for k, v in ordered_timings(res).items()]
+    lines += [f"| {k} | {v:.2f} |" for k, v in timings.items()]
     lines += ["", "The parts that run on several threads are summed over them (so they can add up "
               "to more than the wall time); `(wall)` and `total` are wall time.", ""]
     lines += [files_note(cfg), ""]
