@@ -87,7 +87,7 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
     scans = sum(s.scans_used for s in res.build_stats)
     points = sum(s.points for s in res.build_stats)
     sent = {r: sum(res.traffic[r].sent.values()) for r in res.rules}
-    export = tm.get("export", 0.0)
+    export = tm.get("export (wall)", 0.0)
     parts = {
         "insertion": tm.get("insertion", 0.0),
         "exchange + fusion": tm.get("exchange", 0.0) + tm.get("fusion", 0.0),

@@ -110,7 +110,7 @@ def test_run_summary_numbers(run_out):
         assert sa["voxels"] == s["scores"][LOCAL][a]["voxels"] > 1000
     assert len(s["timeline"]) == 4 * 2 * 4  # samples x (rule + local-only) x agents
     assert all(fraction(x["coverage"]) and x["kl"] >= 0 for x in s["timeline"])
-    assert s["timings_s"]["total"] > 0
+    assert s["timings_s"]["total"] > 0 and s["timings_s"]["export (wall)"] > 0
     assert any(f.startswith("Every WEP rule closer") and "1 of 1 rules." in f
                for f in s["findings"])
 
@@ -205,6 +205,8 @@ def test_build_then_fuse(built, tmp_path, capsys):
     assert is_png(out / "info_loss_histogram.png")
     assert not (out / "kl_over_time.png").exists()
     assert "# octofuse fuse: 2 rounds over complete" in (out / "report.md").read_text()
+    # the parts measured on the calling thread are named as wall time
+    assert all(s["timings_s"][p] > 0 for p in ("scoring (wall)", "export (wall)", "total"))
 
 
 @pytest.mark.parametrize("fmt", ["mcap", "bag"])

@@ -36,8 +36,8 @@ class Network:
         self.loss: dict[str, dict[str, InfoLossMap]] = {r: {} for r in rules}
         self.traffic = {r: Traffic() for r in rules}
         self.sent_snapshot: dict[tuple, OccupancyMap] = {}  # (rule, sender, receiver) -> map
-        #: seconds per part (summed over threads; wall time for the `(wall)` parts), added to
-        #: through :meth:`add_time` while the run goes
+        #: seconds per part (summed over threads; wall time for `total` and the `(wall)`
+        #: parts), added to through :meth:`add_time` while the run goes
         self.timings: dict[str, float] = defaultdict(float)
         self._clock = threading.Lock()
         self.threads = threads
