@@ -99,7 +99,6 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # the maps of the common frame mapped in this pass
         common = ([] if replayed else [central]) + ([exact] if exact is not None else [])
         inserted: dict[str, int] = {a: 0 for a in agents}
-        timings = net.timings  # added to on the lanes' threads through net.add_time
 
         # Each rule's maps are a lane of their own (inserted into, fused, scored, in order),
         # and so are the maps of the common frame with the agents' own maps: the lanes meet
@@ -278,7 +277,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     fused = {r: final[r][0] for r in rules}
     res = SimResult(agents, rules, graph, events, central, own, fused,
                     {r: {a: net.loss_map(r, a, resolution) for a in agents}
-                     for r in rules}, net.traffic, timeline, timings, build_stats=stats,
+                     for r in rules}, net.traffic, timeline, net.timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree,
                     unclamped=net.unclamped_maps(), central_unclamped=exact,
                     frames=frames.frames, alignment=frames.report(),
@@ -286,7 +285,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     res.scores = with_traffic({r: scores for r, (_, scores, _) in final.items()}, net.traffic)
-    timings["total"] = time.perf_counter() - t_all
+    res.timings["total"] = time.perf_counter() - t_all
     return res
 
 
