@@ -359,6 +359,23 @@ def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
     assert out.stdout.split() == ["True", "True", "agg"]
 
 
+def test_a_run_begins_the_imports_once_under_way_and_only_once(monkeypatch):
+    """The imports ahead wait for the given share of the scans (at the start they would slow
+    the decoding the maps wait for), then begin once; the progress is passed on unchanged."""
+    from octofuse.outputs import libraries
+
+    started, seen = [], []
+    monkeypatch.setattr(libraries, "import_output_libraries", lambda: started.append(1))
+    step = libraries.import_once_under_way(lambda d, t: seen.append((d, t)), share=0.1)
+    for done in (0, 5, 9):
+        step(done, 100)
+    assert started == []
+    for done in (10, 11, 50, 100):
+        step(done, 100)
+    assert started == [1]
+    assert seen == [(d, 100) for d in (0, 5, 9, 10, 11, 50, 100)]
+
+
 def test_an_interpreter_leaving_while_the_libraries_import_exits_as_asked():
     """A command that ends while the imports ahead run (an interrupted run, bad input found
     early) waits for them: an interpreter torn down in the middle of Open3D's import can end

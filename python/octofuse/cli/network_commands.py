@@ -28,7 +28,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                     export_bag: Optional[Path] = None) -> None:
     from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
-    from ..outputs.libraries import import_output_libraries
+    from ..outputs.libraries import import_once_under_way
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable
     from ..outputs.tables import scores_table
@@ -41,10 +41,10 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
             raise CliError("--export-bag: no agent is exported (--export-agents none)")
         bag = _event_bag(export_bag, cfg, out,
                          lambda agents: _export_agents(cfg.export_agents, agents))
-    import_output_libraries()  # once the inputs are checked: an exit waits for the imports
     with _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
+            bar = import_once_under_way(bar)  # the inputs checked: an exit waits for imports
             # either way the final scores' loss leaves are kept, for the loss histogram
             if bag is not None:  # one pass in bag time: the bags' start is needed first
                 from ..scans.source import ScanSource

@@ -1,12 +1,18 @@
 """The libraries octofuse draws and writes files with, Matplotlib (on its Agg backend: files, no
 screen) and Open3D, imported where they are first needed; a run imports them ahead on a thread
-of their own while it computes, since together they take a second or more."""
+of their own while it computes, since together they take a second or more of CPU."""
 
 from __future__ import annotations
 
 import threading
+from typing import Callable
 
 from ..interrupts import interrupted
+
+#: the share of a run's scans after which the imports ahead begin: at the start the imports
+#: would hold Python's lock while the first scans are decoded and the maps' threads wait for
+#: them (the demo's first rays applied about a second later)
+IMPORT_AFTER = 0.1
 
 
 def pyplot():
@@ -35,6 +41,20 @@ def import_output_libraries() -> threading.Thread:
     thread = threading.Thread(target=_load_output_libraries, name="octofuse-imports")
     thread.start()
     return thread
+
+
+def import_once_under_way(progress: Callable[[int, int], None],
+                          share: float = IMPORT_AFTER) -> Callable[[int, int], None]:
+    """``progress(done, total)`` that also starts :func:`import_output_libraries` once
+    ``share`` of the total is done (a run that stops before imports them where needed)."""
+    started: list = []
+
+    def step(done: int, total: int) -> None:
+        progress(done, total)
+        if not started and done >= share * total:
+            started.append(import_output_libraries())
+
+    return step
 
 
 def _load_output_libraries() -> None:
