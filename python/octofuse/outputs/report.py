@@ -14,6 +14,7 @@ from ..config import CHANNEL_FILTER, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
 from ..fusion.results import LOCAL, SimResult, ordered_timings
 from ..maps.frames import matrix_pose
+from .aside import drawn_aside
 from .loss_histogram import count_loss_histograms, plot_loss_histograms
 from .map_exports import MapExports
 from .libraries import pyplot
@@ -208,16 +209,22 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         agents = list(export_agents) if export_agents is not None else res.agents
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
-    exported = maps.finish()
+    hist = count_loss_histograms(maps.histogram, cfg.build.workers)
+    paths = {"timeline": out / "kl_over_time.png" if res.timeline else None,
+             "loss_hist": out / "info_loss_histogram.png" if hist is not None else None}
+
+    def draw_plots():
+        plot_timeline(res, out / "kl_over_time.png")
+        plot_loss_histograms(hist, out / "info_loss_histogram.png")
+
+    # the plots drawn on the other core while the heat maps and top views are written
+    with drawn_aside(draw_plots, "kl_over_time.png or info_loss_histogram.png"):
+        exported = maps.finish()
     res.timings["export (wall)"] = maps.seconds  # the maps written group by group, the heat maps
     timings = ordered_timings(res)  # every part timed by now
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
     per_event = event_loss_summary(fusions, res.agents)
-    paths = {"timeline": plot_timeline(res, out / "kl_over_time.png"),
-             "loss_hist": plot_loss_histograms(
-                 count_loss_histograms(maps.histogram, cfg.build.workers),
-                 out / "info_loss_histogram.png")}
     means = mean_scores(res.scores) if res.scores else {}
     exact = exact_summary(res, cfg.fuse.overconfidence_tol)
     summary = {

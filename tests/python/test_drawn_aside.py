@@ -1,0 +1,82 @@
+"""A drawing in a forked child beside the caller (octofuse.outputs.aside)."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from octofuse.outputs.aside import drawn_aside
+
+
+def _no_child_left():
+    with pytest.raises(ChildProcessError):
+        os.waitpid(-1, os.WNOHANG)
+
+
+def test_the_child_draws_while_the_body_runs(tmp_path):
+    """The body goes on while the child works: the child waits for a file the body writes,
+    so a child run after the body (or instead of it) would never finish its own file."""
+    ready, drawn = tmp_path / "ready", tmp_path / "drawn.png"
+
+    def draw():
+        import time
+
+        for _ in range(2000):
+            if ready.exists():
+                drawn.write_text("figure")
+                return
+            time.sleep(0.005)
+        raise TimeoutError("the body never ran beside the drawing")
+
+    with drawn_aside(draw, drawn.name):
+        ready.write_text("")
+    assert drawn.read_text() == "figure"
+    _no_child_left()
+
+
+def test_a_failed_drawing_is_one_error_naming_the_file():
+    def draw():
+        raise ValueError("no axes to draw")
+
+    with pytest.raises(OSError, match=r"cannot write kl_over_time\.png: ValueError: no axes"):
+        with drawn_aside(draw, "kl_over_time.png"):
+            pass
+    _no_child_left()
+
+
+def test_a_drawing_process_killed_is_an_error_not_a_crash():
+    with pytest.raises(OSError, match=r"cannot write a\.png: its drawing process ended with -9"):
+        with drawn_aside(lambda: os.kill(os.getpid(), signal.SIGKILL), "a.png"):
+            pass
+    _no_child_left()
+
+
+def test_the_bodys_error_wins_and_the_child_is_waited_for():
+    def draw():
+        raise ValueError("the drawing's error")
+
+    with pytest.raises(KeyError, match="the body's error"):
+        with drawn_aside(draw, "a.png"):
+            raise KeyError("the body's error")
+    _no_child_left()
+
+
+def test_the_child_leaves_the_callers_exit_and_buffers_alone(tmp_path):
+    """The child ends with os._exit: the parent's atexit handlers run once (in the parent) and
+    text buffered before the fork is written once."""
+    import subprocess
+    import sys
+
+    code = ("import atexit, sys; from octofuse.outputs.aside import drawn_aside\n"
+            "atexit.register(lambda: print('exit handler'))\n"
+            "sys.stdout.write('buffered ')\n"
+            f"with drawn_aside(lambda: open({str(tmp_path / 'f')!r}, 'w').write('x'), 'f'):\n"
+            "    pass\n"
+            "print('done')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["buffered", "done", "exit", "handler"]
+    assert (tmp_path / "f").read_text() == "x"
