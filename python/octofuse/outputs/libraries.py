@@ -46,7 +46,8 @@ def import_output_libraries() -> threading.Thread:
 def import_once_under_way(progress: Callable[[int, int], None],
                           share: float = IMPORT_AFTER) -> Callable[[int, int], None]:
     """``progress(done, total)`` that also starts :func:`import_output_libraries` once
-    ``share`` of the total is done (a run that stops before imports them where needed)."""
+    ``share`` of the total is done (a run that ends sooner imports them where they are
+    needed)."""
     started: list = []
 
     def step(done: int, total: int) -> None:

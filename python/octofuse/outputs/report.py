@@ -210,16 +210,17 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
     hist = count_loss_histograms(maps.histogram, cfg.build.workers)
-    paths = {"timeline": out / "kl_over_time.png" if res.timeline else None,
-             "loss_hist": out / "info_loss_histogram.png" if hist is not None else None}
+    plots = {"timeline": out / "kl_over_time.png", "loss_hist": out / "info_loss_histogram.png"}
 
-    def draw_plots():
-        plot_timeline(res, out / "kl_over_time.png")
-        plot_loss_histograms(hist, out / "info_loss_histogram.png")
+    def draw_plots():  # each writes nothing without its data
+        plot_timeline(res, plots["timeline"])
+        plot_loss_histograms(hist, plots["loss_hist"])
 
     # the plots drawn on the other core while the heat maps and top views are written
-    with drawn_aside(draw_plots, "kl_over_time.png or info_loss_histogram.png"):
+    with drawn_aside(draw_plots, " or ".join(p.name for p in plots.values())):
         exported = maps.finish()
+    paths = {"timeline": plots["timeline"] if res.timeline else None,
+             "loss_hist": plots["loss_hist"] if hist is not None else None}
     res.timings["export (wall)"] = maps.seconds  # the maps written group by group, the heat maps
     timings = ordered_timings(res)  # every part timed by now
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
