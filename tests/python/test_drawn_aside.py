@@ -36,6 +36,15 @@ def test_the_child_draws_while_the_body_runs(tmp_path):
     _no_child_left()
 
 
+def test_on_one_core_the_drawing_comes_first_in_the_callers_process():
+    """``--threads 1`` means one core: no child then, the drawing done before the body."""
+    order = []
+    with drawn_aside(lambda: order.append(("draw", os.getpid())), "a.png", cores=1):
+        order.append(("body", os.getpid()))
+    assert order == [("draw", os.getpid()), ("body", os.getpid())]
+    _no_child_left()
+
+
 def test_a_failed_drawing_is_one_error_naming_the_file():
     def draw():
         raise ValueError("no axes to draw")

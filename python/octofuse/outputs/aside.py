@@ -12,13 +12,13 @@ from .libraries import pyplot
 
 
 @contextlib.contextmanager
-def drawn_aside(draw: Callable[[], object], what: str) -> Iterator[None]:
-    """``draw()`` run in a forked child while the body runs (in the caller's process where
-    there is no ``fork``); on leaving, the child is waited for and, if it failed, an
-    :class:`OSError` names ``what`` and says why (after an error of the body, the body's
-    error is the one raised). The child shares nothing written after the fork: ``draw``
-    writes files only."""
-    if not hasattr(os, "fork"):
+def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterator[None]:
+    """``draw()`` run in a forked child while the body runs (before it, in the caller's
+    process, with fewer than 2 ``cores`` or where there is no ``fork``); on leaving, the child
+    is waited for and, if it failed, an :class:`OSError` names ``what`` and says why (after an
+    error of the body, the body's error is the one raised). The child shares nothing written
+    after the fork: ``draw`` writes files only."""
+    if cores < 2 or not hasattr(os, "fork"):
         draw()
         yield
         return

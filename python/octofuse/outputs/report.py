@@ -216,8 +216,9 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         plot_timeline(res, plots["timeline"])
         plot_loss_histograms(hist, plots["loss_hist"])
 
-    # the plots drawn on the other core while the heat maps and top views are written
-    with drawn_aside(draw_plots, " or ".join(p.name for p in plots.values())):
+    # the plots drawn on another core while the heat maps and top views are written
+    with drawn_aside(draw_plots, " or ".join(p.name for p in plots.values()),
+                     cores=cfg.build.workers):
         exported = maps.finish()
     paths = {"timeline": plots["timeline"] if res.timeline else None,
              "loss_hist": plots["loss_hist"] if hist is not None else None}
