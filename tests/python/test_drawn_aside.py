@@ -45,13 +45,41 @@ def test_on_one_core_the_drawing_comes_first_in_the_callers_process():
     _no_child_left()
 
 
-def test_a_failed_drawing_is_one_error_naming_the_file():
+@pytest.mark.parametrize("cores", [1, 2])
+@pytest.mark.parametrize("kind", [ValueError, TypeError, PermissionError])
+def test_a_failed_drawing_raises_its_own_error_in_either_process(kind, cores):
+    """The caller gets the drawing's error as it is, whichever process drew: its kind decides
+    what the command line makes of it (a bug's TypeError an internal error, a file's
+    PermissionError bad input); from a child, its traceback comes along as a note."""
     def draw():
-        raise ValueError("no axes to draw")
+        raise kind("no axes to draw")
 
-    with pytest.raises(OSError, match=r"cannot write kl_over_time\.png: ValueError: no axes"):
-        with drawn_aside(draw, "kl_over_time.png"):
+    with pytest.raises(kind) as raised:
+        with drawn_aside(draw, "kl_over_time.png", cores=cores):
             pass
+    assert type(raised.value) is kind and raised.value.args == ("no axes to draw",)
+    notes = getattr(raised.value, "__notes__", [])
+    if cores == 2:
+        assert len(notes) == 1 and "drawing kl_over_time.png in a child process" in notes[0]
+        assert "in draw" in notes[0] and f"{kind.__name__}: no axes to draw" in notes[0]
+    else:
+        assert notes == []
+    _no_child_left()
+
+
+class Unpicklable(Exception):
+    def __init__(self, a, b):  # unpickling rebuilds it with one argument: fails
+        super().__init__(f"{a} {b}")
+
+
+def test_an_error_that_does_not_pickle_comes_back_as_a_runtime_error():
+    def draw():
+        raise Unpicklable("no", "axes")
+
+    with pytest.raises(RuntimeError) as raised:
+        with drawn_aside(draw, "a.png"):
+            pass
+    assert raised.value.args == ("Unpicklable: no axes",)
     _no_child_left()
 
 

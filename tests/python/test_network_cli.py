@@ -209,6 +209,45 @@ def test_build_then_fuse(built, tmp_path, capsys):
     assert all(s["timings_s"][p] > 0 for p in ("scoring (wall)", "export (wall)", "total"))
 
 
+def test_fuse_with_nothing_to_plot_forks_no_drawing_process(built, tmp_path, capsys,
+                                                           monkeypatch):
+    """Naive Bayes loses nothing (no loss histogram) and `fuse` samples no timeline: no plot,
+    so no process is forked to draw one."""
+    import os
+
+    def fork():
+        raise AssertionError("a drawing process forked with nothing to draw")
+
+    monkeypatch.setattr(os, "fork", fork)
+    out = tmp_path / "fused"
+    code, _, err = run_cli(capsys, "fuse", built, "--rule", "naive-bayes", "--rounds", "1",
+                           "--out", out)
+    assert code == 0, err
+    assert not (out / "kl_over_time.png").exists()
+    assert not (out / "info_loss_histogram.png").exists()
+    report = (out / "report.md").read_text()
+    assert "![timeline]" not in report and "![loss_hist]" not in report
+
+
+@pytest.mark.parametrize("error, code, says", [
+    (TypeError, 70, "internal error (TypeError: drawn wrong)"),
+    (PermissionError, 1, "error: drawn wrong")])
+def test_a_drawing_error_keeps_its_kind_across_the_drawing_process(built, tmp_path, capsys,
+                                                                   monkeypatch, error, code,
+                                                                   says):
+    """The loss histogram drawn in a process of its own fails: a bug is an internal error, a
+    file's error bad input, as if drawn in the command's own process."""
+    from octofuse.outputs import report
+
+    def plot(hist, path):
+        raise error("drawn wrong")
+
+    monkeypatch.setattr(report, "plot_loss_histograms", plot)
+    got, _, err = run_cli(capsys, "fuse", built, "--rule", "min-info-loss", "--rounds", "1",
+                          "--out", tmp_path / "fused")
+    assert got == code and says in err and "Traceback" not in err
+
+
 @pytest.mark.parametrize("fmt", ["mcap", "bag"])
 def test_fuse_writes_every_round_to_a_bag(built, tmp_path, capsys, fmt):
     """--export-bag: one message per rule, receiver and round it fused in, stamped with the

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import pickle
+import traceback
 from typing import Callable, Iterator
 
 from .libraries import pyplot
@@ -15,9 +17,11 @@ from .libraries import pyplot
 def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterator[None]:
     """``draw()`` run in a forked child while the body runs (before it, in the caller's
     process, with fewer than 2 ``cores`` or where there is no ``fork``); on leaving, the child
-    is waited for and, if it failed, an :class:`OSError` names ``what`` and says why (after an
-    error of the body, the body's error is the one raised). The child shares nothing written
-    after the fork: ``draw`` writes files only."""
+    is waited for and its error, if it failed, raised in the caller as drawing in the caller's
+    process would have raised it (the child's traceback in a note; after an error of the body,
+    the body's error is the one raised). A child ended by a signal is an :class:`OSError`
+    naming ``what``. The child shares nothing written after the fork: ``draw`` writes files
+    only."""
     if cores < 2 or not hasattr(os, "fork"):
         draw()
         yield
@@ -32,7 +36,7 @@ def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterat
             draw()
             code = 0
         except BaseException as e:  # noqa: BLE001  (handed to the parent)
-            os.write(write, f"{type(e).__name__}: {e}".encode(errors="replace")[:2000])
+            _hand_over(write, e)
         finally:
             os._exit(code)
     os.close(write)
@@ -42,8 +46,25 @@ def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterat
         failed = False
     finally:
         with os.fdopen(read, "rb") as pipe:
-            why = pipe.read().decode(errors="replace")
+            handed = pipe.read()
         code = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
     if code != 0 and not failed:
-        raise OSError(f"cannot write {what}: "
-                      + (why or f"its drawing process ended with {code}"))
+        if not handed:
+            raise OSError(f"cannot write {what}: its drawing process ended with {code}")
+        error, child_traceback = pickle.loads(handed)
+        error.add_note(f"raised while drawing {what} in a child process:\n{child_traceback}")
+        raise error
+
+
+def _hand_over(fd: int, e: BaseException) -> None:
+    """The child's error ``e`` and its traceback written to the pipe ``fd``, pickled (an error
+    that does not pickle as a RuntimeError with its kind and text)."""
+    told = traceback.format_exc()[-8000:]
+    try:
+        data = pickle.dumps((e, told))
+        pickle.loads(data)  # an error whose arguments do not rebuild it fails here, not later
+    except Exception:  # noqa: BLE001
+        data = pickle.dumps((RuntimeError(f"{type(e).__name__}: {e}"), told))
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]

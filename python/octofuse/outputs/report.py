@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+from functools import partial
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -210,18 +212,21 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
     hist = count_loss_histograms(maps.histogram, cfg.build.workers)
-    plots = {"timeline": out / "kl_over_time.png", "loss_hist": out / "info_loss_histogram.png"}
+    plots = {}  # by their name in the report: the plots with data to draw, and how
+    if res.timeline:
+        plots["timeline"] = (out / "kl_over_time.png", partial(plot_timeline, res))
+    if hist is not None:
+        plots["loss_hist"] = (out / "info_loss_histogram.png", partial(plot_loss_histograms, hist))
 
-    def draw_plots():  # each writes nothing without its data
-        plot_timeline(res, plots["timeline"])
-        plot_loss_histograms(hist, plots["loss_hist"])
+    def draw_plots():
+        for path, draw in plots.values():
+            draw(path)
 
     # the plots drawn on another core while the heat maps and top views are written
-    with drawn_aside(draw_plots, " or ".join(p.name for p in plots.values()),
-                     cores=cfg.build.workers):
+    with (drawn_aside(draw_plots, " and ".join(p.name for p, _ in plots.values()),
+                      cores=cfg.build.workers) if plots else contextlib.nullcontext()):
         exported = maps.finish()
-    paths = {"timeline": plots["timeline"] if res.timeline else None,
-             "loss_hist": plots["loss_hist"] if hist is not None else None}
+    paths = {name: path for name, (path, _) in plots.items()}
     res.timings["export (wall)"] = maps.seconds  # the maps written group by group, the heat maps
     timings = ordered_timings(res)  # every part timed by now
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
@@ -292,8 +297,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         lines += ["## Findings", ""] + [f"- {f}" for f in summary["findings"]] + [""]
     lines += loss_section(per_event)
     for name, p in paths.items():
-        if p is not None:
-            lines += [f"![{name}]({p.name})", ""]
+        lines += [f"![{name}]({p.name})", ""]
     lines += exports_section(exported, event_bag)
     if res.scores:
         lines += ["## Per agent", ""]
