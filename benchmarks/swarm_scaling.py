@@ -101,7 +101,7 @@ def main(argv=None) -> int:
                 "events": len(res.events), "messages": res.messages,
                 "wall_s": round(wall, 2), "start_workers_s": round(res.timings["start workers"], 2),
                 "run_s": round(res.timings["run (wall)"], 2),
-                "scoring_s": round(res.timings.get("scoring", 0.0), 2),
+                "final_scores_s": round(res.timings.get("final scores (wall)", 0.0), 2),
                 "messages_per_s": round(res.messages_per_second, 1),
                 "stream_mb": round(res.stream_bytes / 1e6, 1),
                 "peak_private_worker_max_mib": round(max(w["peak_private"] for w in agents_w) / MIB),

@@ -124,3 +124,6 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
         assert dict(sw.traffic[r].received) == dict(ref.traffic[r].received)
         assert dict(sw.traffic[r].sent_32b) == dict(ref.traffic[r].sent_32b)
     assert sw.stream_bytes > 0 and all(w["peak_rss"] > 0 for w in sw.workers)
+    # the driver's parts: wall time, named so (the workers' threads are not timed here)
+    assert set(sw.timings) == {"start workers", "exchange calls (driver)", "run (wall)",
+                               "final scores (wall)", "total"}

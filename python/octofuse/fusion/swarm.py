@@ -278,7 +278,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
                 for r, per in p.items():
                     scores.setdefault(r, {}).update(per)
             scores = {r: {a: scores[r][a] for a in agents} for r in [LOCAL, *rules]}
-        timings["scoring"] = time.perf_counter() - t0
+        timings["final scores (wall)"] = time.perf_counter() - t0
         traffic = {r: Traffic() for r in rules}
         for p in ray.get([w.traffic.remote() for w in workers]):
             for r, t in p.items():
