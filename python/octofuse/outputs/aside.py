@@ -57,8 +57,8 @@ def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterat
 
 
 def _hand_over(fd: int, e: BaseException) -> None:
-    """The child's error ``e`` and its traceback written to the pipe ``fd``, pickled (an error
-    that does not pickle as a RuntimeError with its kind and text)."""
+    """The child's error ``e`` and its traceback written to the pipe ``fd``, pickled; an error
+    that does not pickle goes as a RuntimeError naming its kind and text."""
     told = traceback.format_exc()[-8000:]
     try:
         data = pickle.dumps((e, told))
