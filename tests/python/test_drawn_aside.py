@@ -90,6 +90,28 @@ def test_a_drawing_process_killed_is_an_error_not_a_crash():
     _no_child_left()
 
 
+@pytest.mark.parametrize("end, code", [("killed", -9), ("exited", 1)])
+def test_an_error_half_handed_over_is_an_error_naming_the_files(monkeypatch, end, code):
+    """The child ended while writing its error: what it wrote is not read as an error."""
+    import pickle
+
+    from octofuse.outputs import aside
+
+    def half_handed_over(fd, e):
+        os.write(fd, pickle.dumps((e, "its traceback"))[:20])
+        if end == "killed":
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    def draw():
+        raise ValueError("no axes to draw")
+
+    monkeypatch.setattr(aside, "_hand_over", half_handed_over)
+    with pytest.raises(OSError, match=rf"^cannot write a\.png: its drawing process ended with {code}$"):
+        with drawn_aside(draw, "a.png"):
+            pass
+    _no_child_left()
+
+
 def test_the_bodys_error_wins_and_the_child_is_waited_for():
     def draw():
         raise ValueError("the drawing's error")

@@ -49,9 +49,10 @@ def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterat
             handed = pipe.read()
         code = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
     if code != 0 and not failed:
-        if not handed:
+        handed_over = _handed_error(handed) if code > 0 else None  # not after a signal
+        if handed_over is None:
             raise OSError(f"cannot write {what}: its drawing process ended with {code}")
-        error, child_traceback = pickle.loads(handed)
+        error, child_traceback = handed_over
         error.add_note(f"raised while drawing {what} in a child process:\n{child_traceback}")
         raise error
 
@@ -68,3 +69,11 @@ def _hand_over(fd: int, e: BaseException) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view):]
+
+
+def _handed_error(data: bytes):
+    """The (error, traceback) a child handed over, or None if it handed over nothing whole."""
+    try:
+        return pickle.loads(data) if data else None
+    except Exception:  # noqa: BLE001  (a child cut short while writing)
+        return None
