@@ -106,7 +106,8 @@ def test_an_error_half_handed_over_is_an_error_naming_the_files(monkeypatch, end
         raise ValueError("no axes to draw")
 
     monkeypatch.setattr(aside, "_hand_over", half_handed_over)
-    with pytest.raises(OSError, match=rf"^cannot write a\.png: its drawing process ended with {code}$"):
+    said = rf"^cannot write a\.png: its drawing process ended with {code}$"
+    with pytest.raises(OSError, match=said):
         with drawn_aside(draw, "a.png"):
             pass
     _no_child_left()
