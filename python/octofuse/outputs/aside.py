@@ -19,9 +19,9 @@ def drawn_aside(draw: Callable[[], object], what: str, cores: int = 2) -> Iterat
     process, with fewer than 2 ``cores`` or where there is no ``fork``); on leaving, the child
     is waited for and its error, if it failed, raised in the caller as drawing in the caller's
     process would have raised it (the child's traceback in a note; after an error of the body,
-    the body's error is the one raised). A child ended by a signal is an :class:`OSError`
-    naming ``what``. The child shares nothing written after the fork: ``draw`` writes files
-    only."""
+    the body's error is the one raised). A child ended by a signal, or that handed over no
+    whole error, is an :class:`OSError` naming ``what``. The child shares nothing written
+    after the fork: ``draw`` writes files only."""
     if cores < 2 or not hasattr(os, "fork"):
         draw()
         yield

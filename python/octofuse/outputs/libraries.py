@@ -48,12 +48,14 @@ def import_once_under_way(progress: Callable[[int, int], None],
     """``progress(done, total)`` that also starts :func:`import_output_libraries` once
     ``share`` of the total is done (a run that ends sooner imports them where they are
     needed)."""
-    started: list = []
+    started = False
 
     def step(done: int, total: int) -> None:
+        nonlocal started
         progress(done, total)
         if not started and done >= share * total:
-            started.append(import_output_libraries())
+            started = True
+            import_output_libraries()
 
     return step
 
