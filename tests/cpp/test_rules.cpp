@@ -5,9 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <vector>
 
 using namespace octofuse;
@@ -59,6 +61,50 @@ TEST(Rules, WeightedChernoffEqualisesWeightedKlds) {
       if (ca > 0 && cb > 0) {
         const Fused k = fuse_logodds(Rule::KldWeightedChernoff, a, b);
         EXPECT_NEAR(ca * kl_logodds(k.l, a), cb * kl_logodds(k.l, b), 1e-9) << a << " " << b;
+      }
+    }
+}
+
+namespace {
+
+// The weighted Chernoff root c_a KL(p_w || p_a) = c_b KL(p_w || p_b), in log-odds, found by
+// bisection in long double (no code shared with the Newton iteration).
+long double weighted_root_by_bisection(long double la, long double lb, long double ca,
+                                       long double cb) {
+  const auto kl = [](long double lq, long double lp) {
+    if (lq > 0) lq = -lq, lp = -lp;  // KL is unchanged; then sigmoid(lq) <= 1/2
+    const long double s = 1 / (1 + std::exp(-lq)), d = lp - lq;
+    return std::log1p(s * std::expm1(d)) - s * d;
+  };
+  long double lo = 0, hi = 1;  // g(w) = c_a KL_a - c_b KL_b falls from >= 0 to <= 0
+  for (int i = 0; i < 200 && hi - lo > 1e-19L; ++i) {
+    const long double w = (lo + hi) / 2, lw = lb + w * (la - lb);
+    (ca * kl(lw, la) - cb * kl(lw, lb) > 0 ? lo : hi) = w;
+  }
+  return lb + (lo + hi) / 2 * (la - lb);
+}
+
+}  // namespace
+
+TEST(Rules, WeightedChernoffRootIsTheRootToRounding) {
+  // the fused log-odds within 1e-13 |la - lb| of the root (w within 1e-13), inside the maps'
+  // range (where the iteration stops once Newton has converged) and beyond it
+  std::vector<double> values;
+  for (double l = -8.0; l <= 8.0; l += 0.23) values.push_back(l);
+  for (double l : {-30.0, -12.5, 9.0, 14.0, 25.0}) values.push_back(l);
+  for (double a : values)
+    for (double b : values) {
+      if (std::fabs(a - b) < 1e-3) continue;
+      for (const auto& [ca, cb] : {std::pair{entropy_logodds(b), entropy_logodds(a)},
+                                   std::pair{kl_logodds(a, 0.0), kl_logodds(b, 0.0)},
+                                   std::pair{0.3, 2.0}}) {
+        if (!(ca > 0 && cb > 0)) continue;
+        const double w =
+            detail::weighted_chernoff_weight(a, b, ca, cb, detail::chernoff_weight(a, b));
+        const double l = b + w * (a - b);
+        const long double ref = weighted_root_by_bisection(a, b, ca, cb);
+        ASSERT_LE(std::fabs(static_cast<double>(l - ref)), 1e-13 * std::max(1.0, std::fabs(a - b)))
+            << a << " " << b << " " << ca << " " << cb;
       }
     }
 }

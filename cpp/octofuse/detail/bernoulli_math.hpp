@@ -127,7 +127,10 @@ inline double chernoff_weight(double la, double lb) {
 /// root and is nearly linear in w (sqrt(KL(p_w || p_x)) ~ |l_w - l_x| sqrt(sigmoid'/2)), from
 /// the start that the same linearisation gives: w/(1-w) = sqrt(c_a/c_b) w0/(1-w0). Steps
 /// that leave the bracket are replaced by bisection. It stops when g vanishes to rounding
-/// (|g| <= 1e-15 (c_a KL_a + c_b KL_b)), or when a step or the bracket is below 1e-14.
+/// (|g| <= 1e-15 (c_a KL_a + c_b KL_b)), or when a step or the bracket is below 1e-14, or,
+/// for |la|, |lb| <= 8 (every clamped map value), once Newton converges quadratically and the
+/// error left after its step (about step^3 / previous step^2) is below 1e-18: that saves the
+/// evaluation that would only confirm the root (l within 2e-13 of the converged one).
 inline double weighted_chernoff_weight(double la, double lb, double ca, double cb, double w0) {
   const double d = la - lb;
   if (std::fabs(d) < 1e-6) {
@@ -142,6 +145,8 @@ inline double weighted_chernoff_weight(double la, double lb, double ca, double c
     const double ws = rho * w / (rho * w + (1.0 - w));
     if (ws > 0.0 && ws < 1.0) w = ws;
   }
+  const bool stops_early = std::fabs(la) <= 8.0 && std::fabs(lb) <= 8.0;
+  double last_step = 1.0;
   for (int it = 0; it < 100; ++it) {
     const double lw = lb + w * d;
     // both KLs share sigmoid(l_w); evaluate them with l_w <= 0 (KL is symmetric in sign)
@@ -158,7 +163,12 @@ inline double weighted_chernoff_weight(double la, double lb, double ca, double c
     const double dh = 0.5 * d * s * (1.0 - s) * (ca * (lw - la) / ra - cb * (lw - lb) / rb);
     double next = (dh != 0.0 && std::isfinite(dh)) ? w - (ra - rb) / dh : 0.5 * (lo + hi);
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-    if (std::fabs(next - w) < 1e-14 || hi - lo < 1e-14) return next;
+    const double step = std::fabs(next - w);
+    if (step < 1e-14 || hi - lo < 1e-14) return next;
+    const bool converged = step < 1e-3 * last_step &&
+                           step * step * step < 1e-18 * last_step * last_step;
+    if (stops_early && converged) return next;
+    last_step = step;
     w = next;
   }
   return w;
