@@ -99,12 +99,27 @@ TEST(Rules, WeightedChernoffRootIsTheRootToRounding) {
                                    std::pair{kl_logodds(a, 0.0), kl_logodds(b, 0.0)},
                                    std::pair{0.3, 2.0}}) {
         if (!(ca > 0 && cb > 0)) continue;
-        const double w =
-            detail::weighted_chernoff_weight(a, b, ca, cb, detail::chernoff_weight(a, b));
+        const double w0 = detail::chernoff_weight_start(a, b);  // as the rules start
+        const double w = detail::weighted_chernoff_weight(a, b, ca, cb, w0);
         const double l = b + w * (a - b);
         const long double ref = weighted_root_by_bisection(a, b, ca, cb);
         ASSERT_LE(std::fabs(static_cast<double>(l - ref)), 1e-13 * std::max(1.0, std::fabs(a - b)))
             << a << " " << b << " " << ca << " " << cb;
+      }
+    }
+}
+
+TEST(Rules, ChernoffWeightStartIsTheChernoffWeight) {
+  // the weighted rules' start: the series within 1e-8 where it is used (|la - lb| < 1)
+  for (double a = -8.0; a <= 8.0; a += 0.0517)
+    for (double d : {-0.999, -0.6, -0.31, -0.05, -1e-4, 1e-5, 0.02, 0.27, 0.7, 0.998, 1.2, 3.0}) {
+      const double b = a + d;
+      const double start = detail::chernoff_weight_start(a, b);
+      const double exact = detail::chernoff_weight(a, b);
+      if (std::fabs(a - b) < 1.0) {
+        EXPECT_NEAR(start, exact, 1e-8) << a << " " << b;
+      } else {
+        EXPECT_EQ(start, exact);
       }
     }
 }
