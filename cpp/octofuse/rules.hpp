@@ -144,7 +144,7 @@ inline double chernoff_factor(double l, double l0) {
 }
 
 /// The Chernoff weight of finite la != lb as the weighted rules' iteration starts from: by the
-/// midpoint series where |la - lb| < 1 (within 1e-8 of it, a third of the time), else exact.
+/// midpoint series where |la - lb| < 1 (within 1e-8 of it, at a third of its cost), else exact.
 inline double chernoff_weight_start(double la, double lb) {
   const double d = la - lb;
   if (!(std::fabs(d) < 1.0)) return chernoff_weight(la, lb);
