@@ -128,9 +128,10 @@ inline double chernoff_weight(double la, double lb) {
 /// the start that the same linearisation gives: w/(1-w) = sqrt(c_a/c_b) w0/(1-w0). Steps
 /// that leave the bracket are replaced by bisection. It stops when g vanishes to rounding
 /// (|g| <= 1e-15 (c_a KL_a + c_b KL_b)), or when a step or the bracket is below 1e-14, or,
-/// for |la|, |lb| <= 8 (every clamped map value), once Newton converges quadratically and the
-/// error left after its step (about step^3 / previous step^2) is below 1e-18: that saves the
-/// evaluation that would only confirm the root (l within 2e-13 of the converged one).
+/// for |la|, |lb| <= 8 (maps clamp to [-2, 3.5] by default), once Newton converges
+/// quadratically and the error left after its step (about step^3 / previous step^2) is below
+/// 1e-18: that saves the evaluation that would only confirm the root (l within 2e-13 of the
+/// converged one).
 inline double weighted_chernoff_weight(double la, double lb, double ca, double cb, double w0) {
   const double d = la - lb;
   if (std::fabs(d) < 1e-6) {
