@@ -98,6 +98,7 @@ void negate_values(OccupancyMap& map) {
 }
 
 void clamp_values(OccupancyMap& map) {
+  map.settle_loss();  // prune() merges nodes without moving carried losses aside
   auto& t = map.tree();
   const float lo = t.getClampingThresMinLog();
   const float hi = t.getClampingThresMaxLog();
@@ -121,6 +122,8 @@ std::size_t assign_values(OccupancyMap& map, OccupancyMap& channel, const Occupa
   if (&map == &channel || &map == &msg || &channel == &msg) {
     throw std::invalid_argument("assign_values needs three different maps");
   }
+  map.settle_loss();
+  channel.settle_loss();
   auto& tm = map.tree();
   auto& tc = channel.tree();
   const auto& src = msg.tree();

@@ -1,6 +1,7 @@
 // octofuse: in-place fusion by a walk of the message tree down the destination tree.
 #include "octofuse/fuse_into.hpp"
 
+#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/loss_tree.hpp"
@@ -29,6 +30,7 @@ bool own_leaf(const MsgNode& m, const MsgNode& c) { return !m.leaf && c.present(
 /// Fuses a message into dst in place; the per-voxel policy is fixed at compile time. `dst` is
 /// the tree whose node operations are called: the destination itself, or in a parallel walk a
 /// worker's scratch tree (which then counts the nodes the worker created and deleted).
+/// `carry`: the destination carries the loss map `loss` adds into (carried_loss.hpp).
 template <class Fusion>
 struct IntoWalker {
   static constexpr bool kPrior = Fusion::kUnknown == UnknownPolicy::Prior;
@@ -36,14 +38,26 @@ struct IntoWalker {
   OccupancyTree& dst;
   detail::LossAdder loss;
   FuseIntoStats st;
-  void finish_occ(OcNode* n) { detail::prune_or_max(dst, n); }
+  bool carry = false;
+
+  // The inner node n (the loss cursor lc at it) once its children are done.
+  void finish_occ(OcNode* n, const LossCursor& lc) {
+    if (carry) detail::move_aside_before_merge(dst, n, loss, lc);
+    detail::prune_or_max(dst, n);
+  }
 
   void count_msg_leaf(const MsgNode& m, const MsgNode& c) { st.msg_leaves += own_leaf(m, c); }
 
   // The leaf d at `depth` gets v.
   void set(OcNode* d, const VoxelValue& v, const LossCursor& lc, unsigned depth) {
     d->setLogOdds(v.value);
-    if (v.fused) loss.add(lc, v.loss);
+    if (v.fused) {
+      if (carry) {
+        detail::add_carried_loss(d, v.loss, loss, lc);
+      } else {
+        loss.add(lc, v.loss);
+      }
+    }
     st.add(v, depth);
   }
 
@@ -55,7 +69,7 @@ struct IntoWalker {
     }
     for (unsigned i = 0; i < 8; ++i)
       if (dst.nodeChildExists(d, i)) prior_only(dst.getNodeChild(d, i), loss.child(lc, i), depth + 1);
-    finish_occ(d);
+    finish_occ(d, lc);
     loss.finish(lc);
   }
 
@@ -71,7 +85,7 @@ struct IntoWalker {
       count_msg_leaf(m, c);
       msg_only(c, dst.createNodeChild(d, i), kPrior ? loss.child(lc, i) : LossCursor{}, depth + 1);
     }
-    finish_occ(d);
+    finish_occ(d, lc);
     if (kPrior) loss.finish(lc);
   }
 
@@ -99,7 +113,7 @@ struct IntoWalker {
         prior_only(dc, loss.child(lc, i), depth + 1);
       }
     }
-    finish_occ(d);
+    finish_occ(d, lc);
     loss.finish(lc);
   }
 
@@ -141,6 +155,7 @@ struct ParallelInto {
   ScalarTree* loss_tree;
   float clamp_min, clamp_max;
   unsigned threads;
+  bool carry;  // dst carries loss_tree
 
   std::deque<LossCursor> cursors;  // stable addresses: cursors point to their parents
   std::vector<Part> frames;        // top nodes split serially, to finish afterwards
@@ -206,7 +221,8 @@ struct ParallelInto {
       std::unique_ptr<ScalarTree> scratch_loss;
       if (loss_tree != nullptr) scratch_loss = std::make_unique<ScalarTree>(res);
       Fusion fusion(clamp_min, clamp_max);
-      IntoWalker<Fusion> w{fusion, scratch, detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}};
+      IntoWalker<Fusion> w{fusion, scratch,
+                           detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}, carry};
       struct Settle {  // the scratch trees' counts go to the real trees, also on an exception
         std::size_t &n, &nl;
         OccupancyTree& t;
@@ -238,9 +254,9 @@ struct ParallelInto {
       if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
     }
     Fusion unused(clamp_min, clamp_max);
-    IntoWalker<Fusion> fin{unused, dst, detail::LossAdder(loss_tree), {}};
+    IntoWalker<Fusion> fin{unused, dst, detail::LossAdder(loss_tree), {}, carry};
     for (auto it = frames.rbegin(); it != frames.rend(); ++it) {
-      fin.finish_occ(it->d);
+      fin.finish_occ(it->d, *it->lc);
       fin.loss.finish(*it->lc);
     }
     fin.loss.done();
@@ -289,8 +305,8 @@ struct MutualWalker {
         if constexpr (kPrior) b.prior_only(cb, b.loss.child(lb, i), depth + 1);
       }
     }
-    a.finish_occ(da);
-    b.finish_occ(db);
+    a.finish_occ(da, la);
+    b.finish_occ(db, lb);
     a.loss.finish(la);
     b.loss.finish(lb);
   }
@@ -327,11 +343,20 @@ void add_tree(detail::LossAdder& adder, const ScalarWalk& b, const LossCursor& c
   adder.finish(c);
 }
 
+// Whether a fusion into `dst` adding into `loss` keeps the losses in dst's nodes. A map that
+// carries another loss tree settles it first: the walk merges nodes as an uncarried map.
+bool carries(OccupancyMap& dst, ScalarTree* loss) {
+  if (loss != nullptr && dst.carried_loss() == loss) return true;
+  dst.settle_loss();
+  return false;
+}
+
 }  // namespace
 
 FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
                         UnknownPolicy unknown, ScalarTree* loss, unsigned threads) {
   check_compatible(dst, msg);
+  const bool carry = carries(dst, loss);
   FuseIntoStats st;
   const bool parallel = threads > 1 && dst.tree().getRoot() != nullptr &&
                         msg.tree().getRoot() != nullptr;
@@ -340,11 +365,11 @@ FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
                       using Fusion = std::decay_t<decltype(fusion)>;
                       if (parallel) {
                         st = ParallelInto<Fusion>{dst.tree(), loss, dst.clamp_min_logodds(),
-                                                  dst.clamp_max_logodds(), threads, {}, {}}
+                                                  dst.clamp_max_logodds(), threads, carry, {}, {}}
                                  .run(msg.tree());
                         return;
                       }
-                      IntoWalker<Fusion> w{fusion, dst.tree(), detail::LossAdder(loss), {}};
+                      IntoWalker<Fusion> w{fusion, dst.tree(), detail::LossAdder(loss), {}, carry};
                       w.run(msg.tree());
                       st = w.st;
                     });
@@ -368,8 +393,10 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
   with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
                     [&](auto& fusion) {
                       using Fusion = std::decay_t<decltype(fusion)>;
-                      IntoWalker<Fusion> wa{fusion, a.tree(), detail::LossAdder(loss_a), {}};
-                      IntoWalker<Fusion> wb{fusion, b.tree(), detail::LossAdder(loss_b), {}};
+                      IntoWalker<Fusion> wa{fusion, a.tree(), detail::LossAdder(loss_a), {},
+                                            carries(a, loss_a)};
+                      IntoWalker<Fusion> wb{fusion, b.tree(), detail::LossAdder(loss_b), {},
+                                            carries(b, loss_b)};
                       MutualWalker<Fusion>{wa, wb}.run(ra, rb);
                       st = {wa.st, wb.st};
                     });
@@ -380,6 +407,7 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
 
 void subtract_into(OccupancyMap& dst, const OccupancyMap& msg) {
   check_compatible(dst, msg);
+  dst.settle_loss();
   Difference fusion{{dst.clamp_min_logodds(), dst.clamp_max_logodds()}};
   IntoWalker<Difference>{fusion, dst.tree(), detail::LossAdder(nullptr), {}}.run(msg.tree());
   detail::TreeAccess<OccupancyTree>::mark_changed(dst.tree());

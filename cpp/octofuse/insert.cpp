@@ -3,6 +3,7 @@
 
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
+#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/ray_codes.hpp"
 #include "octofuse/scan_check.hpp"
@@ -84,8 +85,10 @@ std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float*
 // keys instead of twice (search + update) per key from the root.
 class BatchApplier {
  public:
-  explicit BatchApplier(OccupancyTree& tree)
+  /// `carried`: the loss tree the map carries, if any (carried_loss.hpp).
+  explicit BatchApplier(OccupancyTree& tree, ScalarTree* carried = nullptr)
       : t_(tree),
+        loss_(carried),
         hit_(tree.getProbHitLog()),
         miss_(tree.getProbMissLog()),
         cmin_(tree.getClampingThresMinLog()),
@@ -100,7 +103,8 @@ class BatchApplier {
       root = detail::TreeAccess<OccupancyTree>::ensure_root(t_);
       created = true;
     }
-    visit(root, created, 0, b, e);
+    visit(root, created, 0, b, e, loss_.root());
+    loss_.done();
   }
 
  private:
@@ -125,8 +129,9 @@ class BatchApplier {
   };
 
   // Returns whether any item below `node` was applied.
+  // `lc`: the carried loss tree's cursor at node (inactive if the map carries none).
   bool visit(OccupancyNode* node, bool just_created, unsigned depth,
-             const std::uint64_t* b, const std::uint64_t* e) {
+             const std::uint64_t* b, const std::uint64_t* e, const detail::LossCursor& lc) {
     std::vector<std::uint64_t> kept;
     if (!just_created && !t_.nodeHasChildren(node)) {
       // an existing leaf (pruned or finest) holds these voxels: a voxel's first updates that
@@ -170,14 +175,19 @@ class BatchApplier {
           created = true;
         }
       }
-      any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g);
+      any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g, loss_.child(lc, pos));
       b = g;
     }
-    if (any) detail::prune_or_max(t_, node);
+    if (any) {
+      if (lc.active) detail::move_aside_before_merge(t_, node, loss_, lc);
+      detail::prune_or_max(t_, node);
+      loss_.finish(lc);
+    }
     return any;
   }
 
   OccupancyTree& t_;
+  detail::LossAdder loss_;
   const float hit_, miss_, cmin_, cmax_;
   const unsigned depth_;
 };
@@ -190,11 +200,13 @@ void apply_each(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
     if (m & kHit) tree.updateNode(unmorton(m & kCode), true, /*lazy_eval=*/false);
 }
 
-void apply_items(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
+void apply_items(OccupancyMap& map, const std::vector<std::uint64_t>& items) {
+  OccupancyTree& tree = map.tree();
   if (tree.isChangeDetectionEnabled()) {
+    map.settle_loss();  // OctoMap's updateNode merges nodes without moving carried losses aside
     apply_each(tree, items);
   } else {
-    BatchApplier(tree).apply(items.data(), items.data() + items.size());
+    BatchApplier(tree, map.carried_loss()).apply(items.data(), items.data() + items.size());
   }
 }
 
@@ -254,17 +266,17 @@ const std::vector<std::uint64_t>& merged_items(
 // Applies the scans `scans` (indices into `per_scan`) to a tree in order: up to
 // kScansPerWalk of them per walk (one at a time with change detection, which needs OctoMap's
 // per-key updates).
-void apply_scans(OccupancyTree& tree, const std::vector<std::vector<std::uint64_t>>& per_scan,
+void apply_scans(OccupancyMap& map, const std::vector<std::vector<std::uint64_t>>& per_scan,
                  const std::vector<std::size_t>& scans) {
-  const std::size_t step = tree.isChangeDetectionEnabled() ? 1 : kScansPerWalk;
+  const std::size_t step = map.tree().isChangeDetectionEnabled() ? 1 : kScansPerWalk;
   for (std::size_t k = 0; k < scans.size(); k += step) {
     const std::size_t count = std::min(step, scans.size() - k);
     if (count == 1) {
-      apply_items(tree, per_scan[scans[k]]);
+      apply_items(map, per_scan[scans[k]]);
     } else {
       thread_local MergeBuffers buf;
       const std::vector<std::uint64_t>& items = merged_items(per_scan, &scans[k], count, buf);
-      BatchApplier(tree).apply(items.data(), items.data() + items.size());
+      BatchApplier(map.tree(), map.carried_loss()).apply(items.data(), items.data() + items.size());
       buf.trim();
     }
   }
@@ -355,7 +367,7 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
   detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
-    apply_scans(maps[k]->tree(), items.per_scan, per_map[maps[k]]);
+    apply_scans(*maps[k], items.per_scan, per_map[maps[k]]);
   });
 }
 
@@ -376,7 +388,7 @@ void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
   const std::vector<float> pts = as_float(xyz, n);
   const float o[3] = {static_cast<float>(origin[0]), static_cast<float>(origin[1]),
                       static_cast<float>(origin[2])};
-  apply_items(map.tree(), compute_items(map.tree(), pts.data(), n, o, max_range, ""));
+  apply_items(map, compute_items(map.tree(), pts.data(), n, o, max_range, ""));
 }
 
 template void insert_scan_batched<float>(OccupancyMap&, const float*, std::size_t, const double*,

@@ -1,6 +1,7 @@
 // octofuse: OccupancyMap, the adapter around OccupancyTree.
 #include "octofuse/occupancy_map.hpp"
 
+#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/text.hpp"
 #include "octofuse/map_file.hpp"
 #include "octofuse/scan_check.hpp"
@@ -72,6 +73,20 @@ OccupancyMap::OccupancyMap(const OccupancyMap& other)
   tree_->setClampingThresMax(params_.clamp_max);
 }
 
+void OccupancyMap::carry_loss(ScalarTree* loss) {
+  settle_loss();
+  carried_loss_ = loss;
+}
+
+void OccupancyMap::settle_loss() {
+  if (carried_loss_ != nullptr) move_carried_loss(*tree_, *carried_loss_);
+}
+
+void OccupancyMap::clear_with_loss() {
+  tree_->clear();
+  if (carried_loss_ != nullptr) carried_loss_->clear();
+}
+
 void OccupancyMap::save(const std::string& path) const { write_map_file(*this, path); }
 
 std::unique_ptr<OccupancyMap> OccupancyMap::load(const std::string& path) {
@@ -90,6 +105,7 @@ void OccupancyMap::insert_scan(const Real* xyz, std::size_t n, const double orig
   }
   const octomap::point3d o(static_cast<float>(origin[0]), static_cast<float>(origin[1]),
                            static_cast<float>(origin[2]));
+  settle_loss();  // OctoMap's own updates merge nodes without moving carried losses aside
   insert_cloud(*tree_, cloud, o, max_range);
 }
 
@@ -109,6 +125,7 @@ void OccupancyMap::insert_scan_from_sensor(const Real* xyz, std::size_t n, const
   }
   const octomap::point3d o(static_cast<float>(t.x()), static_cast<float>(t.y()),
                            static_cast<float>(t.z()));
+  settle_loss();  // OctoMap's own updates merge nodes without moving carried losses aside
   insert_cloud(*tree_, cloud, o, max_range);
 }
 

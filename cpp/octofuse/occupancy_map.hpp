@@ -113,9 +113,21 @@ class OccupancyMap {
   float clamp_min_logodds() const { return tree_->getClampingThresMinLog(); }
   float clamp_max_logodds() const { return tree_->getClampingThresMaxLog(); }
 
+  /// The loss tree whose losses this map's nodes carry (carried_loss.hpp), or null. A copy of
+  /// the map carries none.
+  ScalarTree* carried_loss() const { return carried_loss_; }
+  /// Makes the map's fusions into it that add into `loss` keep those losses in the map's
+  /// nodes (null: none), after settling what it carried before. `loss` must outlive this.
+  void carry_loss(ScalarTree* loss);
+  /// Moves every loss the map carries into its loss tree (the binding stays).
+  void settle_loss();
+  /// Clears the map and the loss tree it carries, without settling (both go).
+  void clear_with_loss();
+
  private:
   MapParams params_;
   std::unique_ptr<OccupancyTree> tree_;
+  ScalarTree* carried_loss_ = nullptr;
 };
 
 /// Leaves of a scalar tree.

@@ -12,6 +12,8 @@
 #include <octomap/OccupancyOcTreeBase.h>
 
 #include <cstddef>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <type_traits>
@@ -46,8 +48,43 @@ class PooledTreeNode : public Base {
   octomap::AbstractOcTreeNode**& children_array() { return this->children; }
 };
 
-/// octomap::OcTreeNode (log-odds and children), pooled.
-class OccupancyNode : public PooledTreeNode<octomap::OcTreeNode, OccupancyNode> {};
+/// octomap::OcTreeNode (log-odds and children), pooled. In the 4 bytes OctoMap's node leaves
+/// as padding it may carry the accumulated information loss of its voxels, for a map that
+/// carries its loss map (carried_loss.hpp); a node carries nothing by default.
+class OccupancyNode : public PooledTreeNode<octomap::OcTreeNode, OccupancyNode> {
+ public:
+  /// The bits of "carries no loss": a NaN that no loss is stored as (see carried_loss.hpp).
+  static constexpr std::uint32_t kNoLoss = 0xFFFFFFFFu;
+
+  OccupancyNode() = default;
+  /// A copy carries no loss: a copied map (a message, a snapshot) has no loss map.
+  OccupancyNode(const OccupancyNode& other) : PooledTreeNode(other) {}
+  OccupancyNode& operator=(const OccupancyNode&) = delete;
+
+  /// OctoMap's expandNode gives the children their parent's data and pruneNode the parent its
+  /// children's: the carried loss goes with the log-odds.
+  void copyData(const OccupancyNode& from) {
+    value = from.value;
+    carried_ = from.carried_;
+  }
+  /// Equal log-odds and the same carried loss, bit for bit (OctoMap's isNodeCollapsible).
+  bool operator==(const OccupancyNode& rhs) const {
+    return value == rhs.value && carried_ == rhs.carried_;
+  }
+
+  bool carries_loss() const { return carried_ != kNoLoss; }
+  std::uint32_t carried_bits() const { return carried_; }
+  float carried_loss() const {
+    float v;
+    std::memcpy(&v, &carried_, sizeof v);
+    return v;
+  }
+  void set_carried_loss(float v) { std::memcpy(&carried_, &v, sizeof v); }
+  void drop_carried_loss() { carried_ = kNoLoss; }
+
+ private:
+  std::uint32_t carried_ = kNoLoss;
+};
 
 /// octomap::OcTreeDataNode<float>, pooled: one float per voxel (e.g. information loss).
 class ScalarNode : public PooledTreeNode<octomap::OcTreeDataNode<float>, ScalarNode> {};
@@ -107,6 +144,12 @@ class OccupancyTree : public ArenaTree<octomap::OccupancyOcTreeBase<OccupancyNod
   explicit OccupancyTree(double resolution) : ArenaTree(resolution) {}
   OccupancyTree(const OccupancyTree&) = default;
   OccupancyTree* create() const override { return new OccupancyTree(resolution); }
+  /// OctoMap's expandNode: the children take the node's data; the node, now inner, carries no
+  /// loss (its children carry it).
+  void expandNode(OccupancyNode* node) override {
+    ArenaTree::expandNode(node);
+    node->drop_carried_loss();
+  }
   std::string getTreeType() const override { return "OcTree"; }
 };
 
