@@ -1,6 +1,7 @@
 // octofuse bindings: OccupancyMap and the per-voxel scalar tree (information loss).
 #include "common.hpp"
 
+#include "octofuse/carried_loss.hpp"
 #include "octofuse/fuse_into.hpp"
 #include "octofuse/leaf_lookup.hpp"
 #include "octofuse/occupancy_map.hpp"
@@ -56,6 +57,19 @@ void insert_impl(OccupancyMap& self, py::array_t<Real, py::array::c_style> point
 
 }  // namespace
 
+namespace {
+
+// Leaf values and depths as numpy arrays in a dict ("values", "depths").
+py::dict values_depths_dict(std::vector<float> values, std::vector<std::uint8_t> depths) {
+  const auto n = static_cast<py::ssize_t>(values.size());
+  py::dict d;
+  d["values"] = to_numpy(std::move(values), {n});
+  d["depths"] = to_numpy(std::move(depths), {n});
+  return d;
+}
+
+}  // namespace
+
 void define_maps(py::module_& m) {
   py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
 
@@ -97,12 +111,20 @@ void define_maps(py::module_& m) {
           py::gil_scoped_release release;
           scalar_values_and_depths(t, values, depths);
         }
-        const auto n = static_cast<py::ssize_t>(values.size());
-        py::dict d;
-        d["values"] = to_numpy(std::move(values), {n});
-        d["depths"] = to_numpy(std::move(depths), {n});
-        return d;
+        return values_depths_dict(std::move(values), std::move(depths));
       })
+      .def("settled_values_depths", [](const ScalarTree& t, const OccupancyMap& carrier) {
+        if (carrier.carried_loss() != &t) throw py::value_error("the map does not carry this loss tree");
+        std::vector<float> values;
+        std::vector<std::uint8_t> depths;
+        {
+          py::gil_scoped_release release;
+          settled_loss_leaves(carrier.tree(), t, values, depths);
+        }
+        return values_depths_dict(std::move(values), std::move(depths));
+      }, py::arg("carrier"),
+      "values_depths() of the tree once the losses `carrier` carries were settled into it, "
+      "without settling them.")
       .def("accumulate", [](ScalarTree& self, const ScalarTree& other) {
         if (std::fabs(self.getResolution() - other.getResolution()) > 1e-9 * self.getResolution()) {
           throw py::value_error("cannot accumulate trees of different resolutions");
@@ -160,8 +182,24 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         return std::make_unique<OccupancyMap>(self);
       })
-      .def("clear", [](OccupancyMap& self) { self.tree().clear(); },
-           py::call_guard<py::gil_scoped_release>(), "Removes every voxel, freeing the nodes.")
+      .def("clear", [](OccupancyMap& self, bool keep_loss) {
+             if (keep_loss) self.settle_loss();
+             self.tree().clear();
+           },
+           py::arg("keep_loss") = true, py::call_guard<py::gil_scoped_release>(),
+           "Removes every voxel, freeing the nodes; the losses it carries are settled first "
+           "(keep_loss) or go with the nodes.")
+      .def("drop_loss", &OccupancyMap::drop_loss, py::call_guard<py::gil_scoped_release>(),
+           "Drops the losses it carries and clears its loss tree.")
+      .def("carry_loss", [](OccupancyMap& self, ScalarTree* loss) {
+             py::gil_scoped_release release;
+             self.carry_loss(loss);
+           },
+           py::arg("loss").none(true), py::keep_alive<1, 2>(),
+           "Keeps the losses its fusions add into `loss` in its nodes (None: no longer).")
+      .def_property_readonly("carries_loss", [](const OccupancyMap& s) { return s.carried_loss() != nullptr; })
+      .def("settle_loss", &OccupancyMap::settle_loss, py::call_guard<py::gil_scoped_release>(),
+           "Moves the losses it carries into its loss tree.")
       .def_property_readonly("num_leaves", [](const OccupancyMap& s) {
         py::gil_scoped_release release;  // counting walks the tree
         return s.num_leaves();

@@ -1,4 +1,4 @@
-// octofuse: settling the losses a map carries into its loss map's tree.
+// octofuse: the losses a map carries, settled into its loss map's tree or read as if they were.
 #include "octofuse/carried_loss.hpp"
 
 namespace octofuse {
@@ -19,6 +19,67 @@ void settle(OccupancyTree& t, OccupancyNode* n, detail::LossAdder& loss,
   loss.finish(lc);
 }
 
+// The losses under one node of the loss tree that settling would build, without building it:
+// none, one value for every voxel (the node would be a leaf, or merge into one), or leaves
+// already written out.
+struct Part {
+  enum Kind : std::uint8_t { Empty, Uniform, Written } kind;
+  float value;
+};
+
+class LeavesOfSettled {
+ public:
+  LeavesOfSettled(const OccupancyTree& t, const ScalarTree& side, std::vector<float>& values,
+                  std::vector<std::uint8_t>& depths)
+      : t_(t), s_(side), values_(values), depths_(depths) {}
+
+  void run() {
+    const Part p = visit(t_.getRoot(), s_.getRoot(), 0);
+    if (p.kind == Part::Uniform) put(values_.size(), p.value, 0);
+  }
+
+ private:
+  // The node of the map (null: none there, or a leaf above that carries nothing) and of the
+  // side tree (null: none) at one position of `depth`. A voxel's loss is its leaf's carried
+  // loss, else the side tree's (never both).
+  Part visit(const OccupancyNode* o, const ScalarNode* s, unsigned depth) {
+    if (s != nullptr && !s_.nodeHasChildren(s)) return {Part::Uniform, s->getValue()};
+    if (o != nullptr && !t_.nodeHasChildren(o)) {
+      if (o->carries_loss()) return {Part::Uniform, o->carried_loss()};
+      o = nullptr;  // the side tree's below it, if any
+    }
+    if (o == nullptr && s == nullptr) return {Part::Empty, 0.0f};
+    // the children, merged as prune_or_max merges them: 8 equal values, the first one's kept
+    Part kids[8];
+    bool uniform = true;
+    for (unsigned i = 0; i < 8; ++i) {
+      const OccupancyNode* oc = o != nullptr && t_.nodeChildExists(o, i) ? t_.getNodeChild(o, i) : nullptr;
+      const ScalarNode* sc = s != nullptr && s_.nodeChildExists(s, i) ? s_.getNodeChild(s, i) : nullptr;
+      const std::size_t before = values_.size();
+      kids[i] = visit(oc, sc, depth + 1);
+      const bool still = uniform && kids[i].kind == Part::Uniform &&
+                         (i == 0 || kids[i].value == kids[0].value);
+      if (uniform && !still) {  // the earlier children, equal so far, are leaves after all
+        std::size_t at = kids[i].kind == Part::Written ? before : values_.size();
+        for (unsigned k = 0; k < i; ++k) put(at++, kids[k].value, depth + 1);
+      }
+      if (!still && kids[i].kind == Part::Uniform) put(values_.size(), kids[i].value, depth + 1);
+      uniform = still;
+    }
+    return uniform ? kids[0] : Part{Part::Written, 0.0f};
+  }
+
+  void put(std::size_t at, float value, unsigned depth) {
+    values_.insert(values_.begin() + static_cast<std::ptrdiff_t>(at), value);
+    depths_.insert(depths_.begin() + static_cast<std::ptrdiff_t>(at), static_cast<std::uint8_t>(depth));
+  }
+
+  const OccupancyTree& t_;
+  const ScalarTree& s_;
+  std::vector<float>& values_;
+  std::vector<std::uint8_t>& depths_;
+};
+
 }  // namespace
 
 void move_carried_loss(OccupancyTree& tree, ScalarTree& side) {
@@ -27,6 +88,13 @@ void move_carried_loss(OccupancyTree& tree, ScalarTree& side) {
   detail::LossAdder loss(&side);
   settle(tree, root, loss, loss.root());
   loss.done();
+}
+
+void settled_loss_leaves(const OccupancyTree& tree, const ScalarTree& side,
+                         std::vector<float>& values, std::vector<std::uint8_t>& depths) {
+  values.clear();
+  depths.clear();
+  LeavesOfSettled(tree, side, values, depths).run();
 }
 
 }  // namespace octofuse

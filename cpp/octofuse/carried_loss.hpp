@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <vector>
 
 namespace octofuse::detail {
 
@@ -37,31 +38,21 @@ inline void add_carried_loss(OccupancyNode* d, float v, LossAdder& loss, const L
   loss.add(lc, v);
 }
 
-/// Before a walk ends the inner node `n` of a map that carries its loss map (`lc`: the side
-/// tree's cursor at n): if its children are 8 leaves of one log-odds that carry different
-/// losses, their losses move into the side tree, so that the map merges them as an uncarried
-/// map does (prune_or_max).
-template <class Tree>
-void move_aside_before_merge(Tree& t, OccupancyNode* n, LossAdder& loss, const LossCursor& lc) {
-  if (!ChildrenAccess<OccupancyNode>::has_array(n)) return;
-  OccupancyNode* kids[8];
-  bool differ = false;
-  for (unsigned i = 0; i < 8; ++i) {
-    if (!t.nodeChildExists(n, i)) return;
-    kids[i] = t.getNodeChild(n, i);
-    if (ChildrenAccess<OccupancyNode>::has_array(kids[i]) && t.nodeHasChildren(kids[i])) return;
-    if (i > 0) {
-      if (!(kids[i]->getValue() == kids[0]->getValue())) return;
-      differ = differ || kids[i]->carried_bits() != kids[0]->carried_bits();
+/// prune_or_max's `move_aside` for a map that carries its loss map (`lc`: the side tree's
+/// cursor at the node ended): eight leaves of one log-odds that carry different losses give
+/// them to the side tree, so that the map merges them as an uncarried map does.
+struct MoveLossesAside {
+  LossAdder& loss;
+  const LossCursor& lc;
+  bool operator()(OccupancyNode* const* kids) const {
+    for (unsigned i = 0; i < 8; ++i) {
+      if (!kids[i]->carries_loss()) continue;
+      loss.add(loss.child(lc, i), kids[i]->carried_loss());
+      kids[i]->drop_carried_loss();
     }
+    return true;
   }
-  if (!differ) return;
-  for (unsigned i = 0; i < 8; ++i) {
-    if (!kids[i]->carries_loss()) continue;
-    loss.add(loss.child(lc, i), kids[i]->carried_loss());
-    kids[i]->drop_carried_loss();
-  }
-}
+};
 
 }  // namespace octofuse::detail
 
@@ -70,5 +61,10 @@ namespace octofuse {
 /// Moves every loss the nodes of `tree` carry into `side`, the tree of the loss map they carry
 /// (`tree` then carries none).
 void move_carried_loss(OccupancyTree& tree, ScalarTree& side);
+
+/// The values and depths of the leaves the loss tree `side` would have once the losses `tree`
+/// carries were moved into it (move_carried_loss), in its leaf order, without moving them.
+void settled_loss_leaves(const OccupancyTree& tree, const ScalarTree& side,
+                         std::vector<float>& values, std::vector<std::uint8_t>& depths);
 
 }  // namespace octofuse

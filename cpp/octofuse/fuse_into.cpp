@@ -42,8 +42,11 @@ struct IntoWalker {
 
   // The inner node n (the loss cursor lc at it) once its children are done.
   void finish_occ(OcNode* n, const LossCursor& lc) {
-    if (carry) detail::move_aside_before_merge(dst, n, loss, lc);
-    detail::prune_or_max(dst, n);
+    if (carry) {
+      detail::prune_or_max(dst, n, detail::MoveLossesAside{loss, lc});
+    } else {
+      detail::prune_or_max(dst, n);
+    }
   }
 
   void count_msg_leaf(const MsgNode& m, const MsgNode& c) { st.msg_leaves += own_leaf(m, c); }
@@ -343,20 +346,12 @@ void add_tree(detail::LossAdder& adder, const ScalarWalk& b, const LossCursor& c
   adder.finish(c);
 }
 
-// Whether a fusion into `dst` adding into `loss` keeps the losses in dst's nodes. A map that
-// carries another loss tree settles it first: the walk merges nodes as an uncarried map.
-bool carries(OccupancyMap& dst, ScalarTree* loss) {
-  if (loss != nullptr && dst.carried_loss() == loss) return true;
-  dst.settle_loss();
-  return false;
-}
-
 }  // namespace
 
 FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
                         UnknownPolicy unknown, ScalarTree* loss, unsigned threads) {
   check_compatible(dst, msg);
-  const bool carry = carries(dst, loss);
+  const bool carry = dst.carries_fusion_loss(loss);
   FuseIntoStats st;
   const bool parallel = threads > 1 && dst.tree().getRoot() != nullptr &&
                         msg.tree().getRoot() != nullptr;
@@ -394,9 +389,9 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
                     [&](auto& fusion) {
                       using Fusion = std::decay_t<decltype(fusion)>;
                       IntoWalker<Fusion> wa{fusion, a.tree(), detail::LossAdder(loss_a), {},
-                                            carries(a, loss_a)};
+                                            a.carries_fusion_loss(loss_a)};
                       IntoWalker<Fusion> wb{fusion, b.tree(), detail::LossAdder(loss_b), {},
-                                            carries(b, loss_b)};
+                                            b.carries_fusion_loss(loss_b)};
                       MutualWalker<Fusion>{wa, wb}.run(ra, rb);
                       st = {wa.st, wb.st};
                     });

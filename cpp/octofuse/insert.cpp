@@ -179,9 +179,12 @@ class BatchApplier {
       b = g;
     }
     if (any) {
-      if (lc.active) detail::move_aside_before_merge(t_, node, loss_, lc);
-      detail::prune_or_max(t_, node);
-      loss_.finish(lc);
+      if (lc.active) {
+        detail::prune_or_max(t_, node, detail::MoveLossesAside{loss_, lc});
+        loss_.finish(lc);
+      } else {
+        detail::prune_or_max(t_, node);
+      }
     }
     return any;
   }

@@ -79,12 +79,28 @@ void OccupancyMap::carry_loss(ScalarTree* loss) {
 }
 
 void OccupancyMap::settle_loss() {
-  if (carried_loss_ != nullptr) move_carried_loss(*tree_, *carried_loss_);
+  if (!carrying_) return;
+  move_carried_loss(*tree_, *carried_loss_);
+  carrying_ = false;
 }
 
-void OccupancyMap::clear_with_loss() {
-  tree_->clear();
-  if (carried_loss_ != nullptr) carried_loss_->clear();
+void OccupancyMap::drop_loss() {
+  if (carried_loss_ == nullptr) return;
+  if (carrying_) {
+    for (auto it = tree_->begin_tree(), end = tree_->end_tree(); it != end; ++it)
+      it->drop_carried_loss();
+    carrying_ = false;
+  }
+  carried_loss_->clear();
+}
+
+bool OccupancyMap::carries_fusion_loss(ScalarTree* loss) {
+  if (loss != nullptr && loss == carried_loss_) {
+    carrying_ = true;
+    return true;
+  }
+  settle_loss();
+  return false;
 }
 
 void OccupancyMap::save(const std::string& path) const { write_map_file(*this, path); }

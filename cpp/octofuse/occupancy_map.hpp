@@ -119,15 +119,21 @@ class OccupancyMap {
   /// Makes the map's fusions into it that add into `loss` keep those losses in the map's
   /// nodes (null: none), after settling what it carried before. `loss` must outlive this.
   void carry_loss(ScalarTree* loss);
-  /// Moves every loss the map carries into its loss tree (the binding stays).
+  /// Moves every loss the map carries into its loss tree (the binding stays); at once if no
+  /// fusion has added a loss into the nodes since the last time.
   void settle_loss();
-  /// Clears the map and the loss tree it carries, without settling (both go).
-  void clear_with_loss();
+  /// Drops every loss the map carries and clears its loss tree (the binding stays).
+  void drop_loss();
+  /// Whether a fusion into the map that adds into `loss` keeps those losses in the map's
+  /// nodes (`loss` is the tree the map carries); if not, what the map carries is settled
+  /// first, so that the fusion merges nodes as in a map that carries nothing.
+  bool carries_fusion_loss(ScalarTree* loss);
 
  private:
   MapParams params_;
   std::unique_ptr<OccupancyTree> tree_;
   ScalarTree* carried_loss_ = nullptr;
+  bool carrying_ = false;  // a node may carry a loss (false: settling finds none)
 };
 
 /// Leaves of a scalar tree.

@@ -3,11 +3,13 @@
 #include "octofuse/carried_loss.hpp"
 #include "octofuse/fuse_into.hpp"
 #include "octofuse/insert.hpp"
+#include "octofuse/leaf_lookup.hpp"
 
 #include "test_trees.hpp"
 
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -76,7 +78,14 @@ TEST(CarriedLoss, SameMapsAndLossTreesAsLossTreesAlone) {
           OccupancyTree& t = carried[k].map.tree();
           for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) carried_seen += it->carries_loss();
           if (k != 1) moved_aside += carried[k].loss.size();  // agent 1 settled for `foreign`
+          std::vector<float> values, want_values;
+          std::vector<std::uint8_t> depths, want_depths;
+          settled_loss_leaves(t, carried[k].loss, values, depths);  // read before settling
           carried[k].map.settle_loss();
+          scalar_values_and_depths(carried[k].loss, want_values, want_depths);
+          ASSERT_EQ(depths, want_depths) << rule_name(rule) << " agent " << k;
+          ASSERT_EQ(0, std::memcmp(values.data(), want_values.data(), 4 * values.size()))
+              << rule_name(rule) << " agent " << k;
           for (auto it = t.begin_tree(); it != t.end_tree(); ++it) ASSERT_FALSE(it->carries_loss());
           ASSERT_TRUE(t == plain[k].map.tree()) << rule_name(rule) << " agent " << k;
           ASSERT_TRUE(carried[k].loss == plain[k].loss) << rule_name(rule) << " agent " << k;

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from octofuse import _core
 from octofuse.maps.infoloss import InfoLossMap
 from octofuse.maps.occupancy import OccupancyMap
-from octofuse.maps.tree_fusion import fuse_into, fuse_maps
+from octofuse.maps.tree_fusion import exchange_maps, fuse_into, fuse_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -390,3 +390,40 @@ def test_clamped_copy_equals_copy_and_clamp_on_random_trees():
         assert_same_stream(m.clamped_copy(), _plain_clamped(m))
 
     check()
+
+
+def _loss_bits(loss: InfoLossMap):
+    values, depths = loss.values_depths()
+    return values.view(np.uint32).tolist(), depths.tolist()
+
+
+@pytest.mark.parametrize("rule", ["naive-bayes", "min-info-loss", "min-entropy", "chernoff",
+                                  "kld-weighted-chernoff"])
+@pytest.mark.parametrize("unknown", ["copy", "prior"])
+def test_loss_map_carried_by_its_map_equals_one_that_is_not(rule, unknown):
+    """Maps that keep their losses in their nodes (``InfoLossMap.carried_by``) against maps
+    with loss maps of their own, through exchanges, fusions on one and two threads and
+    insertions: the same maps, and the same loss maps read before and after settling."""
+    def run(carried: bool):
+        maps = [random_map(s, o) for s, o in ((5, 0.0), (6, 0.3), (7, -0.2))]
+        losses = [InfoLossMap.carried_by(m) if carried else InfoLossMap(m.resolution)
+                  for m in maps]
+        exchange_maps(maps[0], maps[1], rule, unknown, losses[0], losses[1])
+        maps[2].insert_scans(random_scans(8, 6))
+        fuse_into(maps[2], maps[0], rule, unknown, losses[2], threads=2)
+        exchange_maps(maps[1], maps[2], rule, unknown, losses[1], losses[2])
+        maps[0].insert_scans(random_scans(9, 6, spread=0.5))
+        fuse_into(maps[0], maps[2], rule, unknown, losses[0])
+        return maps, losses
+
+    plain_maps, plain_losses = run(False)
+    maps, losses = run(True)
+    for m, pm, loss, pl in zip(maps, plain_maps, losses, plain_losses):
+        read = _loss_bits(loss)  # read as settled, without settling
+        assert read == _loss_bits(pl)
+        assert (loss.voxels_fused, loss.voxels_copied, loss.loss_sum) == \
+            (pl.voxels_fused, pl.voxels_copied, pl.loss_sum)
+        assert loss.num_leaves == pl.num_leaves  # settles
+        assert _loss_bits(loss) == read
+        assert_same_map(m, pm)
+        np.testing.assert_array_equal(loss.leaves().centers, pl.leaves().centers)

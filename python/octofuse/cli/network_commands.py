@@ -82,12 +82,14 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
             written = MapExports(stage, cfg, cfg.fuse.rules, export_agents(part.agents),
                                  threads=cfg.build.workers)
         written.add(part)
-        # the rules' maps freed on every thread: the next rules' maps reuse their memory
-        rule_maps = [m for per in (*part.fused.values(), *part.loss.values(), part.unclamped)
-                     for m in per.values()]
-        thread_map(lambda m: m.clear(), rule_maps, cfg.build.workers)
+        # the rules' maps freed on every thread: the next rules' maps reuse their memory; the
+        # losses a map carries go with it, its loss map is freed next
+        rule_maps = [m for per in (*part.fused.values(), part.unclamped) for m in per.values()]
+        thread_map(lambda m: m.clear(keep_loss=False), rule_maps, cfg.build.workers)
+        loss_maps = [m for per in part.loss.values() for m in per.values()]
+        thread_map(lambda m: m.clear(), loss_maps, cfg.build.workers)
         parts.append(without_maps(part))
-        del part, rule_maps
+        del part, rule_maps, loss_maps
         return_freed_memory()
     return merge_rule_results(parts), written
 

@@ -149,10 +149,11 @@ class Network:
             self.pool.shutdown()
             self.pool = None
 
-    def _loss(self, r: str, agent: str, resolution: float) -> InfoLossMap:
+    def _loss(self, r: str, agent: str) -> InfoLossMap:
+        """The loss map of ``agent``'s fusions by rule ``r``, carried by its fused map."""
         loss = self.loss[r].get(agent)
         if loss is None:
-            loss = self.loss[r][agent] = InfoLossMap(resolution)
+            loss = self.loss[r][agent] = InfoLossMap.carried_by(self.fused[r][agent])
         return loss
 
     def _count(self, r: str, s: str, d: str, m: OccupancyMap, lost: bool = False,
@@ -234,8 +235,8 @@ class Network:
                 before_modifying(s)
                 before_modifying(d)
                 t1 = time.perf_counter()
-                loss_d = self._loss(r, d, maps[d].resolution)
-                loss_s = self._loss(r, s, maps[s].resolution)
+                loss_d = self._loss(r, d)
+                loss_s = self._loss(r, s)
                 before = _loss_totals(loss_d), _loss_totals(loss_s)
                 # the walk counts the leaves each map had: the two messages' voxels
                 n_d, n_s = exchange_maps(maps[d], maps[s], rule=r, unknown=cfg.unknown,
@@ -292,7 +293,7 @@ class Network:
             m = self.frames.to_receiver(s, d, m, maps[d].resolution)
             self.add_time("exchange", t0)
             t1 = time.perf_counter()
-            loss_d = self._loss(r, d, m.resolution)
+            loss_d = self._loss(r, d)
             before = _loss_totals(loss_d)
             fuse_into(maps[d], m, rule=r, unknown=cfg.unknown, loss=loss_d,
                       threads=self.fuse_threads)

@@ -150,7 +150,7 @@ class SwarmWorker:
                 m = self.frames.to_receiver(sender, receiver, m, self.resolution)
                 loss = self.loss[receiver].get(r)
                 if loss is None:
-                    loss = self.loss[receiver][r] = InfoLossMap(m.resolution)
+                    loss = self.loss[receiver][r] = InfoLossMap.carried_by(self.fused[receiver][r])
                 fuse_into(self.fused[receiver][r], m, rule=r, unknown=self.unknown, loss=loss)
         self.seconds["fusion"] += time.perf_counter() - t0
         self._check_memory()

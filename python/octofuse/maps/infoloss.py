@@ -88,24 +88,50 @@ class InfoLossMap:
     A tree over the same voxel keys as the maps. :meth:`accumulate` adds another loss map
     voxel by voxel, which is how an agent's loss over all its fusions is kept.
 
+    A loss map made by :meth:`carried_by` is carried by the map its fusions go into: the map's
+    nodes keep the losses of the voxels it keeps as leaves (in bytes the nodes have spare),
+    this map's tree the rest, and every read of this map gathers them first. The values are
+    those of a loss map that is not carried, bit for bit; the fusions and insertions into the
+    map walk one tree instead of two.
+
     ``voxels_fused`` and ``voxels_copied`` count finest voxels (a coarse leaf counts for every
     voxel below it) over the fusions recorded here; ``loss_sum`` is the loss (nats) summed over
     the fused voxels, so ``loss_sum / voxels_fused`` is the mean loss of a fused voxel.
     """
 
-    __slots__ = ("_t", "voxels_fused", "voxels_copied", "loss_sum")
+    __slots__ = ("_t", "_carrier", "voxels_fused", "voxels_copied", "loss_sum")
 
     def __init__(self, resolution: float):
         self._t = _core._ScalarTree(float(resolution))
+        self._carrier = None  # the OccupancyMap that carries this map's losses, if any
         self.voxels_fused = 0
         self.voxels_copied = 0
         self.loss_sum = 0.0
 
     @classmethod
+    def carried_by(cls, map) -> "InfoLossMap":
+        """An empty loss map whose losses the occupancy map ``map`` carries (its fusions that
+        add into this loss map keep them in ``map``'s nodes). A map carries one loss map."""
+        if map._m.carries_loss:
+            raise ValueError(f"{map!r} carries a loss map already")
+        obj = cls(map.resolution)
+        map._m.carry_loss(obj._t)
+        obj._carrier = map
+        return obj
+
+    @classmethod
     def _wrap(cls, raw, fused: int = 0, copied: int = 0, loss_sum: float = 0.0) -> "InfoLossMap":
         obj = cls.__new__(cls)
-        obj._t, obj.voxels_fused, obj.voxels_copied, obj.loss_sum = raw, fused, copied, loss_sum
+        obj._t, obj._carrier = raw, None
+        obj.voxels_fused, obj.voxels_copied, obj.loss_sum = fused, copied, loss_sum
         return obj
+
+    def _tree_for(self, dst=None):
+        """The core's tree, for a fusion into the occupancy map ``dst`` (None: to read it):
+        the losses its carrier holds are gathered into it first, unless ``dst`` carries them."""
+        if self._carrier is not None and self._carrier is not dst:
+            self._carrier._m.settle_loss()
+        return self._t
 
     def _record(self, counts) -> None:
         """Adds the counts of one fusion: (voxels fused, voxels copied, loss sum), as the
@@ -117,12 +143,15 @@ class InfoLossMap:
 
     def leaves(self) -> Leaves:
         """Leaf centres, sizes, loss values (nats) and depths."""
-        return leaves_from_core(self._t.leaves())
+        return leaves_from_core(self._tree_for().leaves())
 
     def values_depths(self) -> tuple[np.ndarray, np.ndarray]:
         """The loss values (float32, nats) and depths (uint8) of the leaves, in the order of
         :meth:`leaves`, without their geometry."""
-        raw = self._t.values_depths()
+        if self._carrier is not None:  # read as settled, without building the tree
+            raw = self._t.settled_values_depths(self._carrier._m)
+        else:
+            raw = self._t.values_depths()
         return raw["values"], raw["depths"]
 
     def on_leaves(self, map, voxels: str = "occupied") -> tuple[Leaves, np.ndarray]:
@@ -130,21 +159,25 @@ class InfoLossMap:
         log-odds > 0, "free" or "all") that a leaf of this map contains the centre of, and that
         leaf's loss (float32): what :meth:`Leaves.values_at` finds at their centres, in one walk
         of the core. Leaves whose loss is not finite are left out."""
-        raw = map._m.leaves_with(self._t, voxels)
+        raw = map._m.leaves_with(self._tree_for(), voxels)
         return leaves_from_core(raw), raw["scalar"]
 
     def accumulate(self, other: "InfoLossMap") -> None:
         """Add ``other`` into this map voxel by voxel (in place)."""
-        self._t.accumulate(other._t)
+        self._tree_for().accumulate(other._tree_for())
         self._record((other.voxels_fused, other.voxels_copied, other.loss_sum))
 
     def copy(self) -> "InfoLossMap":
-        return InfoLossMap._wrap(self._t.copy(), self.voxels_fused, self.voxels_copied,
+        return InfoLossMap._wrap(self._tree_for().copy(), self.voxels_fused, self.voxels_copied,
                                  self.loss_sum)
 
     def clear(self) -> None:
-        """Remove every value and count, freeing the nodes (without the GIL)."""
-        self._t.clear()
+        """Remove every value and count, freeing the nodes (without the GIL); a carried
+        map's losses are dropped from its map's nodes too."""
+        if self._carrier is not None:
+            self._carrier._m.drop_loss()
+        else:
+            self._t.clear()
         self.voxels_fused = self.voxels_copied = 0
         self.loss_sum = 0.0
 
@@ -163,7 +196,7 @@ class InfoLossMap:
 
     @property
     def num_leaves(self) -> int:
-        return self._t.num_leaves
+        return self._tree_for().num_leaves
 
     @property
     def resolution(self) -> float:
@@ -171,7 +204,7 @@ class InfoLossMap:
 
     @property
     def memory_bytes(self) -> int:
-        return self._t.memory_bytes
+        return self._tree_for().memory_bytes
 
     def __repr__(self) -> str:
         return f"InfoLossMap(resolution={self.resolution}, leaves={self.num_leaves})"

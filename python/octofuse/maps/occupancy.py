@@ -225,10 +225,12 @@ class OccupancyMap:
         """A deep copy of the map."""
         return OccupancyMap._wrap(self._m.copy())
 
-    def clear(self) -> None:
+    def clear(self, keep_loss: bool = True) -> None:
         """Remove every voxel, freeing the nodes (without the GIL: maps no longer needed can
-        be freed on several threads)."""
-        self._m.clear()
+        be freed on several threads). The losses the map carries for its loss map
+        (:meth:`InfoLossMap.carried_by`) are moved there first, or with ``keep_loss=False``
+        go with the nodes (to free the map and its loss map together)."""
+        self._m.clear(keep_loss)
 
     # -- log-odds arithmetic (exact fusion by channel filters) ---------------------------
     def open_clamping(self) -> "OccupancyMap":

@@ -54,7 +54,7 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
     """
     _check_maps("fuse_into", dst, msg)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, _loss_tree(loss),
+    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, _loss_tree(loss, dst),
                               threads=thread_count(threads))
     if loss is not None:
         loss._record(counts)
@@ -80,8 +80,8 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     """
     _check_maps("exchange_maps", a, b)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown, _loss_tree(loss_a),
-                                            _loss_tree(loss_b))
+    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown, _loss_tree(loss_a, a),
+                                            _loss_tree(loss_b, b))
     for loss, counts in ((loss_a, counts_a), (loss_b, counts_b)):
         if loss is not None:
             loss._record(counts)
@@ -93,6 +93,6 @@ def _check_maps(function: str, a, b) -> None:
         raise TypeError(f"{function} expects two OccupancyMap objects")
 
 
-def _loss_tree(loss: InfoLossMap | None):
-    """The core's tree of ``loss``, or None."""
-    return None if loss is None else loss._t
+def _loss_tree(loss: InfoLossMap | None, dst: OccupancyMap):
+    """The core's tree of ``loss`` for a fusion into ``dst``, or None."""
+    return None if loss is None else loss._tree_for(dst)
