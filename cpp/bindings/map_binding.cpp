@@ -55,10 +55,6 @@ void insert_impl(OccupancyMap& self, py::array_t<Real, py::array::c_style> point
   }
 }
 
-}  // namespace
-
-namespace {
-
 // Leaf values and depths as numpy arrays in a dict ("values", "depths").
 py::dict values_depths_dict(std::vector<float> values, std::vector<std::uint8_t> depths) {
   const auto n = static_cast<py::ssize_t>(values.size());
@@ -182,11 +178,8 @@ void define_maps(py::module_& m) {
         py::gil_scoped_release release;
         return std::make_unique<OccupancyMap>(self);
       })
-      .def("clear", [](OccupancyMap& self, bool keep_loss) {
-             if (keep_loss) self.settle_loss();
-             self.tree().clear();
-           },
-           py::arg("keep_loss") = true, py::call_guard<py::gil_scoped_release>(),
+      .def("clear", &OccupancyMap::clear, py::arg("keep_loss") = true,
+           py::call_guard<py::gil_scoped_release>(),
            "Removes every voxel, freeing the nodes; the losses it carries are settled first "
            "(keep_loss) or go with the nodes.")
       .def("drop_loss", &OccupancyMap::drop_loss, py::call_guard<py::gil_scoped_release>(),

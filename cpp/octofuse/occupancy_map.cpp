@@ -94,6 +94,12 @@ void OccupancyMap::drop_loss() {
   carried_loss_->clear();
 }
 
+void OccupancyMap::clear(bool keep_loss) {
+  if (keep_loss) settle_loss();
+  tree_->clear();
+  carrying_ = false;
+}
+
 bool OccupancyMap::carries_fusion_loss(ScalarTree* loss) {
   if (loss != nullptr && loss == carried_loss_) {
     carrying_ = true;

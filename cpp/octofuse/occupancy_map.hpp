@@ -124,6 +124,9 @@ class OccupancyMap {
   void settle_loss();
   /// Drops every loss the map carries and clears its loss tree (the binding stays).
   void drop_loss();
+  /// Removes every voxel, freeing the nodes; the losses it carries are settled into its loss
+  /// tree first (`keep_loss`) or go with the nodes (to free the map and its loss map together).
+  void clear(bool keep_loss = true);
   /// Whether a fusion into the map that adds into `loss` keeps those losses in the map's
   /// nodes (`loss` is the tree the map carries); if not, what the map carries is settled
   /// first, so that the fusion merges nodes as in a map that carries nothing.

@@ -112,6 +112,8 @@ class InfoLossMap:
     def carried_by(cls, map) -> "InfoLossMap":
         """An empty loss map whose losses the occupancy map ``map`` carries (its fusions that
         add into this loss map keep them in ``map``'s nodes). A map carries one loss map."""
+        if not isinstance(getattr(map, "_m", None), _core._OccupancyMap):  # an OccupancyMap
+            raise TypeError(f"InfoLossMap.carried_by expects an OccupancyMap, not {type(map).__name__}")
         if map._m.carries_loss:
             raise ValueError(f"{map!r} carries a loss map already")
         obj = cls(map.resolution)
