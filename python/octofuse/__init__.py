@@ -27,7 +27,7 @@ _LAZY = {
     "MapConfig": "config", "RunConfig": "config", "load_yaml": "config",
     "build_maps": "maps.build", "BuildResult": "maps.build",
     "Score": "maps.compare", "compare": "maps.compare", "score": "maps.compare",
-    "make_graph": "fusion.graph", "SimResult": "fusion.network",
+    "make_graph": "fusion.graph", "SimResult": "fusion.results",
     "simulate": "fusion.simulate", "fuse_finished": "fusion.rounds",
     "dynamic_vote": "fusion.voting", "static_vote": "fusion.voting_baselines",
     "maximum_likelihood": "fusion.voting_baselines",
