@@ -1,0 +1,71 @@
+"""Messages as bytes: every frame decodes to what was encoded, and no damaged frame decodes."""
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from octofuse.fusion.wire import HEADER_BYTES, Kind, Message, WireError, decode
+
+names = st.text(min_size=0, max_size=20)
+messages = st.builds(
+    Message, fleet=names, rule=names, sender=names, receiver=names,
+    seq=st.integers(0, 2**64 - 1), ack=st.integers(0, 2**64 - 1),
+    kind=st.sampled_from([Kind.WHOLE, Kind.DELTA]), payload=st.binary(max_size=300))
+
+
+@given(messages)
+def test_a_frame_decodes_to_its_message(msg):
+    assert decode(msg.encode()) == msg
+
+
+@settings(max_examples=60)
+@given(messages, st.data())
+def test_any_changed_byte_is_refused(msg, data):
+    frame = bytearray(msg.encode())
+    i = data.draw(st.integers(0, len(frame) - 1))
+    frame[i] ^= data.draw(st.integers(1, 255))
+    with pytest.raises(WireError):
+        decode(bytes(frame))
+
+
+@settings(max_examples=60)
+@given(messages, st.data())
+def test_a_truncated_or_extended_frame_is_refused(msg, data):
+    frame = msg.encode()
+    cut = data.draw(st.integers(0, len(frame) - 1))
+    with pytest.raises(WireError):
+        decode(frame[:cut])
+    with pytest.raises(WireError):
+        decode(frame + b"\0")
+
+
+def test_a_payload_over_the_bound_is_refused_before_reading_it():
+    frame = Message("f", "r", "a", "b", 1, 0, Kind.WHOLE, b"x" * 1000).encode()
+    with pytest.raises(WireError, match="over the bound of 999 bytes"):
+        decode(frame, max_payload=999)
+    assert decode(frame, max_payload=1000).payload == b"x" * 1000
+
+
+def test_foreign_bytes_and_other_versions_are_named():
+    with pytest.raises(WireError, match="shorter than the"):
+        decode(b"OFM")
+    with pytest.raises(WireError, match="not an octofuse message"):
+        decode(b"GET / HTTP/1.1\r\n" + bytes(HEADER_BYTES))
+    frame = bytearray(Message("f", "r", "a", "b", 1, 0, Kind.WHOLE).encode())
+    frame[3] = 2
+    with pytest.raises(WireError, match="version 2"):
+        decode(bytes(frame))
+
+
+def test_an_acknowledgement_has_no_payload():
+    ack = Message("f", "r", "a", "b", 0, 7, Kind.ACK, encoding=0)
+    assert decode(ack.encode()).ack == 7
+    with pytest.raises(WireError, match="acknowledgement"):
+        decode(Message("f", "r", "a", "b", 0, 7, Kind.ACK, b"x").encode())
+
+
+def test_names_and_numbers_out_of_range_are_refused_when_encoding():
+    with pytest.raises(ValueError, match="sender"):
+        Message("f", "r", "a" * 256, "b", 1, 0, Kind.WHOLE).encode()
+    with pytest.raises(ValueError, match="seq"):
+        Message("f", "r", "a", "b", -1, 0, Kind.WHOLE).encode()
