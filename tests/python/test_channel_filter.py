@@ -22,9 +22,9 @@ from bagfactory import voxel_keys  # noqa: E402
 import octofuse  # noqa: E402
 from octofuse import OccupancyMap, fuse_into  # noqa: E402
 from octofuse.config import CHANNEL_FILTER as CF, FuseConfig  # noqa: E402
-from octofuse.fusion.channel_filter import (ChannelFilter, Message, add_into, clamped, negated,  # noqa: E402
-                                            open_map, spanning_tree, subtract_into,
-                                            unclamped_copy)
+from octofuse.fusion.agent import Agent, MapMessage  # noqa: E402
+from octofuse.fusion.channel_filter import (add_into, clamped, negated, open_map,  # noqa: E402
+                                            spanning_tree, subtract_into, unclamped_copy)
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.schedule import drop_messages, periodic  # noqa: E402
@@ -238,42 +238,42 @@ def test_loops_run_the_filter_on_a_spanning_tree(team_bag, prefixes):
 
 def test_repeated_and_reordered_deltas_do_not_double_count(prefixes):
     pa, pb = prefixes["a"], prefixes["b"]
-    maps = {"a": unclamped_copy(pa[2]), "b": unclamped_copy(pb[-1])}
-    cf = ChannelFilter(["a", "b"], maps, [(0, 1)], delta=True, reliable=False)
-    m1 = cf.compose("a", "b")  # the whole contribution (nothing acknowledged yet)
-    assert cf.deliver(m1)
-    assert cf.deliver(Message("b", "a", 1, 1, empty_open(), True))  # b acknowledges m1
-    maps["a"] = unclamped_copy(pa[3])
-    m2 = cf.compose("a", "b")  # the voxels scan 3 changed since m1
-    maps["a"] = unclamped_copy(pa[5])
-    m3 = cf.compose("a", "b")  # m2 is not acknowledged: every voxel changed since m1
+    a, b = Agent("a", CF, unclamped_copy(pa[2])), Agent("b", CF, unclamped_copy(pb[-1]))
+    lossy = dict(delta=True, reliable=False)
+    m1 = a.compose("b", **lossy)  # the whole contribution (nothing acknowledged yet)
+    assert b.deliver(m1)
+    assert a.deliver(MapMessage("b", "a", CF, 1, 1, empty_open(), True))  # b acknowledges m1
+    a.map = unclamped_copy(pa[3])
+    m2 = a.compose("b", **lossy)  # the voxels scan 3 changed since m1
+    a.map = unclamped_copy(pa[5])
+    m3 = a.compose("b", **lossy)  # m2 is not acknowledged: every voxel changed since m1
     k2, _ = voxel_keys(m2.payload)
     k3, _ = voxel_keys(m3.payload)
     assert 0 < len(k2) < len(k3) and np.isin(k2, k3).all()
     exact = unclamped_copy(pb[-1])
     add_into(exact, pa[5])
-    # reordered: the newer delta first; the older one is dropped (m3 holds its voxels, newer)
-    assert cf.deliver(m3)
-    assert not cf.deliver(m2)
-    assert not cf.deliver(m3)  # repeated: dropped by its sequence number ...
+    # reordered: the newer delta first (as bytes, through the frame); the older one is
+    # dropped (m3 holds its voxels, newer)
+    assert b.deliver(MapMessage.decode(m3.encode("lab")))
+    assert not b.deliver(m2)
+    assert not b.deliver(m3)  # repeated: dropped by its sequence number ...
     for _ in range(2):  # ... and harmless even without it: a delta is a value
-        cf.apply("b", "a", m3.payload, True)
-    assert_values(maps["b"], exact, "after reordered and repeated deltas")
+        b.apply_contribution("a", m3.payload, True)
+    assert_values(b.map, exact, "after reordered and repeated deltas")
 
     # in order, each delta applied three times: still exact; naive Bayes counts every repeat
-    maps2 = {"a": unclamped_copy(pa[2]), "b": unclamped_copy(pb[-1])}
-    cf2 = ChannelFilter(["a", "b"], maps2, [(0, 1)], delta=True)
-    d1 = cf2.compose("a", "b")
-    maps2["a"] = unclamped_copy(pa[3])
-    d2 = cf2.compose("a", "b")
+    a, b = Agent("a", CF, unclamped_copy(pa[2])), Agent("b", CF, unclamped_copy(pb[-1]))
+    d1 = a.compose("b", delta=True)
+    a.map = unclamped_copy(pa[3])
+    d2 = a.compose("b", delta=True)
     nb = unclamped_copy(pb[-1])
     for d in (d1, d2):
         for _ in range(3):
-            cf2.apply("b", "a", d.payload, True)
+            b.apply_contribution("a", d.payload, True)
             fuse_into(nb, d.payload, rule="naive-bayes")
     exact2 = unclamped_copy(pb[-1])
     add_into(exact2, pa[3])
-    assert_values(maps2["b"], exact2, "deltas applied three times")
+    assert_values(b.map, exact2, "deltas applied three times")
     _, v_nb = voxel_keys(nb)
     _, v_ex = voxel_keys(exact2)
     assert np.abs(v_nb).sum() > 1.5 * np.abs(v_ex).sum()
@@ -281,17 +281,16 @@ def test_repeated_and_reordered_deltas_do_not_double_count(prefixes):
 
 def test_whole_messages_are_values_too(prefixes):
     pa, pb = prefixes["a"], prefixes["b"]
-    maps = {"a": unclamped_copy(pa[-1]), "b": unclamped_copy(pb[-1])}
-    cf = ChannelFilter(["a", "b"], maps, [(0, 1)])
-    m = cf.compose("a", "b")
+    a, b = Agent("a", CF, unclamped_copy(pa[-1])), Agent("b", CF, unclamped_copy(pb[-1]))
+    m = a.compose("b")
     for _ in range(3):
-        cf.apply("b", "a", m.payload, False)
+        b.apply_contribution("a", m.payload, False)
     exact = unclamped_copy(pb[-1])
     add_into(exact, pa[-1])
-    assert_values(cf.maps["b"], exact, "whole message three times")
+    assert_values(b.map, exact, "whole message three times")
     # the reply carries b's own side only: a ends with the same map
-    cf.deliver(cf.compose("b", "a"))
-    assert_values(cf.maps["a"], exact, "two-way exchange")
+    assert a.deliver(MapMessage.decode(b.compose("a").encode("lab")))
+    assert_values(a.map, exact, "two-way exchange")
 
 
 # -- lost messages ----------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Studies and swarms on Ray: one local Ray runtime with 2 CPUs shared by the whole module.
 
 A study's cells run as Ray tasks give the numbers of the serial run; a swarm (agents in Ray
-actors exchanging .ot streams) gives the maps, scores and traffic of the in-process simulation.
+actors exchanging frames of bytes) gives the maps, scores and traffic of the in-process simulation.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ ray = pytest.importorskip("ray")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 
-from octofuse.config import AgentFrame, FuseConfig, RunConfig  # noqa: E402
+from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig  # noqa: E402
 from octofuse.fusion.executors import RayExecutor, make_executor  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
@@ -86,21 +86,29 @@ def test_the_executor_reports_a_crashed_worker():
     assert not by[1].ok and "Worker" in by[1].error
 
 
-@pytest.mark.parametrize("delta, per_worker, framed, align", [
-    (False, 2, False, "off"), (True, 4, False, "off"), (False, 2, True, "off"),
-    (True, 1, True, "off"), (False, 2, True, "planar"), (True, 2, True, "planar")])
-def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed, align):
+@pytest.mark.parametrize("delta, per_worker, framed, align, extra", [
+    (False, 2, False, "off", {}), (True, 4, False, "off", {}), (False, 2, True, "off", {}),
+    (True, 1, True, "off", {}), (False, 2, True, "planar", {}), (True, 2, True, "planar", {}),
+    (True, 2, False, "off", {"rules": [*RULES, "channel-filter"], "loss": 0.3}),
+    (False, 2, True, "off", {"robust": RobustConfig(enabled=True, time=1.0)})])
+def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed, align, extra):
     """Also with two agents mapping in frames of their own (their scans are taken as given in
     those frames): messages moved into the receiver's, the centralized map and the scores in
     the common frame, as in the simulation. And with alignment on first contact: each link
     registers (or fails to, and tries again) on the same maps and at the same times; with
-    deltas, a link sends whole maps until it aligns. The KL timeline is the simulation's."""
+    deltas, a link sends whole maps until it aligns. The KL timeline is the simulation's. The
+    channel filter with deltas on links that lose messages, and robust fusion's vote with
+    agent frames, run as in the simulation too."""
     cfg = config(bag)
     frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
               AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []
-    fuse = FuseConfig(rules=list(RULES), topology="ring", schedule="periodic:0.33", delta=delta,
-                      agent_frames=frames, align=align)
+    fuse = FuseConfig(**{"rules": list(RULES), "topology": "ring", "schedule": "periodic:0.33",
+                         "delta": delta, "agent_frames": frames, "align": align, **extra})
+    fuse.validate("fuse")
+    rules = fuse.rules
     ref = simulate(cfg.build, fuse, samples=3)
+    if fuse.loss:
+        assert 0 < ref.traffic["chernoff"].lost < ref.traffic["chernoff"].messages
     assert ref.frames.keys() == ({"a", "c"} if framed else set())
     if align != "off":  # links that align after a few tries, and links that never do
         assert {(d["aligned"], d["attempts"] > 1) for d in ref.alignment} == {
@@ -108,18 +116,21 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     sw = simulate_swarm(cfg.build, fuse, samples=3, collect_maps=True,
                         agents_per_worker=per_worker)
     assert sw.alignment == ref.alignment
-    assert len(sw.timeline) == 3 * 3 * 4 and sw.timeline == ref.timeline
-    assert sw.agents == ref.agents and sw.events == ref.events and sw.messages == len(ref.events)
+    assert len(sw.timeline) == 3 * (len(rules) + 1) * 4 and sw.timeline == ref.timeline
+    assert sw.excluded == ref.excluded and (sw.robust is None) == (ref.robust is None)
+    assert sw.agents == ref.agents and sw.events == ref.events
+    assert sw.messages == ref.traffic[rules[0]].messages  # the events robust fusion admits
     assert len(sw.workers) == -(-len(ref.agents) // per_worker) + 1
     assert sw.central == ref.central.to_bytes()
     for a in ref.agents:
         assert sw.maps[a][LOCAL] == ref.local[a].to_bytes(), a
-        for r in RULES:
+        for r in rules:
             assert sw.maps[a][r] == ref.fused[r][a].to_bytes(), (r, a)
-    for r in [LOCAL, *RULES]:
+    for r in [LOCAL, *rules]:
         assert sw.scores[r] == ref.scores[r], r
-    for r in RULES:
+    for r in rules:
         assert sw.traffic[r].messages == ref.traffic[r].messages
+        assert sw.traffic[r].lost == ref.traffic[r].lost
         assert dict(sw.traffic[r].sent) == dict(ref.traffic[r].sent)
         assert dict(sw.traffic[r].received) == dict(ref.traffic[r].received)
         assert dict(sw.traffic[r].sent_32b) == dict(ref.traffic[r].sent_32b)

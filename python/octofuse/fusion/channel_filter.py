@@ -43,23 +43,24 @@ insertion, so a fully informed agent differs from the (clamped) centralized map 
 On a graph with loops the same information would reach an agent over two paths and be counted
 twice: the filter then runs on a spanning tree of the graph (:func:`spanning_tree`) and the
 messages on the other links are not used by it.
+
+The per-link state (contributions received, sequence numbers, delta baselines) is the link
+protocol's (:class:`~.link.Link`), and the sending and applying are the agent's
+(:class:`~.agent.Agent`): this module holds the arithmetic and the tree.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Sequence
 
 from ..config import CHANNEL_FILTER
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import fuse_into, subtract_into
 from .graph import Graph, make_graph
 
-__all__ = ["CHANNEL_FILTER", "ChannelFilter", "Message", "add_into", "clamped", "negated",
-           "open_map", "spanning_tree", "subtract_into", "unclamped_copy"]
+__all__ = ["CHANNEL_FILTER", "add_into", "clamped", "negated", "open_map", "spanning_tree",
+           "subtract_into", "unclamped_copy"]
 
 
 # -- log-odds arithmetic on maps ------------------------------------------------------------
@@ -154,129 +155,3 @@ def _hops(graph: Graph, s: int) -> list[int]:
                 dist[b] = dist[a] + 1
                 queue.append(b)
     return [d if d >= 0 else graph.n for d in dist]
-
-
-# -- the filter -----------------------------------------------------------------------------
-
-
-@dataclass
-class Message:
-    """One channel-filter message from ``sender`` to ``receiver`` (agent names)."""
-
-    sender: str
-    receiver: str
-    seq: int  #: 1, 2, ... per link and direction
-    ack: int  #: the newest seq the sender has applied from the receiver (0: none)
-    payload: OccupancyMap  #: the sender's contribution (unclamped), whole or its changed voxels
-    delta: bool
-
-
-class ChannelFilter:
-    """Agents' unclamped maps and per-link state of the channel filter.
-
-    ``maps`` (agent -> map with open clamping) are updated in place; scans are inserted into
-    them by the caller. ``tree``: the links used (agent index pairs). ``reliable``: links
-    never lose messages, so a sender may take delivery for granted (deltas against the last
-    message sent); otherwise deltas go against the last acknowledged message.
-    """
-
-    def __init__(self, agents: Sequence[str], maps: dict[str, OccupancyMap],
-                 tree: Sequence[tuple[int, int]], *, delta: bool = False, reliable: bool = True):
-        self.agents = list(agents)
-        self.maps = maps
-        for m in maps.values():
-            open_map(m)
-        self.tree = {(a, b) for a, b in tree} | {(b, a) for a, b in tree}
-        self.delta, self.reliable = delta, reliable
-        #: (sender, receiver) -> at the receiver: the sender's last applied contribution
-        self.channel: dict[tuple[str, str], OccupancyMap] = {}
-        self.seq: dict[tuple[str, str], int] = {}  #: at the sender: last seq sent
-        self.applied: dict[tuple[str, str], int] = {}  #: at the receiver: newest seq applied
-        #: deltas, at the sender: the contribution deltas are taken against, and the
-        #: contributions sent but not yet acknowledged (seq -> map)
-        self.base: dict[tuple[str, str], OccupancyMap] = {}
-        self.pending: dict[tuple[str, str], dict[int, OccupancyMap]] = {}
-
-    def uses(self, sender: int, receiver: int) -> bool:
-        """Whether the link of this message is on the filter's tree."""
-        return (sender, receiver) in self.tree
-
-    # -- one message ---------------------------------------------------------------------
-    def contribution(self, sender: str, receiver: str) -> OccupancyMap:
-        """``l_sender - c_receiver,sender``: what the sender knows from its side of the link."""
-        m = unclamped_copy(self.maps[sender])
-        back = self.channel.get((receiver, sender))
-        if back is not None:
-            subtract_into(m, back)
-        return m
-
-    def compose(self, sender: str, receiver: str) -> Message:
-        """The sender's message now (its state is read here: compose every message of a group
-        of simultaneous exchanges before delivering any of them)."""
-        link = (sender, receiver)
-        contrib = self.contribution(sender, receiver)
-        seq = self.seq[link] = self.seq.get(link, 0) + 1
-        ack = self.applied.get((receiver, sender), 0)
-        payload = contrib
-        if self.delta:
-            prev = self.base.get(link)
-            if prev is not None:
-                payload = open_map(contrib.changed_since(prev))
-            if self.reliable:
-                self.base[link] = contrib
-            else:
-                self.pending.setdefault(link, {})[seq] = contrib
-        return Message(sender, receiver, seq, ack, payload, self.delta)
-
-    def deliver(self, msg: Message) -> bool:
-        """Apply ``msg`` at its receiver; False if it was older than (or the same as) one
-        already applied on its link, which then changes nothing."""
-        link, back = (msg.sender, msg.receiver), (msg.receiver, msg.sender)
-        pend = self.pending.get(back)
-        if pend and msg.ack in pend:  # the receiver's messages up to msg.ack arrived
-            self.base[back] = pend[msg.ack]
-            for k in [k for k in pend if k <= msg.ack]:
-                del pend[k]
-        if msg.seq <= self.applied.get(link, 0):
-            return False
-        self.applied[link] = msg.seq
-        self.apply(msg.receiver, msg.sender, msg.payload, msg.delta)
-        return True
-
-    def apply(self, receiver: str, sender: str, payload: OccupancyMap, delta: bool) -> None:
-        """The fusion itself, without sequence numbers: ``l += m - c``, ``c = m`` (on the
-        payload's voxels for a delta; everywhere for a whole contribution)."""
-        link, dst = (sender, receiver), self.maps[receiver]
-        old = self.channel.get(link)
-        if delta:
-            if old is None:
-                old = self.channel[link] = open_map(OccupancyMap(
-                    dst.resolution, dst.prob_hit, dst.prob_miss, dst.clamping))
-            dst.assign_delta(old, payload)
-            return
-        add_into(dst, payload)
-        if old is not None:
-            subtract_into(dst, old)
-        # kept as it came: the filter never modifies a whole contribution (a copy if its
-        # clamping is not open)
-        self.channel[link] = payload if is_open(payload) else unclamped_copy(payload)
-
-    # -- accounting ----------------------------------------------------------------------
-    def link_maps(self, agent: str) -> list[OccupancyMap]:
-        """The per-link state an agent holds: its neighbours' contributions and, for deltas,
-        the contributions its own deltas are taken against (and unacknowledged ones)."""
-        return ([m for (s, r), m in self.channel.items() if r == agent]
-                + [m for (s, r), m in self.base.items() if s == agent]
-                + [m for (s, r), pend in self.pending.items() if s == agent for m in pend.values()])
-
-
-def tree_links(graph: Graph, how: str) -> tuple[tuple[int, int], ...]:
-    """:func:`spanning_tree` with the graph's file-relative paths resolved (a convenience)."""
-    if how not in ("bfs", "given") and not Path(how).exists():
-        raise FileNotFoundError(f"spanning tree file '{how}' does not exist")
-    return spanning_tree(graph, how)
-
-
-def centralized_unclamped(like: OccupancyMap) -> OccupancyMap:
-    """An empty map like ``like`` with open clamping (the exact reference)."""
-    return open_map(OccupancyMap(like.resolution, like.prob_hit, like.prob_miss, like.clamping))

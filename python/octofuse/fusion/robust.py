@@ -112,6 +112,25 @@ def vote_on_maps(maps: dict, graph, *, p_in: float = 0.8, success: float = 0.99,
                          res.rounds, int(sent), int(res.bytes), [len(p) for p in points])
 
 
+def vote_for_run(own_maps: dict, graph, fuse_cfg, time_s: float) -> RobustOutcome:
+    """The vote of a run (``fuse_cfg.robust``) on the robots' own maps in the common frame."""
+    r = fuse_cfg.robust
+    return vote_on_maps(own_maps, graph, p_in=r.p_in, success=r.success,
+                        iterations=r.iterations, confidence=r.confidence, seed=fuse_cfg.seed,
+                        time_s=time_s)
+
+
+def admitted(group: list, outcome: "RobustOutcome | None", fuse_cfg, agents: list) -> list:
+    """The exchanges of ``group`` that robust fusion lets through: none before the vote if
+    the run holds them, none from a voted-out sender after it."""
+    if not fuse_cfg.robust.enabled:
+        return group
+    if outcome is None:
+        return [] if fuse_cfg.robust.hold else group
+    out = set(outcome.excluded)
+    return [e for e in group if agents[e.sender] not in out]
+
+
 def markdown_section(outcome: RobustOutcome) -> list[str]:
     """The report's section on the vote (lines of Markdown)."""
     excl = ", ".join(f"`{a}`" for a in outcome.excluded) or "none"

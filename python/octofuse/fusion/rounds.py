@@ -70,7 +70,7 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     fused, unclamped = net.result_maps()
     res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
                     central, dict(maps), fused,
-                    {r: {a: net.loss_map(r, a, first.resolution) for a in agents} for r in rules},
+                    {r: {a: net.loss_map(r, a) for a in agents} for r in rules},
                     net.traffic, [], net.timings, memory=net.memory(), tree=tree,
                     unclamped=unclamped, frames=frames.frames, alignment=frames.report())
     if central is not None:

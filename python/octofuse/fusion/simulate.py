@@ -21,6 +21,7 @@ from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
 from .graph import make_graph
 from .network import Network
+from .robust import admitted, vote_for_run
 from .results import (LOCAL, SimResult, rule_groups, score_agent, timeline_point,
                       with_traffic)
 from .schedule import EXCHANGE, VOTE, check_samples, mission_events, moments, parse_schedule
@@ -84,7 +85,6 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         start = src.bags.start_ns
         duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
-        resolution = build_cfg.map.resolution
         tree = exact = None
         if CHANNEL_FILTER in rules:
             from .channel_filter import open_map, spanning_tree
@@ -147,7 +147,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             has_loss = r not in (LOCAL, CHANNEL_FILTER)
 
             def read(a):  # the values and depths of a's loss map's leaves
-                return net.loss_map(r, a, resolution).values_depths()
+                return net.loss_map(r, a).values_depths()
 
             # kept leaves are read first, all of them; others one by one, each let go once
             # its agent is scored
@@ -220,14 +220,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 t, kind, group = timed[next_i]
                 if kind == VOTE:
                     # on the agents' own maps in the common frame
-                    vote.append(submit(COMMON, lambda t=t: _vote(
+                    vote.append(submit(COMMON, lambda t=t: vote_for_run(
                         {a: frames.to_common(a, m) for a, m in own.items()}, graph, fuse_cfg,
                         t)).result())
                 elif kind == EXCHANGE:
-                    if fuse_cfg.robust.enabled:  # held before the vote, voted-out senders dropped after
-                        out = set(vote[0].excluded) if vote else set()
-                        held = fuse_cfg.robust.hold and not vote
-                        group = [] if held else [e for e in group if agents[e.sender] not in out]
+                    group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
                     if group:
                         if frames.align != "off":  # on the maps as they are at this time
                             lanes.wait()
@@ -276,7 +273,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
     res = SimResult(agents, rules, graph, events, central, own, fused,
-                    {r: {a: net.loss_map(r, a, resolution) for a in agents}
+                    {r: {a: net.loss_map(r, a) for a in agents}
                      for r in rules}, net.traffic, timeline, net.timings, build_stats=stats,
                     build_notes=notes, memory=net.memory(), tree=tree,
                     unclamped=net.unclamped_maps(), central_unclamped=exact,
@@ -320,12 +317,3 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
 def _opened(source, build_cfg: BuildConfig):
     """``source`` as a context that leaves it open, or a :class:`ScanSource` of the bags."""
     return contextlib.nullcontext(source) if source is not None else ScanSource(build_cfg)
-
-
-def _vote(local, graph, fuse_cfg: FuseConfig, t: float):
-    """Robust fusion's vote on the robots' own maps at time ``t`` (:mod:`.robust`)."""
-    from .robust import vote_on_maps
-
-    r = fuse_cfg.robust
-    return vote_on_maps(local, graph, p_in=r.p_in, success=r.success, iterations=r.iterations,
-                        confidence=r.confidence, seed=fuse_cfg.seed, time_s=t)

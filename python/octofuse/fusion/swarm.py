@@ -30,8 +30,9 @@ it knows which whole map its deltas start from.
 The KL timeline (``samples`` points in time) is taken as in the simulation: at each point the
 centralized worker sends its map as it is then, and every worker compares its maps with it.
 
-Refused here, with one line before anything starts: robust fusion (the vote needs every
-robot's map in one place), the channel filter and message loss.
+The channel filter runs on its spanning tree, messages are lost as in the simulation (the
+sender sends, the receiver never gets it), and robust fusion votes at its time on the robots'
+own maps, gathered from the workers.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from .agent_frames import AgentFrames
 from .executors import ray_session
 from .results import LOCAL, Traffic
-from .schedule import EXCHANGE, check_samples, mission_events, moments, parse_schedule
+from .robust import admitted, vote_for_run
+from .schedule import EXCHANGE, VOTE, check_samples, mission_events, moments, parse_schedule
 from .swarm_worker import SwarmWorker
 
 
@@ -70,6 +72,15 @@ class SwarmResult:
     alignment: list[dict] = field(default_factory=list)
     #: KL to the centralized map at ``samples`` points in time: as the simulation's ``timeline``
     timeline: list[dict] = field(default_factory=list)
+    #: robust fusion's vote (with ``fuse.robust``): as the simulation's ``robust``
+    robust: Optional[object] = None
+    #: frames the workers refused (malformed, or not for the agent that got them)
+    dropped: int = 0
+
+    @property
+    def excluded(self) -> list[str]:
+        """The robots robust fusion voted out."""
+        return list(self.robust.excluded) if self.robust is not None else []
 
     @property
     def messages_per_second(self) -> float:
@@ -100,12 +111,6 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     from .graph import make_graph
 
     fuse_cfg.validate("fuse")
-    if fuse_cfg.robust.enabled:
-        raise ValueError("robust fusion is not available in a swarm (the vote needs every "
-                         "robot's map in one place); use simulate")
-    if CHANNEL_FILTER in fuse_cfg.rules or fuse_cfg.loss > 0:
-        raise ValueError("channel filters and message loss are not available in a swarm; use "
-                         "simulate")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
@@ -122,6 +127,12 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
         start = src.bags.start_ns
         duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
+        tree: list[tuple[str, str]] = []
+        if CHANNEL_FILTER in rules:
+            from .channel_filter import spanning_tree
+
+            for a, b in spanning_tree(graph, fuse_cfg.spanning_tree):
+                tree += [(agents[a], agents[b]), (agents[b], agents[a])]
 
         opts: dict = {"num_cpus": cpus_per_worker, "max_restarts": 0}
         if memory_per_worker:
@@ -139,7 +150,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         groups = [agents[w * agents_per_worker:(w + 1) * agents_per_worker] for w in range(n_workers)]
         t0 = time.perf_counter()
         workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
-                                 threads, memory_per_worker, frames=frames)
+                                 threads, memory_per_worker, frames=frames, tree=tree,
+                                 reliable=fuse_cfg.loss == 0)
                    for w, names in enumerate(groups)]
         central = ray.remote(SwarmWorker).options(**opts).remote(
             n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True)
@@ -148,6 +160,7 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         say(f"swarm: {len(agents)} agents in {n_workers} worker(s) + 1 for the centralized map")
         home = {a: workers[i // agents_per_worker] for i, a in enumerate(agents)}
 
+        traffic = {r: Traffic() for r in rules}
         buffers: dict[int, list] = defaultdict(list)
         all_scans: list = []
         in_flight: list = []
@@ -202,15 +215,21 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             read_news()
             for s, recv in receivers_of.items():  # every sender before any receiver
                 seen = list(dict.fromkeys(r for d in recv for r in news.pop((s, d), ())))
-                if fuse_cfg.delta and len(recv) > 1:
+                if len(recv) > 1:
                     out = home[s].send.options(num_returns=len(recv)).remote(s, recv, *seen)
                 else:
-                    out = [home[s].send.remote(s, recv, *seen)] * len(recv)
+                    out = [home[s].send.remote(s, recv, *seen)]
                 for d, ref in zip(recv, out):
                     refs[(s, d)] = ref
             inbox: dict[str, list] = {}
             for e in group:
                 s, d = agents[e.sender], agents[e.receiver]
+                if e.lost:  # sent, never received
+                    in_flight.append(refs[(s, d)])
+                    for r in rules:
+                        if r != CHANNEL_FILTER or (s, d) in tree:
+                            traffic[r].lost += 1
+                    continue
                 inbox.setdefault(d, []).append(s)
             for d, senders in inbox.items():
                 ref = home[d].receive.remote(d, senders, group[0].time_s,
@@ -235,7 +254,23 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             in_flight.extend(parts)
             bound()
 
-        timed = moments(events, duration, samples)
+        vote: list = []  # robust fusion: the vote, once taken
+
+        def take_vote(t: float) -> None:
+            """Robust fusion's vote on the robots' own maps, gathered from the workers."""
+            from ..maps.occupancy import OccupancyMap
+
+            flush()
+            ray.get(in_flight)
+            in_flight.clear()
+            own = {a: m for part in ray.get([w.own_maps.remote() for w in workers])
+                   for a, m in part.items()}
+            vote.append(vote_for_run(
+                {a: frames.to_common(a, OccupancyMap.from_bytes(own[a])) for a in agents},
+                graph, fuse_cfg, t))
+
+        timed = moments(events, duration, samples, vote_time=min(fuse_cfg.robust.time, duration)
+                        if fuse_cfg.robust.enabled else None)
         next_i = 0
         pending = 0
 
@@ -243,8 +278,12 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             nonlocal next_i, pending
             while next_i < len(timed) and timed[next_i][0] < until:
                 t, kind, group = timed[next_i]
-                if kind == EXCHANGE:
-                    exchange(group)
+                if kind == VOTE:
+                    take_vote(t)
+                elif kind == EXCHANGE:
+                    group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
+                    if group:
+                        exchange(group)
                 else:
                     sample(t)
                 next_i += 1
@@ -279,7 +318,6 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
                     scores.setdefault(r, {}).update(per)
             scores = {r: {a: scores[r][a] for a in agents} for r in [LOCAL, *rules]}
         timings["final scores (wall)"] = time.perf_counter() - t0
-        traffic = {r: Traffic() for r in rules}
         for p in ray.get([w.traffic.remote() for w in workers]):
             for r, t in p.items():
                 tr = traffic[r]
@@ -305,4 +343,5 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     return SwarmResult(agents, rules, graph, events, scores, traffic, stats, dict(timings),
                        messages=delivered[0], stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
                        maps=maps, central=cbytes if collect_maps else None, alignment=alignment,
-                       timeline=timeline)
+                       timeline=timeline, robust=vote[0] if vote else None,
+                       dropped=sum(s["dropped"] for s in stats))

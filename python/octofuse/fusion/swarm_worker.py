@@ -1,8 +1,8 @@
 """A swarm's worker (``SwarmWorker``): some agents' maps in one process, a Ray actor of
 :func:`octofuse.fusion.swarm.simulate_swarm` (or used directly, in process).
 
-It inserts its agents' scans, sends their maps as OctoMap ``.ot`` streams (or deltas), fuses
-what it receives (moved into the receiver's frame, after aligning a link on first contact),
+It inserts its agents' scans, sends their maps as frames of bytes (a header and an OctoMap
+``.ot`` stream, whole or a delta), fuses what it receives (moved into the receiver's frame, after aligning a link on first contact),
 scores its agents against the centralized map and keeps its resident memory under a cap.
 """
 
@@ -11,11 +11,13 @@ from __future__ import annotations
 import os
 import time
 from collections import defaultdict
-from typing import Optional
+from typing import Iterable, Optional
 
-from ..config import MapConfig
+from ..config import CHANNEL_FILTER, MapConfig
 from ..memory import return_freed_memory
+from .agent import Agent, MapMessage
 from .agent_frames import AgentFrames
+from .channel_filter import clamped
 from .network import message_bytes
 from .results import LOCAL, timeline_point
 
@@ -39,26 +41,29 @@ def _rss_bytes() -> tuple[int, int, int]:
 class SwarmWorker:
     """Agents' maps in one process (a Ray actor; also usable directly, in process).
 
-    ``memory_cap`` (bytes, optional): after every call the worker checks its private resident
-    memory (not counting the shared object store) and raises ``MemoryError`` naming itself
-    once it is over the cap. ``frames``: the run's agent frames (default: every agent in the
-    common frame)."""
+    Each agent runs one :class:`~.agent.Agent` per rule; their messages leave and arrive as
+    frames of bytes (:meth:`~.agent.MapMessage.encode`). ``tree``: the channel filter's links
+    (agent name pairs, both directions); ``reliable``: no message is lost (deltas against the
+    last message sent, not the last acknowledged). ``memory_cap`` (bytes, optional): after
+    every call the worker checks its private resident memory (not counting the shared object
+    store) and raises ``MemoryError`` naming itself once it is over the cap. ``frames``: the
+    run's agent frames (default: every agent in the common frame)."""
 
     def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
                  unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
-                 central: bool = False, frames: Optional[AgentFrames] = None):
+                 central: bool = False, frames: Optional[AgentFrames] = None,
+                 tree: Iterable[tuple[str, str]] = (), reliable: bool = True):
         from ..maps.occupancy import OccupancyMap
 
         self.index, self.names, self.rules = index, list(names), list(rules)
         self.frames = frames or AgentFrames(self.names)
         self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
+        self.tree, self.reliable = set(tree), reliable
         mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
         self.resolution = map_cfg.resolution
         self.central = mk() if central else None
-        self.fused = {a: {r: mk() for r in rules} for a in self.names}
+        self.nodes = {a: {r: Agent(a, r, mk()) for r in rules} for a in self.names}
         self.local = {a: mk() for a in self.names}
-        self.loss: dict[str, dict] = {a: {} for a in self.names}  # agent -> rule -> InfoLossMap
-        self.snapshots: dict[tuple, object] = {}  # (rule, sender, receiver) -> last map sent
         # with alignment and deltas: the links of this worker's senders known to have aligned,
         # and the whole maps last sent on the others ((rule, sender, receiver) -> map)
         self.aligned_out: set[tuple[str, str]] = set()
@@ -67,6 +72,7 @@ class SwarmWorker:
         self.sent_32b = {r: defaultdict(int) for r in rules}
         self.received = {r: defaultdict(int) for r in rules}
         self.messages = {r: 0 for r in rules}
+        self.dropped = 0  #: frames refused: malformed, or not for the agent that got them
         self.stream_bytes_sent = 0
         self.seconds: dict[str, float] = defaultdict(float)
         self.peak_private = 0
@@ -80,17 +86,22 @@ class SwarmWorker:
         if self.central is not None:
             insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads)
         else:
-            targets = [[self.fused[a][r] for r in self.rules] + [self.local[a]] for a, _ in scans]
+            targets = [[n.map for n in self.nodes[a].values()] + [self.local[a]]
+                       for a, _ in scans]
             insert_scans([s for _, s in scans], targets, self.threads)
         self.seconds["insertion"] += time.perf_counter() - t0
         self._check_memory()
         return len(scans)
 
+    def uses(self, rule: str, sender: str, receiver: str) -> bool:
+        """Whether ``rule`` sends on this link (the channel filter on its tree only)."""
+        return rule != CHANNEL_FILTER or (sender, receiver) in self.tree
+
     def send(self, sender: str, receivers: list[str], *aligned: list):
-        """The messages of ``sender`` at the start of a group: per rule, its map as an ``.ot``
-        stream (a delta since the last message on the link with ``delta``). Without deltas one
-        message (a list of streams, one per rule) serves every receiver; with deltas there is
-        one per receiver (a tuple, one return value each).
+        """The messages of ``sender`` at the start of a group, one per receiver (a tuple of
+        them for two or more): per rule, a frame of its map (a delta since the last message
+        the receiver is known to hold with ``delta``), or None where the rule does not use
+        the link.
 
         With alignment, a link sends whole maps until it has aligned, as in the simulation, and
         its first delta is taken against the whole map that aligned it. ``aligned``: what the
@@ -98,63 +109,61 @@ class SwarmWorker:
         t0 = time.perf_counter()
         for links in aligned:
             self._confirm(links)
-        maps = self.fused[sender]
-        if not self.delta:
-            msg = [maps[r].to_bytes() for r in self.rules]
-            for r in self.rules:
-                self._count(r, sender, maps[r], copies=len(receivers))
-            self.stream_bytes_sent += sum(map(len, msg)) * len(receivers)
-            out = msg
-        else:
-            per = []
-            for d in receivers:
-                msg = []
-                whole = self.frames.align != "off" and (sender, d) not in self.aligned_out
-                for r in self.rules:
-                    snapshot = maps[r].copy()
-                    if whole:  # the base of the link's deltas if it aligns on this one
-                        self.unconfirmed[(r, sender, d)] = m = snapshot
-                    else:
-                        prev = self.snapshots.get((r, sender, d))
-                        m = snapshot.changed_since(prev) if prev is not None else snapshot
-                        self.snapshots[(r, sender, d)] = snapshot
-                    self._count(r, sender, m)
-                    msg.append(m.to_bytes())
-                self.stream_bytes_sent += sum(map(len, msg))
-                per.append(msg)
-            out = per[0] if len(per) == 1 else tuple(per)
+        # a map sent to several receivers is written once (kept alive: its id stays its own)
+        streams: dict[int, tuple] = {}
+        per = []
+        for d in receivers:
+            whole = self.delta and self.frames.align != "off" and (sender, d) not in self.aligned_out
+            frames = []
+            for r, node in self.nodes[sender].items():
+                if not self.uses(r, sender, d):
+                    frames.append(None)
+                    continue
+                if whole:  # the base of the link's deltas if it aligns on this one
+                    state = self.unconfirmed[(r, sender, d)] = node.map.copy()
+                    msg = node.compose(d, state=state)
+                else:
+                    msg = node.compose(d, delta=self.delta, reliable=self.reliable)
+                m = msg.payload
+                if id(m) not in streams:
+                    streams[id(m)] = (m, m.to_bytes())
+                self._count(r, sender, m)
+                frames.append(msg.encode(payload=streams[id(m)][1]))
+            self.stream_bytes_sent += sum(len(f) for f in frames if f is not None)
+            per.append(frames)
         self.seconds["serialise"] += time.perf_counter() - t0
         self._check_memory()
-        return out
+        return per[0] if len(per) == 1 else tuple(per)
 
     def receive(self, receiver: str, senders: list[str], time_s: float,
                 *messages) -> list[tuple[str, str]]:
-        """Fuse the messages of the group at ``time_s`` (one list of per-rule streams per
-        sender, in event order), each moved into the receiver's frame first. With alignment,
-        the links not aligned yet register first, all on the receiver's map as it was when
-        the group started; a link that fails to is counted, not fused. Returns the links that
-        aligned in this call (``(sender, receiver)``)."""
-        from ..maps.infoloss import InfoLossMap
-        from ..maps.occupancy import OccupancyMap
-        from ..maps.tree_fusion import fuse_into
-
+        """Fuse the messages of the group at ``time_s`` (one list of per-rule frames per
+        sender, in event order), each moved into the receiver's frame first. A frame that is
+        malformed or not from that sender to this receiver under that rule is dropped and
+        counted. With alignment, the links not aligned yet register first, all on the
+        receiver's map as it was when the group started; a link that fails to is counted, not
+        fused. Returns the links that aligned in this call (``(sender, receiver)``)."""
         t0 = time.perf_counter()
-        first = self._align(receiver, senders, time_s, messages)
-        for sender, msg in zip(senders, messages):
+        decoded = [[self._read(f, s, receiver, r) for r, f in zip(self.rules, msg)]
+                   for s, msg in zip(senders, messages)]
+        first = self._align(receiver, senders, time_s, decoded)
+        for sender, msgs in zip(senders, decoded):
             fused = self.frames.aligned(sender, receiver)
-            for k, (r, data) in enumerate(zip(self.rules, msg)):
-                m = first[sender] if k == 0 and sender in first else OccupancyMap.from_bytes(data)
-                self.received[r][receiver] += message_bytes(m)
+            for r, msg in zip(self.rules, msgs):
+                if msg is None:
+                    continue
+                self.received[r][receiver] += message_bytes(msg.payload)
                 if not fused:
                     continue
-                m = self.frames.to_receiver(sender, receiver, m, self.resolution)
-                loss = self.loss[receiver].get(r)
-                if loss is None:
-                    loss = self.loss[receiver][r] = InfoLossMap.carried_by(self.fused[receiver][r])
-                fuse_into(self.fused[receiver][r], m, rule=r, unknown=self.unknown, loss=loss)
+                moved = self.frames.to_receiver(sender, receiver, msg.payload, self.resolution)
+                self.nodes[receiver][r].deliver(msg, unknown=self.unknown, moved=moved)
         self.seconds["fusion"] += time.perf_counter() - t0
         self._check_memory()
         return [(s, receiver) for s in first if self.frames.aligned(s, receiver)]
+
+    def own_maps(self) -> dict[str, bytes]:
+        """This worker's agents' own (local-only) maps as ``.ot`` streams."""
+        return {a: self.local[a].to_bytes() for a in self.names}
 
     def alignment(self) -> list[dict]:
         """The alignment of the links into this worker's agents (:meth:`AgentFrames.report`)."""
@@ -176,7 +185,6 @@ class SwarmWorker:
         """Scores of this worker's agents against the centralized map (as in
         :func:`octofuse.fusion.results.score_result`), with their traffic."""
         from ..maps.compare import score
-        from ..maps.infoloss import InfoLossMap
         from ..maps.occupancy import OccupancyMap
 
         c = OccupancyMap.from_bytes(central)
@@ -186,7 +194,7 @@ class SwarmWorker:
             if r == LOCAL:
                 out[r][a] = score(m, c, tol=tol, truth=truth, compared=s)
                 continue
-            loss = self.loss[a].get(r) or InfoLossMap(self.resolution)
+            loss = None if r == CHANNEL_FILTER else self.nodes[a][r].loss_map()
             out[r][a] = score(m, c, tol=tol, loss=loss, truth=truth, compared=s,
                               bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
                               bytes_sent_32b=self.sent_32b[r][a])
@@ -199,19 +207,22 @@ class SwarmWorker:
                 for r in self.rules}
 
     def maps(self) -> dict:
-        """Every map of this worker as ``.ot`` streams: agent -> rule|local-only -> bytes."""
-        return {a: {**{r: self.fused[a][r].to_bytes() for r in self.rules},
+        """Every map of this worker as scored, as ``.ot`` streams: agent -> rule|local-only ->
+        bytes (the channel filter's clamped)."""
+        return {a: {**{r: self._scored(r, a).to_bytes() for r in self.rules},
                     LOCAL: self.local[a].to_bytes()} for a in self.names}
 
     def stats(self) -> dict:
         private, cur, peak = _rss_bytes()
         self.peak_private = max(self.peak_private, private)
-        maps_bytes = sum(m.memory_bytes for a in self.names for m in [*self.fused[a].values(), self.local[a]])
+        maps_bytes = sum(m.memory_bytes for a in self.names
+                         for m in [*(n.map for n in self.nodes[a].values()), self.local[a]])
         if self.central is not None:
             maps_bytes += self.central.memory_bytes
         return {"worker": self.index, "agents": len(self.names), "pid": os.getpid(), "rss": cur,
                 "peak_rss": peak, "private": private, "peak_private": self.peak_private,
                 "memory_cap": self.cap, "maps_bytes": maps_bytes, "stream_bytes_sent": self.stream_bytes_sent,
+                "dropped": self.dropped,
                 "seconds": dict(self.seconds)}
 
     # -- internals ------------------------------------------------------------------------------
@@ -221,22 +232,41 @@ class SwarmWorker:
         from ..maps.compare import compare_many
 
         jobs = [(LOCAL, a) for a in self.names] + [(r, a) for r in self.rules for a in self.names]
-        agent_map = lambda r, a: self.local[a] if r == LOCAL else self.fused[a][r]  # noqa: E731
-        maps = [self.frames.to_common(a, agent_map(r, a)) for r, a in jobs]
+        maps = [self.frames.to_common(a, self._scored(r, a)) for r, a in jobs]
         return jobs, maps, compare_many(central, maps, tol, self.threads)
 
-    def _align(self, receiver: str, senders: list[str], time_s: float, messages) -> dict:
-        """Register the links of ``senders`` not aligned yet on the first rule's maps: the
-        receiver's, and the sender's as its message carries it. Returns those senders' maps,
-        read once for the fusion too (none with alignment off)."""
-        from ..maps.occupancy import OccupancyMap
+    def _scored(self, rule: str, agent: str):
+        """``agent``'s map under ``rule`` as scored and written (the channel filter's clamped)."""
+        if rule == LOCAL:
+            return self.local[agent]
+        m = self.nodes[agent][rule].map
+        return clamped(m) if rule == CHANNEL_FILTER else m
 
+    def _read(self, frame: Optional[bytes], sender: str, receiver: str, rule: str):
+        """The message of a frame, or None (counted as dropped) if it is not a well-formed
+        message from ``sender`` to ``receiver`` under ``rule``."""
+        if frame is None:
+            return None
+        try:
+            msg = MapMessage.decode(frame)
+        except ValueError:
+            self.dropped += 1
+            return None
+        if (msg.sender, msg.receiver, msg.rule) != (sender, receiver, rule):
+            self.dropped += 1
+            return None
+        return msg
+
+    def _align(self, receiver: str, senders: list[str], time_s: float, decoded) -> dict:
+        """Register the links of ``senders`` not aligned yet on the first rule's maps: the
+        receiver's, and the sender's as its message carries it. Returns those senders' maps
+        (none with alignment off)."""
         if self.frames.align == "off":
             return {}
-        first = {s: OccupancyMap.from_bytes(msg[0]) for s, msg in zip(senders, messages)
-                 if not self.frames.aligned(s, receiver)}
+        first = {s: msgs[0].payload for s, msgs in zip(senders, decoded)
+                 if msgs[0] is not None and not self.frames.aligned(s, receiver)}
         self.frames.align_links([(s, receiver, False, time_s) for s in senders if s in first],
-                                {receiver: self.fused[receiver][self.rules[0]], **first})
+                                {receiver: self.nodes[receiver][self.rules[0]].map, **first})
         return first
 
     def _confirm(self, links: list) -> None:
@@ -246,13 +276,13 @@ class SwarmWorker:
             if s in self.names and (s, d) not in self.aligned_out:
                 self.aligned_out.add((s, d))
                 for r in self.rules:
-                    self.snapshots[(r, s, d)] = self.unconfirmed.pop((r, s, d))
+                    self.nodes[s][r].link(d).baseline = self.unconfirmed.pop((r, s, d))
 
-    def _count(self, r: str, sender: str, m, copies: int = 1) -> None:
-        """``copies`` messages of the map ``m`` sent (its leaves counted once)."""
-        self.sent[r][sender] += copies * message_bytes(m)
-        self.sent_32b[r][sender] += copies * 32 * m.num_leaves
-        self.messages[r] += copies
+    def _count(self, r: str, sender: str, m) -> None:
+        """A message of the map ``m`` sent."""
+        self.sent[r][sender] += message_bytes(m)
+        self.sent_32b[r][sender] += 32 * m.num_leaves
+        self.messages[r] += 1
 
     def _check_memory(self) -> None:
         return_freed_memory(pools=False)

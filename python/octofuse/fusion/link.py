@@ -1,0 +1,76 @@
+"""One agent's state of its link to one neighbour: the link protocol.
+
+Both directions of a link run the same protocol, whatever the rule:
+
+* every message carries a sequence number (1, 2, ... per direction) and an acknowledgement,
+  the newest sequence number its sender has applied from the receiver;
+* a receiver applies a message only if it is newer than the newest it applied on the link, so
+  a repeated or overtaken message changes nothing (it is contained in the newer one);
+* with deltas, a sender sends the voxels changed since the last snapshot the receiver is known
+  to hold: on a lossless link the last one sent, otherwise the last one acknowledged (what was
+  not acknowledged is sent again until it is).
+
+The channel filter also keeps, per link, the neighbour's last contribution (:attr:`received`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+from ..maps.occupancy import OccupancyMap
+
+
+@dataclass
+class Link:
+    """What an agent keeps of its link to ``neighbour``."""
+
+    neighbour: str
+    #: the sequence number of the last message sent to the neighbour
+    seq: int = 0
+    #: the newest sequence number applied from the neighbour (0: none)
+    applied: int = 0
+    #: with deltas: the snapshot the next delta is taken against (known to be held there)
+    baseline: Optional[OccupancyMap] = None
+    #: with deltas on a lossy link: the snapshots sent and not acknowledged yet (seq -> map)
+    pending: dict[int, OccupancyMap] = field(default_factory=dict)
+    #: the channel filter's common information: the neighbour's last applied contribution
+    received: Optional[OccupancyMap] = None
+
+    def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
+                 reliable: bool) -> tuple[int, OccupancyMap]:
+        """The next message's sequence number and payload for ``snapshot`` (what the agent
+        sends now, a map of its own): the snapshot itself, or with ``delta`` its voxels changed
+        since :attr:`baseline`. The snapshot becomes the baseline (``reliable``) or waits for
+        its acknowledgement."""
+        self.seq += 1
+        payload = snapshot
+        if delta:
+            if self.baseline is not None:
+                payload = snapshot.changed_since(self.baseline)
+            if reliable:
+                self.baseline = snapshot
+            else:
+                self.pending[self.seq] = snapshot
+        return self.seq, payload
+
+    def acknowledged(self, ack: int) -> None:
+        """The neighbour has applied this agent's messages up to ``ack``: the snapshot of
+        ``ack`` becomes the baseline and older ones are let go."""
+        if ack in self.pending:
+            self.baseline = self.pending[ack]
+            for k in [k for k in self.pending if k <= ack]:
+                del self.pending[k]
+
+    def accept(self, seq: int) -> bool:
+        """Whether a message numbered ``seq`` from the neighbour is newer than every one
+        applied; if so it counts as applied."""
+        if seq <= self.applied:
+            return False
+        self.applied = seq
+        return True
+
+    def maps(self) -> list[OccupancyMap]:
+        """The maps this link holds (for memory accounting)."""
+        held = [self.baseline, self.received, *self.pending.values()]
+        return [m for m in held if m is not None]
