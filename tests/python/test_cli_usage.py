@@ -498,3 +498,29 @@ def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
     assert (out.returncode, out.stderr) == (code, "")
     installed = OCTOFUSE.read_text()
     assert "from octofuse.program import run" in installed, installed
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "x.bag", "--rule", "chernoff,,min-info-loss"], "has an empty item"),
+    (["run", "x.bag", "--rule", "chernoff,bogus"], "unknown 'bogus'; expected one or more of"),
+    (["run", "x.bag", "--export-agents", ","], "',' has an empty item"),
+    (["bench", "x.bag", "--topologies", "ring,ring"], "names 'ring' twice"),
+    (["bench", "x.bag", "--seeds", ","], "has an empty item"),
+    (["bench", "x.bag", "--seeds", "1,x"], "expected SEED[,SEED...]"),
+    (["bench", "x.bag", "--schedules", ""], "'' has an empty item"),
+    (["search", "--rules", "", "--out", "o"], "'' has an empty item"),
+    (["track", "--families", "expoly,foo", "--out", "o"], "unknown 'foo'"),
+])
+def test_list_values_are_refused_with_an_empty_item_a_repeat_or_a_stranger(
+        capsys, tmp_path, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, *args)
+    assert code == 2 and message in err
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_rule_help_lists_the_rules():
+    from click.testing import CliRunner
+
+    text = CliRunner().invoke(cli, ["run", "--help"], terminal_width=200).output
+    assert "one or more of: naive-bayes, bhattacharyya" in text and "channel-filter]" in text

@@ -7,13 +7,24 @@ from pathlib import Path
 
 import click
 
-from .options import cli, say
+from .options import ListOption, NameList, cli, flat, say
+
+#: the belief types ``track`` compares
+FAMILIES = ("expoly", "gaussian", "mixture")
+
+
+def _mixture_rules() -> tuple[str, ...]:
+    from ..beliefs.mixture_fusion import MIXTURE_RULES
+
+    return MIXTURE_RULES
 
 
 @cli.command()
 @click.option("--setting", type=click.Choice(["3-robots", "8-robots"]), default="3-robots",
               help="the paper's cyclic 3-robot pattern, or 8 robots on max-robust:3")
-@click.option("--rule", "--rules", "rule", multiple=True, help="mixture fusion rules, comma separated",
+@click.option("--rule", "--rules", "rule", multiple=True, cls=ListOption,
+              type=NameList(_mixture_rules, what="RULE"),
+              help="mixture fusion rules, comma separated",
               show_default="naive-bayes,bhattacharyya,chernoff,kld-weighted-chernoff,min-info-loss")
 @click.option("--seed", type=int, default=0, help="seed of the target, the detections and the sampling")
 @click.option("--duration", type=click.IntRange(1, 3600), default=65, help="seconds of search")
@@ -24,7 +35,7 @@ def search(setting, rule, seed, duration, out):
     from ..targets.search import DEFAULT_RULES
     from ..targets.search_report import run_target_search
 
-    rules = [r.strip() for x in rule for r in x.split(",") if r.strip()] or list(DEFAULT_RULES)
+    rules = flat(rule) or list(DEFAULT_RULES)
     run_target_search(out, setting=setting, rules=rules, seed=seed, duration=duration, progress=say)
     say(f"report: {out / 'report.md'}")
 
@@ -32,14 +43,13 @@ def search(setting, rule, seed, duration, out):
 @cli.command()
 @click.option("--duration", type=click.FloatRange(0.2, 600), default=10.0, help="seconds tracked")
 @click.option("--seed", type=int, default=0, help="seed of the range noise")
-@click.option("--families", default="expoly,gaussian,mixture",
-              help="belief types, comma separated: expoly, gaussian, mixture")
+@click.option("--families", cls=ListOption, type=NameList(lambda: FAMILIES, what="FAMILY"),
+              default=",".join(FAMILIES), help="belief types, comma separated")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="output folder")
 def track(duration, seed, families, out):
     """Range-only tracking over a directed ring of four nodes (paper 004): report and figures."""
     from ..targets.tracking_report import run_tracking
 
-    names = tuple(f.strip() for f in families.split(",") if f.strip())
-    run_tracking(out, duration=duration, seed=seed, families=names)
+    run_tracking(out, duration=duration, seed=seed, families=families)
     say(f"report: {out / 'report.md'}")

@@ -11,10 +11,10 @@ from typing import Optional
 import click
 
 from ..config import RunConfig
-from .options import (_DEFAULT, CliError, Progress, bag_arguments, build_options, cli,
+from .options import (_DEFAULT, CliError, ListOption, NameList, Progress, bag_arguments, build_options, cli,
                       config_options, console, dump_config, exchange_options, export_options,
-                      frame_options, need_bags, need_out, out_option, passes_option, rule_option,
-                      run_config, say, topology_option)
+                      frame_options, map_rule_names, need_bags, need_out, out_option,
+                      passes_option, rule_option, run_config, say, topology_option)
 
 
 export_bag_option = click.option(
@@ -131,7 +131,7 @@ def _staged_with_bag(out: Path, command: str, bag):
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
     if spec in ("all", "none", "first"):
         return {"all": agents, "none": [], "first": agents[:1]}[spec]
-    names = [x.strip() for x in spec.split(",") if x.strip()]
+    names = spec.split(",")  # parsed on the command line: no empty item, none twice
     bad = [n for n in names if n not in agents]
     if bad:
         raise CliError(f"--export-agents: unknown agent(s) {', '.join(bad)}; agents: {', '.join(agents)}")
@@ -147,8 +147,9 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
 @build_options
 @click.option("--samples", type=click.IntRange(0, 10_000), help="points in time at which KL is recorded",
               show_default=str(_DEFAULT.samples))
-@click.option("--export-agents", help="agents whose maps and heat maps are written: all, first, none "
-              "or names", show_default=_DEFAULT.export_agents)
+@click.option("--export-agents", type=NameList(what="AGENT", metavar="A[,...]"),
+              help="agents whose maps and heat maps are written: all, first, none or names",
+              show_default=_DEFAULT.export_agents)
 @export_options
 @export_bag_option
 @passes_option(_DEFAULT.fuse.rules_per_pass)
@@ -185,8 +186,9 @@ def bundled_dataset() -> Path:
 @cli.command()
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("octofuse-demo"),
               help="output folder")
-@click.option("--rule", "--rules", "rule", multiple=True, help="rules, comma separated",
-              show_default="all,channel-filter")
+@click.option("--rule", "--rules", "rule", multiple=True, cls=ListOption,
+              type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
+              help="rules, comma separated", show_default="all,channel-filter")
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @export_options
@@ -266,9 +268,12 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
 @cli.command()
 @bag_arguments
 @rule_option
-@click.option("--topologies", default="ring,max-robust:3", help="comma separated topologies")
-@click.option("--schedules", help="comma separated schedules, a study axis", show_default="--schedule")
-@click.option("--seeds", help="comma separated seeds, a study axis (mean and spread in the tables)",
+@click.option("--topologies", type=NameList(what="TOPOLOGY"), default="ring,max-robust:3",
+              help="comma separated topologies")
+@click.option("--schedules", type=NameList(what="SCHEDULE"),
+              help="comma separated schedules, a study axis", show_default="--schedule")
+@click.option("--seeds", type=NameList(item=int, what="SEED"),
+              help="comma separated seeds, a study axis (mean and spread in the tables)",
               show_default="--seed")
 @click.option("--executor", type=click.Choice(["auto", "serial", "ray"]), default="auto",
               help="where the cells run (auto: a local Ray when Ray is installed)")
@@ -292,13 +297,8 @@ def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p
         return dump_config(cfg)
     need_bags(cfg, "octofuse bench BAG... --out DIR")
     out = check_replaceable(need_out(cfg, p["out"]))
-    topo = [t.strip() for t in topologies.split(",") if t.strip()]
-    if not topo:
-        raise click.BadParameter("give at least one topology", param_hint="--topologies")
-    try:
-        seed_list = [int(x) for x in seeds.split(",") if x.strip()] if seeds else None
-    except ValueError:
-        raise click.BadParameter(f"{seeds!r}: expected whole numbers", param_hint="--seeds") from None
+    topo = list(topologies)
+    seed_list = list(seeds) if seeds else None
     # cells finished so far, kept beside --out so that an interrupted study can be resumed
     journal = out.parent / f".{out.name}.cells"
     if not resume:
@@ -306,7 +306,7 @@ def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p
     with staged_folder(out, "bench") as stage:
         run_study(cfg, topo, stage, truth=Scene.find(cfg.truth, cfg.build.bags),
                   progress=Progress, log=say, seeds=seed_list,
-                  schedules=[x.strip() for x in schedules.split(",") if x.strip()] if schedules else None,
+                  schedules=list(schedules) if schedules else None,
                   executor=executor, ray_address=ray_address,
                   resume_from=[out, journal] if resume else [], journal=journal)
     shutil.rmtree(journal, ignore_errors=True)

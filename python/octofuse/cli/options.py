@@ -47,6 +47,67 @@ def _options(*decorators):
     return apply
 
 
+class NameList(click.ParamType):
+    """A comma-separated list, parsed once: no empty item, no item twice, each item one of
+    ``choices()`` if given (a function, so that the names are looked up only when a list is
+    parsed or the help is shown) and converted by ``item``. Gives a tuple."""
+
+    name = "list"
+
+    def __init__(self, choices=None, item=str, what: str = "NAME", metavar: str = ""):
+        self.choices, self.item, self.what = choices, item, what
+        self.metavar = metavar or f"{what}[,...]"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        items = [x.strip() for x in str(value).split(",")]
+        if not all(items):
+            self.fail(f"{value!r} has an empty item; expected {self.what}[,{self.what}...]",
+                      param, ctx)
+        twice = next((x for i, x in enumerate(items) if x in items[:i]), None)
+        if twice is not None:
+            self.fail(f"{value!r} names {twice!r} twice", param, ctx)
+        if self.choices is not None:
+            valid = self.choices()
+            bad = [x for x in items if x not in valid]
+            if bad:
+                self.fail(f"unknown {bad[0]!r}; expected one or more of {', '.join(valid)}",
+                          param, ctx)
+        try:
+            return tuple(self.item(x) for x in items)
+        except ValueError:
+            self.fail(f"{value!r}: expected {self.what}[,{self.what}...]", param, ctx)
+
+    def get_metavar(self, param, ctx=None):
+        return self.metavar
+
+
+class ListOption(click.Option):
+    """An option of a :class:`NameList` whose help ends with the names it takes (looked up
+    only when the help is shown)."""
+
+    def get_help_record(self, ctx):
+        record = super().get_help_record(ctx)
+        if record is None or getattr(self.type, "choices", None) is None:
+            return record
+        first, text = record
+        return first, f"{text}  [one or more of: {', '.join(self.type.choices())}]"
+
+
+def map_rule_names() -> tuple[str, ...]:
+    """What ``--rule`` of the map commands takes: every rule, 'all', the channel filter."""
+    from ..config import CHANNEL_FILTER
+    from ..rules import RULES
+
+    return (*RULES, "all", CHANNEL_FILTER)
+
+
+def flat(lists) -> list:
+    """The items of a repeated list option, in order (an item given twice is kept once)."""
+    return list(dict.fromkeys(x for items in lists or () for x in items))
+
+
 bag_arguments = click.argument("bags", nargs=-1, type=click.Path(path_type=Path))
 config_options = _options(
     click.option("--config", type=click.Path(dir_okay=False, path_type=Path),
@@ -72,7 +133,8 @@ build_options = _options(
     click.option("--threads", type=click.IntRange(0, 256),
                  help="threads for ray casting, fusion and scoring; 0: one per core", show_default="0"),
 )
-rule_option = click.option("--rule", "--rules", "rule", multiple=True,
+rule_option = click.option("--rule", "--rules", "rule", multiple=True, cls=ListOption,
+                           type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
                            help="fusion rule(s), comma separated, or 'all'",
                            show_default=",".join(_DEFAULT.fuse.rules))
 exchange_options = _options(
@@ -161,7 +223,7 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunCon
     if p.get("agent"):
         build["agents"] = [dict(zip(("name", "topic"), kv))
                            for kv in _pairs(p["agent"], "NAME=TOPIC").items()]
-    fuse = _given(rules=list(p.get("rule") or ()), topology=p.get("topology"),
+    fuse = _given(rules=flat(p.get("rule")), topology=p.get("topology"),
                   schedule=p.get("schedule"), directions=p.get("directions"),
                   delta=p.get("delta"), unknown=p.get("unknown"), seed=p.get("seed"),
                   spanning_tree=p.get("spanning_tree"), loss=p.get("loss"),
@@ -177,7 +239,7 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunCon
         fuse["align"] = p["align"]
     run = _given(out=str(p["out"]) if p.get("out") else None,
                  truth=str(p["truth"]) if p.get("truth") else None,
-                 samples=p.get("samples"), export_agents=p.get("export_agents"),
+                 samples=p.get("samples"), export_agents=",".join(p["export_agents"]) if p.get("export_agents") else None,
                  export=p.get("export"), formats=[p["formats"]] if p.get("formats") else None)
     data = merge(data, {"build": build, "fuse": fuse, **run})
     _agent_poses(data, p)
