@@ -42,7 +42,8 @@
 #include "octofuse/fuse.hpp"
 #include "octofuse/fuse_into.hpp"
 #include "octofuse/map_file.hpp"
-#include "octofuse/walk.hpp"
+
+#include "walk.hpp"
 
 #include <octomap/OcTree.h>
 

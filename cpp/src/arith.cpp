@@ -1,7 +1,7 @@
 // octofuse: log-odds arithmetic on whole maps (see arith.hpp).
 #include "octofuse/arith.hpp"
 
-#include "octofuse/detail/lazy_tree.hpp"
+#include "lazy_tree.hpp"
 
 #include <algorithm>
 #include <array>

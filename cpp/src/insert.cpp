@@ -1,13 +1,14 @@
 // octofuse: batched scan insertion (ray keys once per scan, applied to several maps).
 #include "octofuse/insert.hpp"
 
-#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/ray_codes.hpp"
+#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/scan_check.hpp"
-#include "octofuse/tree_access.hpp"
+
+#include "carried_loss_walk.hpp"
+#include "prune_or_max.hpp"
 
 #include <Eigen/Core>
 

@@ -1,9 +1,10 @@
 // octofuse: rigid transforms and resampling of occupancy maps (forward splatting).
 #include "octofuse/transform.hpp"
 
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/text.hpp"
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
+
+#include "prune_or_max.hpp"
 
 #include <algorithm>
 #include <cmath>

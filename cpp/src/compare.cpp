@@ -2,9 +2,10 @@
 #include "octofuse/compare.hpp"
 
 #include "octofuse/detail/pair_memo.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/rules.hpp"
-#include "octofuse/walk.hpp"
+
+#include "prune_or_max.hpp"
+#include "walk.hpp"
 
 #include <array>
 #include <cmath>

@@ -1,7 +1,7 @@
 // octofuse: simultaneous walk of two octrees producing the fused tree and its loss tree.
 #include "octofuse/fuse.hpp"
 
-#include "octofuse/detail/lazy_tree.hpp"
+#include "lazy_tree.hpp"
 
 #include <memory>
 #include <type_traits>

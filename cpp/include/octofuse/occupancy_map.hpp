@@ -91,12 +91,6 @@ class OccupancyMap {
   void insert_scan_from_sensor(const Real* xyz, std::size_t n, const double pose[16],
                                double max_range);
 
-  /// Writes the map (write_map_file(): ".bt" or ".ot", atomically). Throws MapFileError.
-  void save(const std::string& path) const;
-
-  /// Reads a ".ot" or ".bt" file (read_map_file()). Throws MapFileError naming the file.
-  static std::unique_ptr<OccupancyMap> load(const std::string& path);
-
   /// Centres, sizes and log-odds of the leaves of class `which`.
   LeafArrays leaves(LeafClass which = LeafClass::All) const;
 

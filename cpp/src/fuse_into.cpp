@@ -1,11 +1,12 @@
 // octofuse: in-place fusion by a walk of the message tree down the destination tree.
 #include "octofuse/fuse_into.hpp"
 
-#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/parallel_for.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
-#include "octofuse/loss_tree.hpp"
-#include "octofuse/walk.hpp"
+
+#include "carried_loss_walk.hpp"
+#include "loss_tree.hpp"
+#include "prune_or_max.hpp"
+#include "walk.hpp"
 
 #include <atomic>
 #include <deque>

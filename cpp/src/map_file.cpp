@@ -3,7 +3,7 @@
 #include "octofuse/map_file.hpp"
 
 #include "octofuse/detail/text.hpp"
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
 
 #include <sys/stat.h>
 #include <unistd.h>

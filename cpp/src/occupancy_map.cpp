@@ -3,9 +3,9 @@
 
 #include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/text.hpp"
-#include "octofuse/map_file.hpp"
 #include "octofuse/scan_check.hpp"
-#include "octofuse/walk.hpp"
+
+#include "walk.hpp"
 
 #include <octomap/Pointcloud.h>
 
@@ -107,12 +107,6 @@ bool OccupancyMap::carries_fusion_loss(ScalarTree* loss) {
   }
   settle_loss();
   return false;
-}
-
-void OccupancyMap::save(const std::string& path) const { write_map_file(*this, path); }
-
-std::unique_ptr<OccupancyMap> OccupancyMap::load(const std::string& path) {
-  return read_map_file(path);
 }
 
 // Single scans through OctoMap's own insertPointCloud().
