@@ -221,7 +221,7 @@ std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
   Differ d;
   const std::uint16_t k0[3] = {0, 0, 0};
   d.walk(W::root(current.tree()), W::root(previous.tree()), k0, 0);
-  build_from_leaves(out->tree(), d.out);
+  build_from_leaves(out->settled_tree(), d.out);
   return out;
 }
 

@@ -333,7 +333,7 @@ std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::stri
     }
   }
   check_memory(path, counts);
-  OccupancyTree& tree = map->tree();
+  OccupancyTree& tree = map->settled_tree();
   OccupancyNode* root = OcTreeAccess::ensure_root(tree);
   Counts built;
   Reader b = start;

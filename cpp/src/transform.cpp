@@ -206,7 +206,7 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
   params.resolution = resolution;
   params.validate();
   auto out = std::make_unique<OccupancyMap>(params);
-  OccupancyTree& dst = out->tree();
+  OccupancyTree& dst = out->settled_tree();
   const OccupancyTree& tree = src.tree();
   TransformStats st;
   st.source_leaves = tree.getNumLeafNodes();

@@ -92,7 +92,7 @@ TEST(Fuse, NaiveBayesEqualsOctomapUpdateNodeMerge) {
   OccupancyTree bb(b.tree());
   bb.expand();
   for (auto it = bb.begin_leafs(); it != bb.end_leafs(); ++it)
-    merged.tree().updateNode(it.getKey(), it->getLogOdds());
+    merged.settled_tree().updateNode(it.getKey(), it->getLogOdds());
   const FusionResult res = fuse_maps(a, b, Rule::NaiveBayes, UnknownPolicy::Copy);
   EXPECT_EQ(expand(res.map->tree()), expand(merged.tree()));
 }
