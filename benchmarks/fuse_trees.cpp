@@ -42,7 +42,8 @@
 #include "octofuse/fuse.hpp"
 #include "octofuse/fuse_into.hpp"
 #include "octofuse/map_file.hpp"
-#include "octofuse/walk.hpp"
+
+#include "walk.hpp"
 
 #include <octomap/OcTree.h>
 
@@ -111,7 +112,7 @@ float sensor_value(const OccupancyTree& t, unsigned hits, unsigned misses) {
 /// (0-1 hits, 1-8 misses).
 std::unique_ptr<OccupancyMap> make_map(const Box& box, bool continuous) {
   auto m = std::make_unique<OccupancyMap>(MapParams{});
-  OccupancyTree& t = m->tree();
+  OccupancyTree& t = m->settled_tree();
   Rng rng{box.seed};
   const float sat_free = t.getClampingThresMinLog(), sat_occ = t.getClampingThresMaxLog();
   auto fine = [&](unsigned x, unsigned y, unsigned z) {

@@ -4,6 +4,7 @@
 #include "octofuse/carried_loss.hpp"
 #include "octofuse/fuse_into.hpp"
 #include "octofuse/leaf_lookup.hpp"
+#include "octofuse/map_file.hpp"
 #include "octofuse/occupancy_map.hpp"
 
 #include <cmath>
@@ -146,11 +147,11 @@ void define_maps(py::module_& m) {
            py::arg("max_range"), py::arg("sensor_frame"))
       .def("save", [](const OccupancyMap& self, const std::string& path) {
         py::gil_scoped_release release;
-        self.save(path);
+        write_map_file(self, path);
       })
       .def_static("load", [](const std::string& path) {
         py::gil_scoped_release release;
-        return OccupancyMap::load(path);
+        return read_map_file(path);
       })
       .def("leaves", [](const OccupancyMap& self, const std::string& voxels) {
         const LeafClass which = leaf_class(voxels);

@@ -5,6 +5,8 @@
 #include "octofuse/insert.hpp"
 #include "octofuse/leaf_lookup.hpp"
 
+#include "map_access.hpp"
+
 #include "test_trees.hpp"
 
 #include <gtest/gtest.h>
@@ -75,7 +77,7 @@ TEST(CarriedLoss, SameMapsAndLossTreesAsLossTreesAlone) {
         run_steps(plain, rule, pol, plain_foreign);
         run_steps(carried, rule, pol, carried_foreign);
         for (std::size_t k = 0; k < plain.size(); ++k) {
-          OccupancyTree& t = carried[k].map.tree();
+          const OccupancyTree& t = carried[k].map.tree();
           for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) carried_seen += it->carries_loss();
           if (k != 1) moved_aside += carried[k].loss.size();  // agent 1 settled for `foreign`
           std::vector<float> values, want_values;
@@ -112,13 +114,14 @@ TEST(CarriedLoss, CopiesCarryNothingAndExpandedLeavesPassItOn) {
   for (auto it = copy.tree().begin_tree(); it != copy.tree().end_tree(); ++it)
     ASSERT_FALSE(it->carries_loss());
   // a carrying coarse leaf expanded: its children carry its loss, it carries none
-  for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it) {
+  OccupancyTree& t = detail::CarryingAccess::tree(m);
+  for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) {
     if (it.getDepth() == 16 || !it->carries_loss()) continue;
     OccupancyNode* n = &*it;
     const std::uint32_t bits = n->carried_bits();
-    m.tree().expandNode(n);
+    t.expandNode(n);
     EXPECT_FALSE(n->carries_loss());
-    for (unsigned i = 0; i < 8; ++i) EXPECT_EQ(m.tree().getNodeChild(n, i)->carried_bits(), bits);
+    for (unsigned i = 0; i < 8; ++i) EXPECT_EQ(t.getNodeChild(n, i)->carried_bits(), bits);
     return;
   }
   ADD_FAILURE() << "no carrying coarse leaf";

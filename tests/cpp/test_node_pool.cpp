@@ -1,8 +1,10 @@
 // The pooled tree types: same trees and files as OctoMap's own, nodes safe across threads.
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/node_pool.hpp"
 #include "octofuse/occupancy_map.hpp"
-#include "octofuse/walk.hpp"
+
+#include "prune_or_max.hpp"
+#include "walk.hpp"
+
 #include "test_trees.hpp"
 
 #include <gtest/gtest.h>

@@ -46,6 +46,7 @@ int node_differences(const Tree& x, const Tree& y) {
 // 48^3 block at `offset`, values from the sensor model or continuous, and saturated blocks.
 OccupancyMap offset_map(unsigned seed, unsigned offset, bool continuous) {
   OccupancyMap m(MapParams{});
+  OccupancyTree& t = m.settled_tree();
   std::mt19937 rng(seed);
   const float values[] = {-2.0f, -1.2f, -0.4f, 0.45f, 0.85f, 1.7f, 3.5f};
   std::uniform_int_distribution<int> v(0, 6), c(0, 47), coin(0, 99);
@@ -53,17 +54,17 @@ OccupancyMap offset_map(unsigned seed, unsigned offset, bool continuous) {
   const unsigned base = 32768 + offset;
   for (int i = 0; i < 4000; ++i) {
     octomap::OcTreeKey k(base + c(rng), base + c(rng), base + c(rng) / 3);
-    m.tree().setNodeValue(k, continuous ? u(rng) : values[v(rng)], true);
+    t.setNodeValue(k, continuous ? u(rng) : values[v(rng)], true);
   }
   for (int i = 0; i < 12; ++i) {  // saturated 8^3 blocks prune to depth-13 leaves
     const unsigned bx = base + 8 * (c(rng) / 8), by = base + 8 * (c(rng) / 8), bz = base + 8 * (c(rng) / 24);
     const float val = coin(rng) < 70 ? -2.0f : 3.5f;
     for (unsigned x = 0; x < 8; ++x)
       for (unsigned y = 0; y < 8; ++y)
-        for (unsigned z = 0; z < 8; ++z) m.tree().setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
+        for (unsigned z = 0; z < 8; ++z) t.setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
   }
-  m.tree().updateInnerOccupancy();
-  m.tree().prune();
+  t.updateInnerOccupancy();
+  t.prune();
   return m;
 }
 

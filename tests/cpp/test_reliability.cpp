@@ -40,7 +40,7 @@ void write_all(const std::string& path, const std::string& data) {
 // The message of the MapFileError that loading `path` throws ("" if none).
 std::string load_error(const std::string& path) {
   try {
-    OccupancyMap::load(path);
+    read_map_file(path);
   } catch (const MapFileError& e) {
     return e.what();
   }
@@ -66,7 +66,7 @@ bool is_ascii(const std::string& s) {
 // A saved .ot map with its "size" header line replaced.
 std::string ot_with_size(const std::string& name, const std::string& size) {
   const std::string path = tmp_path(name);
-  octofuse_test::random_map(5, 0.5).save(path);
+  write_map_file(octofuse_test::random_map(5, 0.5), path);
   std::string data = read_all(path);
   const std::size_t at = data.find("\nsize ");
   const std::size_t eol = data.find('\n', at + 1);
@@ -184,13 +184,13 @@ TEST(MapFileHeader, SizeMustBeAWholeNodeCountTheDataHolds) {
   EXPECT_NE(load_error(ot_with_size("size_zero.ot", "0")).find("0 nodes"), std::string::npos);
   // an empty map saved and read back is still fine
   const std::string empty = tmp_path("empty.ot");
-  OccupancyMap(MapParams{}).save(empty);
-  EXPECT_EQ(OccupancyMap::load(empty)->num_nodes(), 0u);
+  write_map_file(OccupancyMap(MapParams{}), empty);
+  EXPECT_EQ(read_map_file(empty)->num_nodes(), 0u);
 }
 
 TEST(MapFileHeader, ResolutionIsBounded) {
   const std::string path = tmp_path("res.ot");
-  octofuse_test::random_map(6, 0.5).save(path);
+  write_map_file(octofuse_test::random_map(6, 0.5), path);
   const std::string data = read_all(path);
   for (const char* res : {"1e-30", "1e+30", "0", "-1"}) {
     std::string d = data;
@@ -207,7 +207,7 @@ TEST(MapFileHeader, ResolutionIsBounded) {
 
 TEST(MapFileHeader, NonUtf8BytesGiveAnAsciiMessageNamingTheFile) {
   const std::string path = tmp_path("bytes.ot");
-  octofuse_test::random_map(7, 0.5).save(path);
+  write_map_file(octofuse_test::random_map(7, 0.5), path);
   const std::string data = read_all(path);
   for (const char* from : {"id OcTree", "res ", "data\n"}) {
     std::string d = data;

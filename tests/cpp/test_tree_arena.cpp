@@ -88,7 +88,7 @@ TEST(TreeArena, ATreeOfItsArenaOnlyIsFreedBySlabs) {
 TEST(TreeArena, ChangedTreesAreFreedNodeByNode) {
   const OccupancyMap a = random_map(31, 0.3), b = random_map(32, 0.3), c = random_map(33, 0.5);
   OccupancyMap far(MapParams{});  // a voxel none of the others has
-  far.tree().setNodeValue(octomap::OcTreeKey(100, 200, 300), 0.7f, true);
+  far.settled_tree().setNodeValue(octomap::OcTreeKey(100, 200, 300), 0.7f, true);
   const auto in_use = pool_blocks_in_use();
   const std::size_t arenas = detail::arena_bytes();
   on_a_thread([&] {
@@ -99,8 +99,9 @@ TEST(TreeArena, ChangedTreesAreFreedNodeByNode) {
       fuse_into(*r->map, c, Rule::NaiveBayes, UnknownPolicy::Copy, r->info_loss.get());
       const double xyz[6] = {0.3, 0.2, 0.1, -0.25, 0.1, 0.3}, origin[3] = {0, 0, 0};
       r->map->insert_scan(xyz, 2, origin, -1.0);
-      r->map->tree().expand();
-      r->map->tree().prune();
+      OccupancyTree& t = r->map->settled_tree();
+      t.expand();
+      t.prune();
       const FusionResult far_loss = fuse_maps(far, far, Rule::NaiveBayes, UnknownPolicy::Copy);
       accumulate_loss(*r->info_loss, *far_loss.info_loss);
     }
@@ -119,7 +120,7 @@ TEST(TreeArena, ArenaNodesFreedOnAnotherThreadAreCounted) {
   const std::size_t arenas = detail::arena_bytes();
   on_a_thread([&] {
     FusionResult r = fuse_maps(a, b, Rule::MinInfoLoss, UnknownPolicy::Prior, kAlways);
-    OccupancyTree& t = r.map->tree();
+    OccupancyTree& t = r.map->settled_tree();
     on_a_thread([&] {  // every leaf the same value: pruning frees all nodes below the root
       for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) it->setLogOdds(1.0f);
       t.updateInnerOccupancy();

@@ -11,6 +11,7 @@ namespace octofuse_test {
 
 using octofuse::MapParams;
 using octofuse::OccupancyMap;
+using octofuse::OccupancyTree;
 
 using Key = std::tuple<unsigned, unsigned, unsigned>;
 
@@ -34,13 +35,14 @@ std::map<Key, float> expand(const Tree& t) {
 // A random tree over a 16^3 voxel block with some coarse (pruned) blocks.
 inline OccupancyMap random_map(unsigned seed, double coarse_fraction) {
   OccupancyMap m(MapParams{});
+  OccupancyTree& t = m.settled_tree();
   std::mt19937 rng(seed);
   const float values[] = {-2.0f, -1.0f, -0.4f, 0.4f, 0.85f, 2.0f, 3.5f};
   std::uniform_int_distribution<int> v(0, 6), c(0, 15), coin(0, 99);
   const unsigned base = 32768 - 8;
   for (int i = 0; i < 600; ++i) {
     octomap::OcTreeKey k(base + c(rng), base + c(rng), base + c(rng));
-    m.tree().setNodeValue(k, values[v(rng)], true);
+    t.setNodeValue(k, values[v(rng)], true);
   }
   for (int i = 0; i < 6; ++i) {  // uniform 4x4x4 blocks prune to depth-14 leaves
     if (coin(rng) >= coarse_fraction * 100) continue;
@@ -49,21 +51,22 @@ inline OccupancyMap random_map(unsigned seed, double coarse_fraction) {
     for (unsigned x = 0; x < 4; ++x)
       for (unsigned y = 0; y < 4; ++y)
         for (unsigned z = 0; z < 4; ++z)
-          m.tree().setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
+          t.setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
   }
-  m.tree().updateInnerOccupancy();
-  m.tree().prune();
+  t.updateInnerOccupancy();
+  t.prune();
   return m;
 }
 
 // A map of n^3 finest voxels with distinct values (no pruning): about 1.15 n^3 nodes.
 inline OccupancyMap dense_map(unsigned n) {
   OccupancyMap m(MapParams{});
+  OccupancyTree& t = m.settled_tree();
   for (unsigned x = 0; x < n; ++x)
     for (unsigned y = 0; y < n; ++y)
       for (unsigned z = 0; z < n; ++z)
-        m.tree().setNodeValue(octomap::OcTreeKey(32768 + x, 32768 + y, 32768 + z),
-                              0.01f * static_cast<float>((x * 7 + y * 13 + z) % 300) - 1.5f, true);
+        t.setNodeValue(octomap::OcTreeKey(32768 + x, 32768 + y, 32768 + z),
+                       0.01f * static_cast<float>((x * 7 + y * 13 + z) % 300) - 1.5f, true);
   return m;
 }
 

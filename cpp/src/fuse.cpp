@@ -1,7 +1,7 @@
 // octofuse: simultaneous walk of two octrees producing the fused tree and its loss tree.
 #include "octofuse/fuse.hpp"
 
-#include "octofuse/detail/lazy_tree.hpp"
+#include "lazy_tree.hpp"
 
 #include <memory>
 #include <type_traits>
@@ -117,13 +117,13 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
   if (a.tree().getRoot() != nullptr || b.tree().getRoot() != nullptr) {
     // the new trees have at most the nodes of both inputs: large ones get arenas of their own
     if (a.num_nodes() + b.num_nodes() >= arena_min_nodes) {
-      res.map->tree().start_arena();
+      res.map->settled_tree().start_arena();
       res.info_loss->start_arena();
     }
     with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
                       [&](auto& fusion) {
                         Walker<std::decay_t<decltype(fusion)>> w{
-                            a.tree(), b.tree(), fusion, res.map->tree(), *res.info_loss, {}};
+                            a.tree(), b.tree(), fusion, res.map->settled_tree(), *res.info_loss, {}};
                         w.run();
                         res.counts = w.counts;
                       });

@@ -3,9 +3,9 @@
 
 #include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/text.hpp"
-#include "octofuse/map_file.hpp"
 #include "octofuse/scan_check.hpp"
-#include "octofuse/walk.hpp"
+
+#include "walk.hpp"
 
 #include <octomap/Pointcloud.h>
 
@@ -100,21 +100,6 @@ void OccupancyMap::clear(bool keep_loss) {
   carrying_ = false;
 }
 
-bool OccupancyMap::carries_fusion_loss(ScalarTree* loss) {
-  if (loss != nullptr && loss == carried_loss_) {
-    carrying_ = true;
-    return true;
-  }
-  settle_loss();
-  return false;
-}
-
-void OccupancyMap::save(const std::string& path) const { write_map_file(*this, path); }
-
-std::unique_ptr<OccupancyMap> OccupancyMap::load(const std::string& path) {
-  return read_map_file(path);
-}
-
 // Single scans through OctoMap's own insertPointCloud().
 template <class Real>
 void OccupancyMap::insert_scan(const Real* xyz, std::size_t n, const double origin[3],
@@ -127,8 +112,8 @@ void OccupancyMap::insert_scan(const Real* xyz, std::size_t n, const double orig
   }
   const octomap::point3d o(static_cast<float>(origin[0]), static_cast<float>(origin[1]),
                            static_cast<float>(origin[2]));
-  settle_loss();  // OctoMap's own updates merge nodes without moving carried losses aside
-  insert_cloud(*tree_, cloud, o, max_range);
+  // OctoMap's own updates merge nodes without moving carried losses aside
+  insert_cloud(settled_tree(), cloud, o, max_range);
 }
 
 template <class Real>
@@ -147,8 +132,8 @@ void OccupancyMap::insert_scan_from_sensor(const Real* xyz, std::size_t n, const
   }
   const octomap::point3d o(static_cast<float>(t.x()), static_cast<float>(t.y()),
                            static_cast<float>(t.z()));
-  settle_loss();  // OctoMap's own updates merge nodes without moving carried losses aside
-  insert_cloud(*tree_, cloud, o, max_range);
+  // OctoMap's own updates merge nodes without moving carried losses aside
+  insert_cloud(settled_tree(), cloud, o, max_range);
 }
 
 template void OccupancyMap::insert_scan<float>(const float*, std::size_t, const double*, double);

@@ -1,7 +1,8 @@
 // octofuse: log-odds arithmetic on whole maps (see arith.hpp).
 #include "octofuse/arith.hpp"
 
-#include "octofuse/detail/lazy_tree.hpp"
+#include "lazy_tree.hpp"
+#include "map_access.hpp"
 
 #include <algorithm>
 #include <array>
@@ -84,13 +85,15 @@ class ClampedCopier {
 }  // namespace
 
 void open_clamping(OccupancyMap& map) {
-  // OctoMap stores logodds(p) as float: p = 0 and p = 1 give -inf and +inf.
-  map.tree().setClampingThresMin(0.0);
-  map.tree().setClampingThresMax(1.0);
+  // OctoMap stores logodds(p) as float: p = 0 and p = 1 give -inf and +inf. No node changes.
+  OccupancyTree& t = detail::CarryingAccess::tree(map);
+  t.setClampingThresMin(0.0);
+  t.setClampingThresMax(1.0);
 }
 
 void negate_values(OccupancyMap& map) {
-  auto& t = map.tree();
+  // values only: nothing merges, so the losses the leaves carry stay with them
+  OccupancyTree& t = detail::CarryingAccess::tree(map);
   for (auto it = t.begin_tree(), end = t.end_tree(); it != end; ++it) {
     it->setLogOdds(-it->getLogOdds());
   }
@@ -98,8 +101,7 @@ void negate_values(OccupancyMap& map) {
 }
 
 void clamp_values(OccupancyMap& map) {
-  map.settle_loss();  // prune() merges nodes without moving carried losses aside
-  auto& t = map.tree();
+  OccupancyTree& t = map.settled_tree();  // prune() merges nodes without moving losses aside
   const float lo = t.getClampingThresMinLog();
   const float hi = t.getClampingThresMaxLog();
   for (auto it = t.begin_leafs(), end = t.end_leafs(); it != end; ++it) {
@@ -112,7 +114,7 @@ void clamp_values(OccupancyMap& map) {
 
 std::unique_ptr<OccupancyMap> clamped_copy(const OccupancyMap& map) {
   auto out = std::make_unique<OccupancyMap>(map.params());
-  ClampedCopier(map.tree(), out->tree()).run();
+  ClampedCopier(map.tree(), out->settled_tree()).run();
   return out;
 }
 
@@ -122,10 +124,8 @@ std::size_t assign_values(OccupancyMap& map, OccupancyMap& channel, const Occupa
   if (&map == &channel || &map == &msg || &channel == &msg) {
     throw std::invalid_argument("assign_values needs three different maps");
   }
-  map.settle_loss();
-  channel.settle_loss();
-  auto& tm = map.tree();
-  auto& tc = channel.tree();
+  OccupancyTree& tm = map.settled_tree();
+  OccupancyTree& tc = channel.settled_tree();
   const auto& src = msg.tree();
   const unsigned depth = src.getTreeDepth();
   std::size_t n = 0;

@@ -1,7 +1,7 @@
 // octofuse: leaves_with_values and scalar_values_and_depths.
 #include "octofuse/leaf_lookup.hpp"
 
-#include "octofuse/walk.hpp"
+#include "walk.hpp"
 
 #include <cmath>
 

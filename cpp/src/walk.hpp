@@ -1,7 +1,7 @@
 // octofuse: a node of an input tree as seen by a simultaneous walk of several trees.
 #pragma once
 
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
 
 #include <octomap/OcTreeKey.h>
 

@@ -2,8 +2,8 @@
 // once it is known to stay (new-tree fusion, clamped copies).
 #pragma once
 
+#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/tree.hpp"
-#include "octofuse/tree_access.hpp"
 
 #include <cstdint>
 

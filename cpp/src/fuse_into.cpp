@@ -1,11 +1,13 @@
 // octofuse: in-place fusion by a walk of the message tree down the destination tree.
 #include "octofuse/fuse_into.hpp"
 
-#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/parallel_for.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
-#include "octofuse/loss_tree.hpp"
-#include "octofuse/walk.hpp"
+
+#include "carried_loss_walk.hpp"
+#include "loss_tree.hpp"
+#include "map_access.hpp"
+#include "prune_or_max.hpp"
+#include "walk.hpp"
 
 #include <atomic>
 #include <deque>
@@ -351,24 +353,25 @@ void add_tree(detail::LossAdder& adder, const ScalarWalk& b, const LossCursor& c
 FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
                         UnknownPolicy unknown, ScalarTree* loss, unsigned threads) {
   check_compatible(dst, msg);
-  const bool carry = dst.carries_fusion_loss(loss);
+  const bool carry = detail::CarryingAccess::start_fusion(dst, loss);
+  OccupancyTree& tree = detail::CarryingAccess::tree(dst);
   FuseIntoStats st;
-  const bool parallel = threads > 1 && dst.tree().getRoot() != nullptr &&
+  const bool parallel = threads > 1 && tree.getRoot() != nullptr &&
                         msg.tree().getRoot() != nullptr;
   with_voxel_fusion(rule, unknown, dst.clamp_min_logodds(), dst.clamp_max_logodds(),
                     [&](auto& fusion) {
                       using Fusion = std::decay_t<decltype(fusion)>;
                       if (parallel) {
-                        st = ParallelInto<Fusion>{dst.tree(), loss, dst.clamp_min_logodds(),
+                        st = ParallelInto<Fusion>{tree, loss, dst.clamp_min_logodds(),
                                                   dst.clamp_max_logodds(), threads, carry, {}, {}}
                                  .run(msg.tree());
                         return;
                       }
-                      IntoWalker<Fusion> w{fusion, dst.tree(), detail::LossAdder(loss), {}, carry};
+                      IntoWalker<Fusion> w{fusion, tree, detail::LossAdder(loss), {}, carry};
                       w.run(msg.tree());
                       st = w.st;
                     });
-  detail::TreeAccess<OccupancyTree>::mark_changed(dst.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(tree);
   return st;
 }
 
@@ -376,7 +379,8 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
                                                     UnknownPolicy unknown, ScalarTree* loss_a,
                                                     ScalarTree* loss_b) {
   check_compatible(a, b);
-  OcNode *ra = a.tree().getRoot(), *rb = b.tree().getRoot();
+  OccupancyTree &ta = detail::CarryingAccess::tree(a), &tb = detail::CarryingAccess::tree(b);
+  OcNode *ra = ta.getRoot(), *rb = tb.getRoot();
   if (ra == nullptr || rb == nullptr) {
     // one map is empty: the other one's content is all the exchange carries
     const std::unique_ptr<OccupancyMap> a0 = ra == nullptr ? nullptr : std::make_unique<OccupancyMap>(a);
@@ -388,24 +392,24 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
   with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
                     [&](auto& fusion) {
                       using Fusion = std::decay_t<decltype(fusion)>;
-                      IntoWalker<Fusion> wa{fusion, a.tree(), detail::LossAdder(loss_a), {},
-                                            a.carries_fusion_loss(loss_a)};
-                      IntoWalker<Fusion> wb{fusion, b.tree(), detail::LossAdder(loss_b), {},
-                                            b.carries_fusion_loss(loss_b)};
+                      IntoWalker<Fusion> wa{fusion, ta, detail::LossAdder(loss_a), {},
+                                            detail::CarryingAccess::start_fusion(a, loss_a)};
+                      IntoWalker<Fusion> wb{fusion, tb, detail::LossAdder(loss_b), {},
+                                            detail::CarryingAccess::start_fusion(b, loss_b)};
                       MutualWalker<Fusion>{wa, wb}.run(ra, rb);
                       st = {wa.st, wb.st};
                     });
-  detail::TreeAccess<OccupancyTree>::mark_changed(a.tree());
-  detail::TreeAccess<OccupancyTree>::mark_changed(b.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(ta);
+  detail::TreeAccess<OccupancyTree>::mark_changed(tb);
   return st;
 }
 
 void subtract_into(OccupancyMap& dst, const OccupancyMap& msg) {
   check_compatible(dst, msg);
-  dst.settle_loss();
+  OccupancyTree& tree = dst.settled_tree();
   Difference fusion{{dst.clamp_min_logodds(), dst.clamp_max_logodds()}};
-  IntoWalker<Difference>{fusion, dst.tree(), detail::LossAdder(nullptr), {}}.run(msg.tree());
-  detail::TreeAccess<OccupancyTree>::mark_changed(dst.tree());
+  IntoWalker<Difference>{fusion, tree, detail::LossAdder(nullptr), {}}.run(msg.tree());
+  detail::TreeAccess<OccupancyTree>::mark_changed(tree);
 }
 
 void accumulate_loss(ScalarTree& acc, const ScalarTree& b) {

@@ -1,6 +1,8 @@
 // octofuse: the losses a map carries, settled into its loss map's tree or read as if they were.
 #include "octofuse/carried_loss.hpp"
 
+#include "loss_tree.hpp"
+
 namespace octofuse {
 
 namespace {

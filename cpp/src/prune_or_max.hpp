@@ -1,8 +1,8 @@
 // octofuse: ending an inner node of a tree after its children changed, in one pass.
 #pragma once
 
+#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/tree.hpp"
-#include "octofuse/tree_access.hpp"
 
 namespace octofuse::detail {
 

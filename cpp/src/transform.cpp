@@ -1,9 +1,10 @@
 // octofuse: rigid transforms and resampling of occupancy maps (forward splatting).
 #include "octofuse/transform.hpp"
 
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/text.hpp"
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
+
+#include "prune_or_max.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -205,7 +206,7 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
   params.resolution = resolution;
   params.validate();
   auto out = std::make_unique<OccupancyMap>(params);
-  OccupancyTree& dst = out->tree();
+  OccupancyTree& dst = out->settled_tree();
   const OccupancyTree& tree = src.tree();
   TransformStats st;
   st.source_leaves = tree.getNumLeafNodes();

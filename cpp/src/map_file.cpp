@@ -3,7 +3,7 @@
 #include "octofuse/map_file.hpp"
 
 #include "octofuse/detail/text.hpp"
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -333,7 +333,7 @@ std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::stri
     }
   }
   check_memory(path, counts);
-  OccupancyTree& tree = map->tree();
+  OccupancyTree& tree = map->settled_tree();
   OccupancyNode* root = OcTreeAccess::ensure_root(tree);
   Counts built;
   Reader b = start;

@@ -2,9 +2,10 @@
 #include "octofuse/compare.hpp"
 
 #include "octofuse/detail/pair_memo.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/rules.hpp"
-#include "octofuse/walk.hpp"
+
+#include "prune_or_max.hpp"
+#include "walk.hpp"
 
 #include <array>
 #include <cmath>
@@ -220,7 +221,7 @@ std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
   Differ d;
   const std::uint16_t k0[3] = {0, 0, 0};
   d.walk(W::root(current.tree()), W::root(previous.tree()), k0, 0);
-  build_from_leaves(out->tree(), d.out);
+  build_from_leaves(out->settled_tree(), d.out);
   return out;
 }
 

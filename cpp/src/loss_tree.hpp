@@ -1,9 +1,10 @@
 // octofuse: adding values into a scalar tree (accumulated information loss) along a walk.
 #pragma once
 
-#include "octofuse/detail/prune_or_max.hpp"
-#include "octofuse/occupancy_map.hpp"
-#include "octofuse/tree_access.hpp"
+#include "octofuse/detail/tree_access.hpp"
+#include "octofuse/tree.hpp"
+
+#include "prune_or_max.hpp"
 
 #include <cstring>
 #include <mutex>

@@ -12,6 +12,10 @@
 
 namespace octofuse {
 
+namespace detail {
+class CarryingAccess;
+}  // namespace detail
+
 /// Error raised for unreadable, truncated or foreign map files; the message names the file.
 class MapFileError : public std::runtime_error {
  public:
@@ -91,12 +95,6 @@ class OccupancyMap {
   void insert_scan_from_sensor(const Real* xyz, std::size_t n, const double pose[16],
                                double max_range);
 
-  /// Writes the map (write_map_file(): ".bt" or ".ot", atomically). Throws MapFileError.
-  void save(const std::string& path) const;
-
-  /// Reads a ".ot" or ".bt" file (read_map_file()). Throws MapFileError naming the file.
-  static std::unique_ptr<OccupancyMap> load(const std::string& path);
-
   /// Centres, sizes and log-odds of the leaves of class `which`.
   LeafArrays leaves(LeafClass which = LeafClass::All) const;
 
@@ -106,8 +104,15 @@ class OccupancyMap {
   std::uint64_t known_voxels() const;
   std::size_t num_nodes() const { return tree_->size(); }
   std::size_t memory_bytes() const { return tree_->memoryUsage(); }
-  OccupancyTree& tree() { return *tree_; }
+  /// The tree, to read. Its leaves may carry losses (carried_loss.hpp).
   const OccupancyTree& tree() const { return *tree_; }
+  /// The tree, to change: the losses its nodes carry are settled first (settle_loss()), so
+  /// that the change (OctoMap's own updates and pruning, new nodes) finds nodes that carry
+  /// nothing.
+  OccupancyTree& settled_tree() {
+    settle_loss();
+    return *tree_;
+  }
 
   /// Clamping thresholds as the float log-odds OctoMap stores.
   float clamp_min_logodds() const { return tree_->getClampingThresMinLog(); }
@@ -127,12 +132,11 @@ class OccupancyMap {
   /// Removes every voxel, freeing the nodes; the losses it carries are settled into its loss
   /// tree first (`keep_loss`) or go with the nodes (to free the map and its loss map together).
   void clear(bool keep_loss = true);
-  /// Whether a fusion into the map that adds into `loss` keeps those losses in the map's
-  /// nodes (`loss` is the tree the map carries); if not, what the map carries is settled
-  /// first, so that the fusion merges nodes as in a map that carries nothing.
-  bool carries_fusion_loss(ScalarTree* loss);
 
  private:
+  // the core's walks that change the tree with its carried losses in place (map_access.hpp)
+  friend class detail::CarryingAccess;
+
   MapParams params_;
   std::unique_ptr<OccupancyTree> tree_;
   ScalarTree* carried_loss_ = nullptr;

@@ -1,13 +1,15 @@
 // octofuse: batched scan insertion (ray keys once per scan, applied to several maps).
 #include "octofuse/insert.hpp"
 
-#include "octofuse/carried_loss.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
-#include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/ray_codes.hpp"
+#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/scan_check.hpp"
-#include "octofuse/tree_access.hpp"
+
+#include "carried_loss_walk.hpp"
+#include "map_access.hpp"
+#include "prune_or_max.hpp"
 
 #include <Eigen/Core>
 
@@ -204,12 +206,12 @@ void apply_each(OccupancyTree& tree, const std::vector<std::uint64_t>& items) {
 }
 
 void apply_items(OccupancyMap& map, const std::vector<std::uint64_t>& items) {
-  OccupancyTree& tree = map.tree();
-  if (tree.isChangeDetectionEnabled()) {
-    map.settle_loss();  // OctoMap's updateNode merges nodes without moving carried losses aside
-    apply_each(tree, items);
+  if (map.tree().isChangeDetectionEnabled()) {
+    // OctoMap's updateNode merges nodes without moving carried losses aside
+    apply_each(map.settled_tree(), items);
   } else {
-    BatchApplier(tree, map.carried_loss()).apply(items.data(), items.data() + items.size());
+    BatchApplier(detail::CarryingAccess::tree(map), map.carried_loss())
+        .apply(items.data(), items.data() + items.size());
   }
 }
 
@@ -279,7 +281,8 @@ void apply_scans(OccupancyMap& map, const std::vector<std::vector<std::uint64_t>
     } else {
       thread_local MergeBuffers buf;
       const std::vector<std::uint64_t>& items = merged_items(per_scan, &scans[k], count, buf);
-      BatchApplier(map.tree(), map.carried_loss()).apply(items.data(), items.data() + items.size());
+      BatchApplier(detail::CarryingAccess::tree(map), map.carried_loss())
+          .apply(items.data(), items.data() + items.size());
       buf.trim();
     }
   }

@@ -2,8 +2,8 @@
 // trees that can own one (ArenaTree).
 #pragma once
 
+#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/node_pool.hpp"
-#include "octofuse/tree_access.hpp"
 
 #include <octomap/OcTreeDataNode.h>
 
