@@ -18,7 +18,7 @@ from typing import Optional
 
 import click
 
-from ..interrupts import begin_command, cut_short, raise_if_interrupted
+from ..interrupts import begin_command, cut_short, exit_code, interruption, raise_if_interrupted
 from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
@@ -33,6 +33,7 @@ def entry() -> None:
     garbage collection (half a second after a demo): every file is written and closed."""
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     gc.freeze()
     sys.exit(code)
 
@@ -93,5 +94,5 @@ def _error(text: str) -> None:
 
 
 def _interrupted() -> int:
-    _error("interrupted")
-    return 130
+    _error(interruption())
+    return exit_code()
