@@ -26,12 +26,15 @@ import sys
 from typing import Iterator
 
 _interrupted = False
+_signal = signal.SIGINT  # the signal that interrupted
 _held = 0  # depth of held() blocks
 _outputs_in_place = False
 
 
 def _on_sigint(signum, frame) -> None:
-    global _interrupted
+    global _interrupted, _signal
+    if not _interrupted:
+        _signal = signal.Signals(signum)
     _interrupted = True
     sys.unraisablehook = _ignore_unraisable
     if _held or _outputs_in_place or _in_import_system(frame):
@@ -49,9 +52,21 @@ def _ignore_unraisable(unraisable) -> None:
 
 
 def remember_interrupts() -> None:
-    """Handle Ctrl-C as Python does and also remember it (the ``octofuse`` program; call on
-    the main thread)."""
+    """Handle Ctrl-C as Python does and also remember it, and SIGTERM (``kill``, a job
+    scheduler's stop) as Ctrl-C (the ``octofuse`` program; call on the main thread)."""
     signal.signal(signal.SIGINT, _on_sigint)
+    signal.signal(signal.SIGTERM, _on_sigint)
+
+
+def exit_code() -> int:
+    """The exit code of an interrupted command: 128 + the signal's number (130 for Ctrl-C,
+    143 for SIGTERM), as a shell reports a death by that signal."""
+    return 128 + int(_signal)
+
+
+def interruption() -> str:
+    """How the command was interrupted, for its one line: "interrupted" or "terminated"."""
+    return "terminated" if _signal == signal.SIGTERM else "interrupted"
 
 
 def begin_command() -> None:

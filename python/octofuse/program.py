@@ -9,12 +9,12 @@ import sys
 
 def run() -> None:
     """Import the command line and run it (:func:`octofuse.cli.entry`)."""
-    from .interrupts import remember_interrupts
+    from .interrupts import exit_code, interruption, remember_interrupts
 
     remember_interrupts()
     try:
         from .cli import entry
     except KeyboardInterrupt:
-        sys.stderr.write("error: interrupted\n")
-        sys.exit(130)
+        sys.stderr.write(f"error: {interruption()}\n")
+        sys.exit(exit_code())
     entry()

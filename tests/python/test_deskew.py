@@ -183,3 +183,26 @@ def test_lab8_batched_lookups_match_the_per_scan_path():
     per_scan, batched = scans_both_ways(make_build_config(str(LAB8), scan_stride=40))
     assert len(batched[0]) == 8 * 15
     assert_same_scans(per_scan, batched)
+
+
+@pytest.mark.parametrize("increment,reason", [
+    (-1.0, "negative time_increment"), (1e30, "span more than"), (0.5, "span more than")])
+def test_scans_that_cannot_sweep_so_are_skipped_and_deskew_is_reported(tmp_path, increment, reason):
+    from octofuse.outputs.tables import skip_notes
+
+    robot = bf.Robot("r1", start=(0.5, 0.2, 0.3), sensor="laser")
+    rec = bf.Recording()
+    rec.robot_tf(robot, [bf.T0 + k * S // 10 for k in range(0, 30)])
+    for k in range(6):
+        rec.robot_scan(robot, bf.T0 + S // 5 + k * S // 4, beams=BEAMS)
+        topic, msgtype, log_ns, make = rec.records[-1]
+        inc = increment if k % 2 else TIME_INCREMENT
+        rec.records[-1] = (topic, msgtype, log_ns,
+                           lambda ts, make=make, inc=inc: dataclasses.replace(make(ts), time_increment=inc))
+    result = build(make_build_config(rec.write(tmp_path / "odd", "mcap"), resolution=0.1))
+    (stats,) = result.stats
+    assert stats.scans_used == 3 and sum(stats.skipped.values()) == 3
+    assert reason in next(iter(stats.skipped))
+    notes = skip_notes(result)
+    assert any("skipped 3 scan(s)" in n and reason in n for n in notes)
+    assert "r1: de-skewed all 3 LaserScan(s) (beam times from time_increment)" in notes

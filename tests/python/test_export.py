@@ -404,3 +404,18 @@ def test_the_imports_ahead_begin_no_library_once_interrupted(monkeypatch):
         monkeypatch.setattr(libraries, "interrupted", lambda: next(asked))
         libraries._load_output_libraries()
         assert calls == expected
+
+
+@pytest.mark.parametrize("key,value", [("values", np.inf), ("values", 1e300), ("values", np.nan),
+                                       ("values", -1.0), ("sizes", 0.0), ("centers", np.nan)])
+def test_loss_files_with_impossible_values_are_refused_naming_the_array(tmp_path, key, value):
+    from octofuse.maps.infoloss import read_info_loss
+
+    arrays = {"centers": np.zeros((2, 3)), "sizes": np.full(2, 0.1), "values": np.array([0.5, 0.2]),
+              "depths": np.full(2, 16, np.uint8)}
+    arrays[key] = arrays[key].astype(np.float64)
+    arrays[key][1] = value
+    p = tmp_path / "loss.npz"
+    np.savez(p, **arrays)
+    with pytest.raises(ValueError, match=rf"'{p}': {key} holds 1 bad entry \(first at index 1"):
+        read_info_loss(p)

@@ -448,3 +448,63 @@ def test_leaves_of_a_class_are_those_leaves_of_all(seed):
             assert np.array_equal(getattr(got, name), getattr(every, name)[sel]), (voxels, name)
     with pytest.raises(ValueError, match="voxels = 'walls': expected 'occupied', 'free' or 'all'"):
         m.leaves("walls")
+
+
+# -- values no OctoMap clamping produces ---------------------------------------------------
+import struct  # noqa: E402
+import warnings  # noqa: E402
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from octofuse.maps.occupancy import MapFileError, MapValueWarning  # noqa: E402
+
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def _f32(x):
+    return float(np.float32(x))
+
+
+def _with_values(tmp_path, values):
+    """A small .ot file whose first len(values) nodes hold ``values`` (depth-first order)."""
+    m = octofuse.OccupancyMap(0.1)
+    m.insert_scan(np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0]]), [0, 0, 0])
+    p = tmp_path / "m.ot"
+    m.save(p)
+    raw = bytearray(p.read_bytes())
+    start = raw.index(b"data\n") + 5
+    n = (len(raw) - start) // 5
+    for k, v in enumerate(values):
+        i = start + 5 * (k % n)
+        raw[i:i + 4] = struct.pack("<f", v)
+    p.write_bytes(bytes(raw))
+    return p
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.one_of(st.floats(-_F32_MAX, _f32(-2.01), width=32),
+                          st.floats(_f32(3.52), _F32_MAX, width=32)), min_size=1, max_size=6))
+def test_values_outside_the_clamping_range_are_clamped_with_one_warning(tmp_path_factory, values):
+    p = _with_values(tmp_path_factory.mktemp("v"), values)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        m = octofuse.OccupancyMap.load(p)
+    assert [type(w.message) for w in seen] == [MapValueWarning]
+    assert str(p) in str(seen[0].message) and "clamped" in str(seen[0].message)
+    lo, hi = m.clamping_logodds
+    v = m.leaves().values
+    assert v.min() >= lo - 1e-5 and v.max() <= hi + 1e-5
+
+
+@pytest.mark.parametrize("value", [1e-40, -1e-42])
+def test_subnormal_values_are_refused_naming_the_file(tmp_path, value):
+    p = _with_values(tmp_path, [0.5, value])
+    with pytest.raises(MapFileError, match=r"m\.ot.*subnormal"):
+        octofuse.OccupancyMap.load(p)
+
+
+def test_maps_octomap_writes_load_without_warnings(tmp_path):
+    p = _with_values(tmp_path, [])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        octofuse.OccupancyMap.load(p)

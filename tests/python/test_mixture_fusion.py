@@ -280,3 +280,103 @@ def test_operations_keep_the_class_of_their_input_and_refuse_other_beliefs():
 def test_wep_costs_reject_non_finite_log_densities():
     with pytest.raises(ValueError, match="finite"):
         WepCosts(np.array([0.0, -np.inf]), np.zeros(2), np.zeros(2))
+
+
+# -- accuracy against closed forms, bounds, argument contracts ---------------------------------
+from scipy.optimize import minimize_scalar  # noqa: E402
+
+from octofuse.beliefs.mixture_fusion import MAX_PAIRS  # noqa: E402
+
+
+def _wep_1d(w, ma=0.0, va=1.0, mb=2.0, vb=4.0):
+    """Mean, variance and log normaliser of N(ma, va)^w N(mb, vb)^(1-w), exactly."""
+    lam = w / va + (1 - w) / vb
+    eta = w * ma / va + (1 - w) * mb / vb
+    log_c = (-0.5 * (w * ma * ma / va + (1 - w) * mb * mb / vb - eta * eta / lam)
+             + 0.5 * np.log(2 * np.pi / lam) - 0.5 * w * np.log(2 * np.pi * va)
+             - 0.5 * (1 - w) * np.log(2 * np.pi * vb))
+    return eta / lam, 1 / lam, log_c
+
+
+def _closed_form(rule):
+    if rule == "chernoff":
+        cost = lambda w: _wep_1d(w)[2]  # noqa: E731
+    else:  # KL(p_NB || p_w), p_NB = N(0.4, 0.8)
+        def cost(w):
+            m, v, _ = _wep_1d(w)
+            return 0.5 * np.log(v / 0.8) + (0.8 + (0.4 - m) ** 2) / (2 * v) - 0.5
+    w = minimize_scalar(cost, bounds=(0, 1), method="bounded", options={"xatol": 1e-10}).x
+    return w, _wep_1d(w)[1]
+
+
+@pytest.mark.parametrize("rule,seeds", [("chernoff", 40), ("min-info-loss", 8)])
+def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_percent(rule, seeds):
+    w_true, var_true = _closed_form(rule)
+    if rule == "chernoff":
+        assert w_true == pytest.approx(0.3522, abs=1e-4) and var_true == pytest.approx(1.9449, abs=1e-4)
+    a, b = GaussianMixture.gaussian([0.0], [[1.0]]), GaussianMixture.gaussian([2.0], [[4.0]])
+    res = [fuse_mixtures(a, b, rule=rule, seed=s) for s in range(seeds)]
+    omega = np.array([r.omega for r in res])
+    var = np.array([r.mixture.moments()[1][0, 0] for r in res])
+    err = np.array([r.std_error for r in res])
+    assert np.sqrt(np.mean((var / var_true - 1) ** 2)) < 0.01  # 1 % (1 sd), bias included
+    assert np.sqrt(np.mean((omega - w_true) ** 2)) < 0.008
+    assert np.all((err > 0) & (err <= 0.005 + 1e-12) | (np.array([r.n_samples for r in res]) >= 1 << 15))
+    assert np.sqrt(np.mean((omega - w_true) ** 2)) < 3 * np.mean(err)  # the error it reports
+
+
+def test_fixed_sample_counts_report_their_standard_error():
+    a, b = GaussianMixture.gaussian([0.0], [[1.0]]), GaussianMixture.gaussian([2.0], [[4.0]])
+    small, large = (fuse_mixtures(a, b, rule="chernoff", n_samples=n, seed=1) for n in (500, 8000))
+    assert small.n_samples == 500 and large.n_samples == 8000
+    assert small.std_error > large.std_error > 0
+    assert fuse_mixtures(a, b, omega=0.3, seed=1).std_error == 0.0
+
+
+def test_too_many_component_pairs_are_refused_before_any_work():
+    k = int(np.sqrt(MAX_PAIRS)) + 1
+    big = GaussianMixture(np.ones(k), np.arange(k, dtype=float)[:, None], np.ones((k, 1, 1)))
+    with pytest.raises(ValueError, match=r"a has \d+ components and b \d+.*reduce") as info:
+        fuse_mixtures(big, big, seed=0)
+    assert str(k * k) in str(info.value)
+    huge = GaussianMixture(np.ones(3000), np.arange(3000.0)[:, None], np.ones((3000, 1, 1)))
+    with pytest.raises(ValueError, match="component pairs"):
+        fuse_mixtures(huge, huge, seed=0)
+
+
+def test_sample_counts_beyond_memory_are_refused_naming_the_argument():
+    a = random_mixture(0, m=10)
+    with pytest.raises(ValueError, match="n_samples=.*GB.*lower n_samples"):
+        fuse_mixtures(a, a, n_samples=10**12, seed=0)
+    with pytest.raises(ValueError, match="lower pair_samples"):
+        fuse_mixtures(a, random_mixture(1, m=10), pair_samples=10**11, n_samples=100, seed=0)
+
+
+@pytest.mark.parametrize("kwargs,error,match", [
+    ({"n_samples": 12.5}, ValueError, "n_samples"),
+    ({"n_samples": "many"}, TypeError, "n_samples"),
+    ({"n_samples": float("nan")}, ValueError, "n_samples"),
+    ({"pair_samples": 1}, ValueError, "pair_samples"),
+    ({"omega_tol": 0.0}, ValueError, "omega_tol"),
+])
+def test_bad_counts_name_the_argument(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        fuse_mixtures(random_mixture(0), random_mixture(1), seed=0, **kwargs)
+
+
+def test_from_dict_and_moments_refuse_with_value_errors():
+    with pytest.raises(ValueError, match="covariances"):
+        GaussianMixture.from_dict({"weights": [1.0], "means": [[0.0]]})
+    with pytest.raises(TypeError, match="mapping"):
+        GaussianMixture.from_dict([1.0])
+    m = GaussianMixture([0.5, 0.5], [[1e308, 0.0], [-1e308, 0.0]], [np.eye(2)] * 2)
+    with pytest.raises(ValueError, match="overflows"):
+        m.moments()
+
+
+def test_range_likelihood_refuses_ranges_whose_coefficients_overflow():
+    from octofuse.beliefs.expoly import ExPoly2D
+
+    for z, a in ((1e-200, 1.0), (1e200, 1.0), (1e-160, 1e300)):
+        with pytest.raises(ValueError, match="measured_range"):
+            ExPoly2D.range_likelihood([0.0, 0.0], z, a=a)

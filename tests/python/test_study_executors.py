@@ -186,11 +186,13 @@ def test_grid_and_bad_axes(bag):
         run_study(cfg, ["ring"], "/nonexistent/never", schedules=["sometimes"], executor="serial")
 
 
-def test_asking_for_ray_without_it_runs_serially_with_a_hint(monkeypatch):
+def test_asking_for_ray_by_name_without_it_is_refused(monkeypatch):
     monkeypatch.setattr(executors, "ray_available", lambda: False)
     said: list[str] = []
-    ex = make_executor("ray", log=said.append)
-    assert isinstance(ex, SerialExecutor) and said == [executors.RAY_HINT]
+    with pytest.raises(ValueError, match="Ray is not installed"):
+        make_executor("ray", log=said.append)
+    with pytest.raises(ValueError, match="Ray is not installed"):
+        make_executor("auto", address="ray://head:10001")
     said.clear()
     assert isinstance(make_executor("auto", log=said.append), SerialExecutor) and not said
     with pytest.raises(ValueError, match="unknown executor"):

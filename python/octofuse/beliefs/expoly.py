@@ -10,6 +10,8 @@ process noise is the approximation of :meth:`ExPoly2D.diffuse`.
 
 from __future__ import annotations
 
+import math
+
 from math import comb
 
 import numpy as np
@@ -103,7 +105,10 @@ class ExPoly2D:
             raise ValueError(f"measured range must be positive and finite, got {measured_range}")
         if not (np.isfinite(a) and a > 0.0):
             raise ValueError(f"sharpness a must be positive and finite, got {a}")
-        k = a / z**2
+        k = a / (z * z) if z * z > 0.0 else math.inf
+        if not (math.isfinite(k) and math.isfinite(a * z * z) and k > 0.0):
+            raise ValueError(f"measured_range={measured_range!r} with a={a!r}: the "
+                             "coefficients a / range^2 and a range^2 must be finite and positive")
         c = np.zeros((5, 5))  # k (u^2 + v^2)^2 - 2a (u^2 + v^2) + a z^2 around the sensor
         c[4, 0], c[0, 4], c[2, 2] = k, k, 2 * k
         c[2, 0], c[0, 2], c[0, 0] = -2 * a, -2 * a, a * z * z

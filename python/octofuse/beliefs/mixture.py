@@ -9,6 +9,8 @@ The operations live below this class and take any mixture: the closed-form produ
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from .base import check_weight
@@ -89,6 +91,13 @@ class GaussianMixture:
 
     @classmethod
     def from_dict(cls, d: dict) -> GaussianMixture:
+        """The mixture of :meth:`to_dict`: a mapping with ``weights``, ``means`` and ``covariances``."""
+        if not isinstance(d, Mapping):
+            raise TypeError(f"from_dict expects a mapping, got {type(d).__name__}")
+        missing = [k for k in ("weights", "means", "covariances") if k not in d]
+        if missing:
+            raise ValueError(f"mixture dict lacks {', '.join(missing)}: expected the keys weights, "
+                             "means and covariances")
         return cls(d["weights"], d["means"], d["covariances"])
 
     # -- evaluation -----------------------------------------------------------------------
@@ -130,8 +139,12 @@ class GaussianMixture:
         """Mean ``(d,)`` and covariance ``(d, d)`` of the whole mixture."""
         mean = self.weights @ self.means
         diff = self.means - mean
-        cov = np.einsum("m,mij->ij", self.weights, self.covariances)
-        cov += np.einsum("m,mi,mj->ij", self.weights, diff, diff)
+        with np.errstate(over="ignore", invalid="ignore"):
+            cov = np.einsum("m,mij->ij", self.weights, self.covariances)
+            cov += np.einsum("m,mi,mj->ij", self.weights, diff, diff)
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise ValueError("the mixture's mean or covariance overflows float64 (components "
+                             "too far apart or too wide); rescale its units")
         return mean, cov
 
     # -- closed-form products ---------------------------------------------------------------

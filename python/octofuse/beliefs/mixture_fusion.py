@@ -40,11 +40,19 @@ Fused mixture at the chosen w (``method``):
 
 ``naive-bayes`` ignores ``method`` (its product is exact). All results are reduced to
 ``max_components`` by Runnalls' method.
+
+Sample counts: by default (``n_samples=None``) the omega search starts with ``ADAPTIVE_START``
+draws and redraws with more (as many as the standard error asks for, at least twice as many) until the standard error of omega (batch means over ``BATCHES``
+batches, reported as ``std_error``) is at most ``omega_tol``, or the count reaches
+``ADAPTIVE_MAX`` or the memory bound. Sizes are checked before any work: more than ``MAX_PAIRS``
+component pairs (``a``'s components times ``b``'s), or arrays needing more than half of the
+machine's memory, are refused with a ``ValueError`` naming the argument to lower.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +67,11 @@ MIXTURE_RULES = ("naive-bayes",) + OMEGA_RULES
 MIXTURE_METHODS = ("moment-match", "em", "foci")
 DEFENSIVE_SHARE = 0.1  # weight of each side's own mixture in the omega-search density
 PROPOSAL_INFLATION = 2.0  # moment matching samples each pair from its FOCI term, covariance x 2
+ADAPTIVE_START = 4000  # first omega-search draw of the adaptive count
+ADAPTIVE_MAX = 1 << 16  # largest adaptive count
+OMEGA_TOL = 0.005  # standard error of omega the adaptive count aims at
+BATCHES = 8  # batches of the standard error's batch means
+MAX_PAIRS = 2500  # component pairs: Runnalls' reduction of them costs O(pairs^3) time
 
 
 @dataclass(frozen=True)
@@ -77,10 +90,13 @@ class MixtureFusion:
     info_loss: float  #: KL(p_NB || p_w), the approximate information loss of paper 000 eq. 9
     info_a: float  #: KL(p_a || prior) (NaN without a prior)
     info_b: float  #: KL(p_b || prior)
+    #: standard error of ``omega`` (batch means; 0 when omega is fixed, NaN for naive-bayes)
+    std_error: float = math.nan
 
     def summary(self) -> dict:
         out = {k: getattr(self, k) for k in ("omega", "rule", "method", "ess", "n_samples", "restarts",
-                                            "kl_to_a", "kl_to_b", "info_loss", "info_a", "info_b")}
+                                            "kl_to_a", "kl_to_b", "info_loss", "info_a", "info_b",
+                                            "std_error")}
         out["n_components"] = self.mixture.n_components
         return out
 
@@ -137,6 +153,8 @@ def moment_match(a: M, b: M, w: float, n_per_pair: int, rng) -> M:
     f = foci(a, b, w)
     if f.n_components != a.n_components * b.n_components:
         raise ValueError("moment matching needs mixtures without zero-weight components")
+    if f.n_components == 1:  # p_a^w p_b^(1-w) of two Gaussians is their FOCI Gaussian, exactly
+        return f
     d = a.dim
     n_pairs = f.n_components
     q = np.repeat(np.arange(a.n_components), b.n_components)
@@ -186,7 +204,7 @@ def fuse_mixtures(
     a: Mixture,
     b: Mixture,
     rule: str = "min-info-loss",
-    n_samples: int = 1000,
+    n_samples: int | None = None,
     method: str = "moment-match",
     max_components: int = 15,
     prior: Mixture | None = None,
@@ -196,14 +214,17 @@ def fuse_mixtures(
     pair_samples: int | None = None,
     ess_fraction: float = 0.2,
     max_restarts: int = 3,
+    omega_tol: float = OMEGA_TOL,
 ) -> MixtureFusion:
     """Fuse mixture ``b`` into mixture ``a`` with a WEP ``rule`` (``omega`` is the weight on ``a``).
 
     ``prior`` (the common prior mixture) is required by ``kld-weighted-chernoff`` and, when given,
     the information gains ``KL(a || prior)``, ``KL(b || prior)`` (Monte Carlo, ``4 n_samples`` draws
     each) are reported for every rule.
-    ``omega`` fixes the weight and skips the search. ``pair_samples`` is the number of importance
-    samples per component pair for ``moment-match`` (default ``max(64, n_samples // 4)``).
+    ``omega`` fixes the weight and skips the search. ``n_samples`` fixes the omega search's draws
+    (default: adaptive until omega's standard error is at most ``omega_tol``, see the module
+    docstring). ``pair_samples`` is the number of importance samples per component pair for
+    ``moment-match`` (default ``max(64, n_samples // 4)``).
     ``seed`` is an int or a numpy Generator. See the module docstring for rules and methods.
     """
     check_pair(a, b)
@@ -211,32 +232,45 @@ def fuse_mixtures(
     rule = check_rule(rule)
     if method not in MIXTURE_METHODS:
         raise ValueError(f"unknown mixture fusion method {method!r}; valid methods are: {', '.join(MIXTURE_METHODS)}")
-    n_samples = int(n_samples)
-    if n_samples < 10:
-        raise ValueError(f"n_samples must be at least 10; got {n_samples}")
+    adaptive = n_samples is None
+    n_samples = ADAPTIVE_START if adaptive else _count("n_samples", n_samples, 10)
+    if pair_samples is not None:
+        pair_samples = _count("pair_samples", pair_samples, 2)
+    omega_tol = float(omega_tol)
+    if not omega_tol > 0.0:
+        raise ValueError(f"omega_tol must be positive; got {omega_tol}")
     if rule == "kld-weighted-chernoff" and prior is None and omega is None:
         raise ValueError("kld-weighted-chernoff needs the common prior mixture (prior=...)")
     if prior is not None:
         check_pair(a, prior)
     if omega is not None:
         omega = check_weight(omega)
+    n_max = check_size(a, b, n_samples, pair_samples, method, ADAPTIVE_MAX if adaptive else n_samples)
     rng = as_rng(seed)
     info_a = info_b = math.nan
     if prior is not None:
         info_a = _estimate_info(a, prior, 4 * n_samples, rng)
         info_b = _estimate_info(b, prior, 4 * n_samples, rng)
     nb, log_z_nb, _ = product(a, b)
-    x_nb = nb.sample(n_samples, rng)
-    nb_log_a, nb_log_b = float(np.mean(a.logpdf(x_nb))), float(np.mean(b.logpdf(x_nb)))
 
     if rule == "naive-bayes" and omega is None:
-        fused = runnalls_reduce(nb, max_components)
+        fused = _finite(runnalls_reduce(nb, max_components))
         return MixtureFusion(fused, math.nan, rule, method, math.nan, n_samples, 0,
                              math.nan, math.nan, 0.0, info_a, info_b)
 
-    w, x, costs, restarts = search_omega(
-        a, b, rule, n_samples, rng, nb_mean_diff=nb_log_a - nb_log_b, info_a=info_a, info_b=info_b,
-        omega=omega, ess_fraction=ess_fraction, max_restarts=max_restarts)
+    while True:
+        x_nb = nb.sample(n_samples, rng)
+        nb_a, nb_b = a.logpdf(x_nb), b.logpdf(x_nb)
+        nb_diff, nb_log_a, nb_log_b = nb_a - nb_b, float(np.mean(nb_a)), float(np.mean(nb_b))
+        w, x, costs, restarts = search_omega(
+            a, b, rule, n_samples, rng, nb_mean_diff=nb_log_a - nb_log_b, info_a=info_a,
+            info_b=info_b, omega=omega, ess_fraction=ess_fraction, max_restarts=max_restarts)
+        std_error = 0.0 if omega is not None else _omega_std_error(costs, rule, nb_diff, info_a, info_b)
+        if not adaptive or std_error <= omega_tol or n_samples >= n_max:
+            break
+        # the count the standard error asks for (it falls as 1 / sqrt(n)), at least doubled
+        wanted = n_samples * (std_error / omega_tol) ** 2 * 1.2 if math.isfinite(std_error) else n_max
+        n_samples = int(min(max(wanted, 2 * n_samples), n_max))
     if costs.flat or w == 1.0:  # equal densities (p_w is either of them for every w), or w = 1
         fused = a
     elif w == 0.0:
@@ -247,9 +281,83 @@ def fuse_mixtures(
         init = runnalls_reduce(foci(a, b, w), max_components)
         fused = weighted_em(x, costs.weights(w), init)
     else:
-        n_pair = int(pair_samples) if pair_samples is not None else max(64, n_samples // 4)
+        n_pair = pair_samples if pair_samples is not None else max(64, n_samples // 4)
         fused = moment_match(a, b, w, n_pair, rng)
-    fused = runnalls_reduce(fused, max_components)
+    fused = _finite(runnalls_reduce(fused, max_components))
     return MixtureFusion(fused, float(w), rule, method, costs.ess(w), n_samples, restarts,
                          costs.kl_to_a(w), costs.kl_to_b(w),
-                         costs.info_loss(w, nb_log_a, nb_log_b, log_z_nb), info_a, info_b)
+                         costs.info_loss(w, nb_log_a, nb_log_b, log_z_nb), info_a, info_b,
+                         std_error)
+
+
+def _count(name: str, value, least: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer, float, np.floating)):
+        raise TypeError(f"{name} must be an integer; got {type(value).__name__}")
+    if not (math.isfinite(float(value)) and float(value) == int(value)):
+        raise ValueError(f"{name} must be a whole number; got {value!r}")
+    if int(value) < least:
+        raise ValueError(f"{name} must be at least {least}; got {int(value)}")
+    return int(value)
+
+
+def _memory() -> float:
+    try:
+        return float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError):
+        return float("inf")
+
+
+def check_size(a: M, b: M, n_samples: int, pair_samples: int | None, method: str,
+               n_max: int) -> int:
+    """Refuse, before any work, a fusion of ``a`` and ``b`` too large to finish: more than
+    ``MAX_PAIRS`` component pairs, or arrays of more than half of the machine's memory with
+    ``n_samples`` draws (``ValueError`` naming the argument). Returns the largest draw count
+    (at most ``n_max``) that fits."""
+    ma, mb, d = a.n_components, b.n_components, a.dim
+    pairs = ma * mb
+    if pairs > MAX_PAIRS:
+        raise ValueError(
+            f"a has {ma} components and b {mb}: fusing them needs {pairs} component pairs, more than "
+            f"{MAX_PAIRS}; reduce them first (GaussianMixture.reduce(k), k * k <= {MAX_PAIRS})")
+    budget = 0.5 * _memory()
+
+    def need(n: int) -> float:  # the largest arrays alive at once, float64, with temporaries
+        search = 8.0 * n * (pairs + ma + mb) * (d + 2)
+        n_pair = pair_samples if pair_samples is not None else max(64, n // 4)
+        match = 8.0 * pairs * n_pair * (ma + mb) * (d + 2) if method == "moment-match" else 0.0
+        return max(search, match, 8.0 * pairs * pairs)
+
+    if need(n_samples) > budget:
+        what = ("pair_samples" if pair_samples is not None and method == "moment-match"
+                and need(n_samples) > 8.0 * n_samples * (pairs + ma + mb) * (d + 2) else "n_samples")
+        raise ValueError(
+            f"fusing a ({ma} components) and b ({mb}) with n_samples={n_samples} needs about "
+            f"{need(n_samples) / 1e9:.3g} GB, more than half of this machine's {2 * budget / 1e9:.3g} GB; "
+            f"lower {what} or reduce the mixtures first")
+    while n_max > n_samples and need(n_max) > budget:
+        n_max //= 2
+    return max(n_max, n_samples)
+
+
+def _omega_std_error(costs, rule, nb_diff, info_a, info_b) -> float:
+    """Standard error of the chosen omega: the spread of the omegas of ``BATCHES`` disjoint
+    batches of the samples (each with its batch of the naive-Bayes draws) over sqrt(BATCHES)."""
+    if rule == "bhattacharyya" or costs.flat:
+        return 0.0
+    n = min(costs.n, len(nb_diff)) // BATCHES * BATCHES
+    omegas = []
+    for k in range(BATCHES):
+        idx = np.arange(k, n, BATCHES)
+        try:
+            omegas.append(choose_omega(costs.subset(idx), rule, float(np.mean(nb_diff[idx])),
+                                       info_a, info_b))
+        except ValueError:  # a batch without finite costs
+            return math.inf
+    return float(np.std(omegas, ddof=1) / math.sqrt(BATCHES))
+
+
+def _finite(m: M) -> M:
+    if not (np.all(np.isfinite(m.weights)) and np.all(np.isfinite(m.means))
+            and np.all(np.isfinite(m.covariances))):
+        raise ValueError("the fused mixture is not finite (the inputs' scales overflow float64)")
+    return m

@@ -36,12 +36,17 @@ class WepCosts:
         if not (np.all(np.isfinite(log_a)) and np.all(np.isfinite(log_b)) and np.all(np.isfinite(log_g))):
             raise ValueError("log densities at the importance samples must be finite")
         self.n = log_a.shape[0]
+        self._raw = (log_a, log_b, log_g)
         self.log_a_scale = float(logsumexp(log_a - log_g) - np.log(self.n))
         self.log_b_scale = float(logsumexp(log_b - log_g) - np.log(self.n))
         self.a = log_a - self.log_a_scale
         self.b = log_b - self.log_b_scale
         self.log_g = log_g
         self.diff = self.a - self.b
+
+    def subset(self, index) -> "WepCosts":
+        """The costs of the samples ``index`` alone (batch estimates of the standard error)."""
+        return WepCosts(*(v[index] for v in self._raw))
 
     @property
     def flat(self) -> bool:

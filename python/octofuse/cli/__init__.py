@@ -14,15 +14,18 @@ import gc
 import os
 import signal
 import sys
+import warnings
 from typing import Optional
 
 import click
 
-from ..interrupts import begin_command, cut_short, raise_if_interrupted
+from ..interrupts import begin_command, cut_short, exit_code, interruption, raise_if_interrupted
 from . import belief_commands, map_commands, network_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]
+
+_python_showwarning = warnings.showwarning
 
 
 def entry() -> None:
@@ -33,6 +36,7 @@ def entry() -> None:
     garbage collection (half a second after a demo): every file is written and closed."""
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     gc.freeze()
     sys.exit(code)
 
@@ -42,6 +46,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug). An
     error after a Ctrl-C is the Ctrl-C's (a library turned it into an error of its own)."""
     begin_command()
+    warnings.showwarning = _show_warning
     try:
         args = sys.argv[1:] if argv is None else list(argv)
         with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below
@@ -92,6 +97,15 @@ def _error(text: str) -> None:
     click.echo(f"error: {text}", err=True)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning about the input (a category defined by octofuse) as one ``warning:`` line;
+    other warnings as Python shows them."""
+    if category.__module__.startswith("octofuse."):
+        click.echo(f"warning: {' '.join(str(message).split())}", err=True)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
 def _interrupted() -> int:
-    _error("interrupted")
-    return 130
+    _error(interruption())
+    return exit_code()

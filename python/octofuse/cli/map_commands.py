@@ -46,8 +46,11 @@ def build(bags, **p):
 def export(src, out, all_voxels, cmap):
     """Write a map or an information-loss file as a PLY/PCD point cloud, or convert .ot/.bt."""
     from ..outputs.export import export_map
+    from ..outputs.staging import staged_file
 
-    say(str(export_map(src, out, occupied_only=not all_voxels, cmap=cmap)))
+    with staged_file(out) as tmp:  # in place only when complete; an interruption keeps the old
+        result = export_map(src, tmp, occupied_only=not all_voxels, cmap=cmap)
+    say(str(result._replace(path=out)))
 
 
 @cli.command()
@@ -77,6 +80,7 @@ def info(maps):
 def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, out):
     """Fuse map files (A.ot B.ot ... -> OUT.ot), each in its own frame and resolution."""
     from ..maps.frames import fuse_map_files, parse_frame
+    from ..outputs.staging import staged_file
     from ..rules import parse_rule
 
     parse_rule(rule)
@@ -85,13 +89,25 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
     if len(maps) < 2:
         raise click.UsageError("give at least two map files")
     frames = dict(parse_frame(f) for f in frame)
-    fused, _, stats = fuse_map_files(list(maps), rule=rule, unknown=unknown, frames=frames or None,
-                                     resolution=resolution, strict=strict)
-    fused.save(out)
-    if export_bag is not None:
-        from ..outputs.rosbag_export import write_map_bag
+    bag = None
+    if export_bag is not None:  # checked before the work
+        from ..outputs.rosbag_export import MapBagWriter
 
-        write_map_bag(export_bag, {out.stem: fused})
+        bag = MapBagWriter(export_bag)
+    try:
+        fused, _, stats = fuse_map_files(list(maps), rule=rule, unknown=unknown,
+                                         frames=frames or None, resolution=resolution,
+                                         strict=strict)
+        with staged_file(out, also=() if bag is None else (bag.put_in_place,)) as tmp:
+            fused.save(tmp)
+            if bag is not None:
+                from ..outputs.rosbag_export import MapEvent
+
+                bag.write(MapEvent(out.stem, 0, fused))
+                bag.finish()
+    finally:
+        if bag is not None:
+            bag.abort()  # nothing once in place
     d = stats.as_dict()
     say(f"wrote {out}: {fused.num_leaves} leaves at {fused.resolution:g} m; " +
         ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items()))

@@ -118,11 +118,11 @@ def _staged_with_bag(out: Path, command: str, bag):
     None) finished before the folder is put in place, and dropped if anything fails."""
     from ..outputs.staging import staged_folder
 
-    try:
-        with staged_folder(out, command) as stage:
+    try:  # the bag put in place in the step that puts the folder in place
+        with staged_folder(out, command, also=() if bag is None else (bag.put_in_place,)) as stage:
             yield stage
             if bag is not None:
-                bag.close()
+                bag.finish()
     finally:
         if bag is not None:
             bag.abort()  # nothing once closed

@@ -5,8 +5,8 @@ executor runs a picklable top-level function on each cell's payload and reports 
 outcome as soon as it is known, success or failure, so one failing cell (a bad bag, a worker
 killed for memory) is reported with its error while the others go on.
 
-Ray is optional and imported only when a Ray executor is made. Without it,
-:func:`make_executor` falls back to the serial executor with a one-line hint.
+Ray is optional and imported only when a Ray executor is made. Without it, ``auto`` falls back
+to the serial executor; ``ray`` (or a cluster address), asked for by name, is refused.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Protocol, Sequence
 
 EXECUTORS = ("auto", "serial", "ray")
-RAY_HINT = "Ray is not installed (pip install 'octofuse[ray]'): running serially"
+RAY_MISSING = ("executor 'ray': Ray is not installed (pip install 'octofuse[ray]'); "
+               "use --executor serial or auto to run without it")
 
 
 @dataclass
@@ -181,15 +182,15 @@ def _ray_error(e: BaseException) -> str:
 
 def make_executor(kind: str = "auto", *, address: Optional[str] = None,
                   log: Optional[Callable[[str], None]] = None, **ray_options) -> Executor:
-    """``serial``, ``ray`` or ``auto`` (Ray when it is installed or an ``address`` is given,
-    else serial). Asking for Ray without it installed gives the serial executor and logs
-    :data:`RAY_HINT`."""
+    """``serial``, ``ray`` or ``auto`` (Ray when it is installed, else serial). Asking for Ray
+    by name (``ray``, or an ``address``) without it installed raises ``ValueError``
+    (:data:`RAY_MISSING`): an executor named explicitly runs or the command stops."""
     if kind not in EXECUTORS:
         raise ValueError(f"unknown executor {kind!r}; valid: {', '.join(EXECUTORS)}")
     if kind == "serial":
         return SerialExecutor()
     if not ray_available():
         if kind == "ray" or address:
-            (log or print)(RAY_HINT)
+            raise ValueError(RAY_MISSING)
         return SerialExecutor()
     return RayExecutor(address, **ray_options)

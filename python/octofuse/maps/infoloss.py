@@ -230,11 +230,11 @@ def read_info_loss(path: str | os.PathLike) -> Leaves:
             missing = [k for k in _LOSS_KEYS if k not in z.files]
             if missing:
                 raise ValueError(f"missing arrays {', '.join(missing)}")
-            lv = Leaves(np.asarray(z["centers"], dtype=np.float64),
-                        np.asarray(z["sizes"], dtype=np.float64),
-                        np.asarray(z["values"], dtype=np.float32),
-                        np.asarray(z["depths"], dtype=np.uint8))
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raw = {k: np.asarray(z[k]) for k in _LOSS_KEYS}
+        with np.errstate(over="ignore", invalid="ignore"):  # out-of-range values: checked below
+            lv = Leaves(raw["centers"].astype(np.float64), raw["sizes"].astype(np.float64),
+                        raw["values"].astype(np.float32), raw["depths"].astype(np.uint8))
+    except (ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile) as e:
         raise OSError(f"cannot read information-loss file '{p}': {e}") from None
     n = len(lv.values)
     if (lv.centers.shape != (n, 3) or lv.sizes.shape != (n,) or lv.values.shape != (n,)
@@ -242,4 +242,25 @@ def read_info_loss(path: str | os.PathLike) -> Leaves:
         raise OSError(f"cannot read information-loss file '{p}': arrays of mismatched shapes "
                       f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
                       f"values {lv.values.shape}, depths {lv.depths.shape})")
+    _check_loss_arrays(p, raw)
     return lv
+
+
+def _check_loss_arrays(p: Path, raw: dict) -> None:
+    """``ValueError`` naming the file, the array and its first bad entry unless the losses are
+    finite, non-negative float32 numbers and the voxels finite, with positive sizes."""
+    checks = (("values", lambda v: np.isfinite(v) & (v >= 0) & (np.abs(v) <= np.finfo(np.float32).max),
+               "finite losses >= 0 (nats, float32)"),
+              ("centers", lambda v: np.isfinite(v).all(axis=-1), "finite voxel centres"),
+              ("sizes", lambda v: np.isfinite(v) & (v > 0), "positive finite voxel sizes"))
+    for key, ok, expected in checks:
+        v = raw[key]
+        if v.dtype.kind not in "fiu":
+            raise ValueError(f"information-loss file '{p}': {key} holds {v.dtype} data; expected {expected}")
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~ok(v.astype(np.float64)))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"information-loss file '{p}': {key} holds {bad.size} bad entr"
+                             f"{'y' if bad.size == 1 else 'ies'} (first at index {i}: "
+                             f"{np.asarray(v[i]).tolist()}); expected {expected}")

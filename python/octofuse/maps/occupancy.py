@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,35 @@ from ..config import MapConfig
 from .infoloss import Leaves, leaves_from_core
 
 MapFileError = _core.MapFileError
+
+
+class MapValueWarning(UserWarning):
+    """A map read held values its clamping cannot produce; they were clamped into its range."""
+
+
+def _checked_values(m: "OccupancyMap", name: str) -> "OccupancyMap":
+    """``m`` as read from ``name``, its stored log-odds (every node) checked against what
+    OctoMap's clamping produces: values outside the clamping range are clamped into it with a
+    :class:`MapValueWarning`; subnormal values (no OctoMap writes them) are refused with a
+    :class:`MapFileError`."""
+    values = np.frombuffer(m.tree_data(), dtype=np.dtype([("v", "<f4"), ("mask", "u1")]))["v"]
+    if values.size == 0:
+        return m
+    tiny = np.finfo(np.float32).tiny
+    subnormal = np.flatnonzero((values != 0) & (np.abs(values) < tiny))
+    if subnormal.size:
+        raise MapFileError(f"map '{name}' holds {subnormal.size} subnormal log-odds values (first "
+                           f"{float(values[subnormal[0]]):.3g}), which OctoMap never writes: the "
+                           "file is corrupt")
+    lo, hi = m.clamping_logodds
+    outside = (values < lo - 1e-5) | (values > hi + 1e-5)
+    if outside.any():
+        warnings.warn(MapValueWarning(
+            f"map '{name}': {int(outside.sum())} log-odds values outside its clamping range "
+            f"[{lo:.4g}, {hi:.4g}] (from {float(values.min()):.3g} to {float(values.max()):.3g}) "
+            "clamped into it"), stacklevel=3)
+        m.clamp_values()
+    return m
 
 
 def _existing_file(path: str | os.PathLike) -> str:
@@ -142,9 +172,11 @@ class OccupancyMap:
         """Read a ``.ot`` or ``.bt`` OctoMap file (validated before any node is built).
 
         Raises ``FileNotFoundError`` for a missing file and :class:`MapFileError` (an
-        ``OSError``) naming the file for a truncated, corrupt or foreign one.
+        ``OSError``) naming the file for a truncated, corrupt or foreign one. Values outside the
+        clamping range are clamped into it with a :class:`MapValueWarning`.
         """
-        return cls._wrap(_core._OccupancyMap.load(_existing_file(path)))
+        path = _existing_file(path)
+        return _checked_values(cls._wrap(_core._OccupancyMap.load(path)), path)
 
     def to_bytes(self, fmt: str = "ot") -> bytes:
         """The map as an OctoMap stream, built in memory: exactly the bytes :meth:`save` writes
@@ -173,8 +205,9 @@ class OccupancyMap:
         """A map from the node data of :meth:`tree_data` (an ``octomap_msgs/Octomap``
         message's ``data``) and its resolution; checked like :meth:`load`."""
         cmin, cmax = clamping
-        return cls._wrap(_core._map_from_tree_data(bytes(data), float(resolution), float(prob_hit),
-                                                   float(prob_miss), float(cmin), float(cmax)))
+        m = cls._wrap(_core._map_from_tree_data(bytes(data), float(resolution), float(prob_hit),
+                                                float(prob_miss), float(cmin), float(cmax)))
+        return _checked_values(m, "octomap message")
 
     # -- frames --------------------------------------------------------------------------
     def transformed(self, T, resolution: float | None = None,

@@ -25,8 +25,8 @@ class FusionEventBag:
     """The observer of :func:`octofuse.fusion.simulate.simulate` that writes the bag.
 
     ``select(agents)`` names the agents whose maps are written (default: all). Set
-    ``start_ns`` (the bags' start) before the run. ``close()`` finishes the bag, ``abort()``
-    drops it.
+    ``start_ns`` (the bags' start) before the run. ``close()`` finishes the bag and puts it in
+    place (``finish()`` and ``put_in_place()``, as :class:`MapBagWriter`), ``abort()`` drops it.
     """
 
     def __init__(self, path: str | os.PathLike, *, frame_id: str = "map",
@@ -61,6 +61,12 @@ class FusionEventBag:
 
     def close(self) -> Path:
         return self.writer.close()
+
+    def finish(self) -> None:
+        self.writer.finish()
+
+    def put_in_place(self) -> Path:
+        return self.writer.put_in_place()
 
     def abort(self) -> None:
         self.writer.abort()

@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
+
+from .staging import clean_leftovers, partial_path
 
 OCTOMAP = "octomap_msgs/msg/Octomap"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -118,7 +119,8 @@ class MapBagWriter:
 
     Arguments as for :func:`write_map_bag`. The path is checked when the writer is made (an
     existing path, a bad ``kind`` or frame raise then), the messages go to a temporary folder
-    beside it, and only :meth:`close` renames the complete bag into place; :meth:`abort` (or
+    beside it, and only :meth:`close` (:meth:`finish`, then :meth:`put_in_place`) renames the
+    complete bag into place; :meth:`abort` (or
     leaving the ``with`` block by an exception) removes everything written.
     """
 
@@ -145,7 +147,10 @@ class MapBagWriter:
         self._ros1 = kind == "ros1"
         self._ts = typestore(self._ros1)
         out.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        clean_leftovers(out)
+        self._tmp = partial_path(out.absolute())
+        self._tmp.mkdir()
+        self._done: Path | None = None
         try:
             if self._ros1:
                 self._staged = self._tmp / out.name
@@ -174,34 +179,47 @@ class MapBagWriter:
                       occupied_cloud(self._ts, e.map, hdr, self._occupied), e.stamp_ns)
         self.count += 1
 
-    def close(self) -> Path:
-        """Finish the bag and rename it to ``path``; returns ``path``."""
+    def finish(self) -> None:
+        """Finish the bag beside ``path``, not in place yet (:meth:`put_in_place`)."""
         if not self._open:
-            return self.path
+            return
         self._open = False
         try:
             self._writer.close()
             staged = self._staged
             if self.kind == "mcap":
                 staged = next(p for p in staged.iterdir() if p.suffix == ".mcap")
+            self._done = staged
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+
+    def put_in_place(self) -> Path:
+        """Finish the bag and rename it to ``path``; returns ``path``."""
+        self.finish()
+        if self._done is None:
+            return self.path
+        try:
             if self.path.exists() or self.path.is_symlink():
                 raise FileExistsError(f"'{self.path}' appeared while writing; not overwriting it")
-            os.rename(staged, self.path)
+            os.rename(self._done, self.path)
         finally:
+            self._done = None
             shutil.rmtree(self._tmp, ignore_errors=True)
         return self.path
 
+    close = put_in_place
+
     def abort(self) -> None:
         """Drop everything written; ``path`` is left as it was."""
-        if not self._open:
-            return
-        self._open = False
-        try:
-            self._writer.close()
-        except Exception:  # noqa: BLE001 - the partial bag is deleted anyway
-            pass
-        finally:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+        if self._open:
+            self._open = False
+            try:
+                self._writer.close()
+            except Exception:  # noqa: BLE001 - the partial bag is deleted anyway
+                pass
+        self._done = None
+        shutil.rmtree(self._tmp, ignore_errors=True)
 
     def __enter__(self) -> "MapBagWriter":
         return self

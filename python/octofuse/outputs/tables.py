@@ -23,9 +23,21 @@ def build_table(result) -> Table:
 
 
 def skip_notes(result) -> list[str]:
-    """One line per agent and reason for scans a build skipped."""
+    """One line per agent and reason for scans a build skipped, and per agent of LaserScans
+    whether they were de-skewed."""
     return [f"{s.name}: skipped {n} scan(s): {reason}"
-            for s in result.stats for reason, n in sorted(s.skipped.items())] + list(result.notes)
+            for s in result.stats for reason, n in sorted(s.skipped.items())] + [
+        deskew_note(s) for s in result.stats if getattr(s, "laserscans", 0)] + list(result.notes)
+
+
+def deskew_note(s) -> str:
+    """Whether an agent's LaserScans were de-skewed (:class:`~octofuse.scans.source.AgentStats`)."""
+    if s.deskewed == s.laserscans:
+        return f"{s.name}: de-skewed all {s.laserscans} LaserScan(s) (beam times from time_increment)"
+    if s.deskewed:
+        return (f"{s.name}: de-skewed {s.deskewed} of {s.laserscans} LaserScan(s); the others have "
+                "time_increment 0 (or no points)")
+    return f"{s.name}: LaserScans not de-skewed (time_increment 0, or de-skew off)"
 
 
 def scores_table(res, title: str) -> Table:

@@ -50,6 +50,8 @@ class AgentStats:
     topic: str
     scans_used: int = 0
     skipped: Counter = field(default_factory=Counter)  #: reason -> count
+    laserscans: int = 0  #: LaserScans placed (de-skew applies to them only)
+    deskewed: int = 0  #: of them, de-skewed (beam times from a time_increment > 0)
     points: int = 0
     dropped: Counter = field(default_factory=Counter)  #: reason -> points dropped
     seconds: float = 0.0  #: decode + transform + insertion time attributed to the agent
@@ -243,6 +245,10 @@ class ScanSource:
             placed.append((p, points, pose, max_range))
         skewed = [k for k, (p, points, _, _) in enumerate(placed) if self.cfg.deskew
                   and hasattr(p.msg, "ranges") and p.msg.time_increment > 0 and len(points)]
+        for p, _, _, _ in placed:
+            self.stats[p.agent].laserscans += hasattr(p.msg, "ranges")
+        for k in skewed:
+            self.stats[placed[k][0].agent].deskewed += 1
         if skewed:
             rows = [placed[k] for k in skewed]
             if self.per_scan_transforms:
@@ -391,6 +397,10 @@ class _Pending:
     frame: str
 
 
+#: longest sweep of one LaserScan (time_increment x beams) taken for a real scan, seconds
+MAX_SWEEP_S = 1.0
+
+
 def _laserscan_problem(msg) -> str | None:
     """Why a LaserScan's geometry cannot be mapped (a skip reason), or ``None``."""
     try:
@@ -404,6 +414,15 @@ def _laserscan_problem(msg) -> str | None:
         return f"LaserScan with non-finite {', '.join(bad)}"
     if np.isnan(rmax) or rmax <= 0:
         return "LaserScan with range_max not > 0"
+    if values["time_increment"] < 0:
+        return "LaserScan with negative time_increment"
+    try:
+        beams = len(msg.ranges)
+    except TypeError:
+        beams = 0
+    if values["time_increment"] * max(beams - 1, 0) > MAX_SWEEP_S:
+        return (f"LaserScan whose beams span more than {MAX_SWEEP_S:g} s "
+                "(time_increment x beams): no real scanner sweeps that slowly")
     return None
 
 
