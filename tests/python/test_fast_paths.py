@@ -300,6 +300,17 @@ def test_public_fuse_into_on_threads_equals_one_thread(threads):
 
 # -- clamped copies ------------------------------------------------------------------------
 
+def _holding(data: bytes) -> OccupancyMap:
+    """A map of 0.1 m voxels at the default clamping holding exactly the node data ``data``,
+    values past the clamping included (reading node data clamps those, an .ot stream keeps
+    what it holds): as a map whose values were fused unclamped."""
+    wide = OccupancyMap.from_tree_data(data, 0.1, clamping=(1e-6, 1 - 1e-6)).to_bytes()
+    default = wide.replace(b"clamping_thres_min 1e-06 clamping_thres_max 0.999999",
+                           b"clamping_thres_min 0.1192 clamping_thres_max 0.971")
+    assert default != wide
+    return OccupancyMap.from_bytes(default)
+
+
 def _plain_clamped(m: OccupancyMap) -> OccupancyMap:
     """OctoMap's way: a copy, its leaves clamped, inner nodes recomputed, prune()."""
     return m.copy().clamp_values()
@@ -349,14 +360,14 @@ def test_clamped_copy_keeps_prune_stopping_at_a_level_that_prunes_nothing():
     # 8 coarse leaves at depth 15, all past the upper threshold: clamped, they are equal, but
     # OctoMap's prune() starts at the finest level, prunes nothing there and stops
     leaves = [_stream(v, [None] * 8) for v in (4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0)]
-    m = OccupancyMap.from_tree_data(_chain(14, _stream(0.0, leaves)), 0.1)
+    m = _holding(_chain(14, _stream(0.0, leaves)))
     want = _plain_clamped(m)
     assert want.num_nodes == m.num_nodes  # not collapsed
     assert_same_stream(m.clamped_copy(), want)
     # with one finest node that collapses as well, prune() goes on and collapses both levels
     finest = _stream(0.0, [_stream(v, [None] * 8) for v in (5.0, 6.0, 7.0, 8.0, 4.0, 4.0, 4.0, 4.0)])
     leaves[1] = finest
-    m = OccupancyMap.from_tree_data(_chain(14, _stream(0.0, leaves)), 0.1)
+    m = _holding(_chain(14, _stream(0.0, leaves)))
     want = _plain_clamped(m)
     assert want.num_nodes == 15  # the chain to depth 14, whose node is now a leaf
     assert_same_stream(m.clamped_copy(), want)
@@ -386,7 +397,7 @@ def test_clamped_copy_equals_copy_and_clamp_on_random_trees():
     @given(st.integers(12, 16).flatmap(lambda d: st.tuples(st.just(d), _subtrees(min(16 - d, 3)))))
     def check(case):
         depth, below = case
-        m = OccupancyMap.from_tree_data(_chain(depth, below), 0.1)
+        m = _holding(_chain(depth, below))
         assert_same_stream(m.clamped_copy(), _plain_clamped(m))
 
     check()
