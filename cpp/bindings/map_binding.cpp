@@ -68,6 +68,8 @@ py::dict values_depths_dict(std::vector<float> values, std::vector<std::uint8_t>
 }  // namespace
 
 void define_maps(py::module_& m) {
+  m.attr("MIN_RESOLUTION") = kMinResolution;  // the voxel sizes a map takes: one source
+  m.attr("MAX_RESOLUTION") = kMaxResolution;
   py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
 
   m.def("_node_pool_bytes", [] {

@@ -65,9 +65,11 @@ class MapConfig:
     clamping: tuple[float, float] = (0.1192, 0.971)
 
     def validate(self, where: str) -> None:
-        if not 1e-3 <= self.resolution <= 100.0:
+        from . import _core  # the core's range of voxel sizes
+
+        if not _core.MIN_RESOLUTION <= self.resolution <= _core.MAX_RESOLUTION:
             raise ValueError(f"{where}.resolution = {self.resolution}: expected a voxel size "
-                             "from 0.001 to 100 metres")
+                             f"from {_core.MIN_RESOLUTION:g} to {_core.MAX_RESOLUTION:g} metres")
         if not 0.5 < self.prob_hit < 1.0:
             raise ValueError(f"{where}.prob_hit = {self.prob_hit}: expected 0.5 < p < 1")
         if not 0.0 < self.prob_miss < 0.5:

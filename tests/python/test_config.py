@@ -215,3 +215,18 @@ def test_rules_are_normalised_once():
     assert f.rules == list(octofuse.RULES)
     with pytest.raises(ValueError, match="at least one fusion rule"):
         FuseConfig(rules=[" , "]).validate("fuse")
+
+
+def test_the_voxel_sizes_a_config_takes_are_the_cores():
+    from octofuse import OccupancyMap, _core
+    from octofuse.config import MapConfig, from_dict
+
+    for ok in (_core.MIN_RESOLUTION, 5e-4, _core.MAX_RESOLUTION):
+        assert from_dict(MapConfig, {"resolution": ok}).resolution == ok
+        OccupancyMap(ok)  # and the core builds the map
+    for bad in (_core.MIN_RESOLUTION / 2, _core.MAX_RESOLUTION * 2):
+        with pytest.raises(ValueError, match=r"map.resolution = .*: expected a voxel size from "
+                                             r"0.0001 to 1000 metres"):
+            from_dict(MapConfig, {"resolution": bad}, where="map")
+        with pytest.raises(ValueError):
+            OccupancyMap(bad)

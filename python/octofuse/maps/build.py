@@ -9,7 +9,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ..config import AgentSpec, BuildConfig
+from ..config import AgentSpec, BuildConfig, MapConfig
 from ..scans.source import AgentStats, Scan, ScanSource, batched, prefetch
 from .occupancy import OccupancyMap
 from .ray_batches import insert_batch, trace_rays
@@ -84,7 +84,7 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
 
 
 def build_maps(bags, agents: Optional[Sequence[AgentSpec | str]] = None, fixed_frame: str = "map",
-               resolution: float = 0.05, **options) -> dict[str, OccupancyMap]:
+               resolution: float = MapConfig.resolution, **options) -> dict[str, OccupancyMap]:
     """Build one map per agent and the centralized map from bag files.
 
     Parameters
@@ -117,7 +117,8 @@ def parse_agent(spec: str) -> AgentSpec:
     return AgentSpec(name.strip(), topic.strip())
 
 
-def make_build_config(bags, agents=None, fixed_frame="map", resolution=0.05, **options) -> BuildConfig:
+def make_build_config(bags, agents=None, fixed_frame="map", resolution=MapConfig.resolution,
+                      **options) -> BuildConfig:
     """A validated :class:`BuildConfig` from API arguments (what :func:`build_maps` takes)."""
     from ..config import from_dict
 
