@@ -14,7 +14,8 @@ repetitive rooms one matches a similar place metres away): it must be confirmed 
 independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the reverse link's
 (inverted), or the link's own at a later message on grown maps with a new RANSAC seed. Until then, or when
 registration refuses (too little overlap yet), the message is not fused (it still counts as
-sent) and the link tries again at its next message; once confirmed, the link (and its reverse)
+sent) and the link tries again later (at its 2nd, 4th, 8th, ... message, on grown maps); once
+confirmed, the link (and its reverse)
 keeps the transform. A link registers at most :data:`MAX_ATTEMPTS` times and is then refused
 for the run, which bounds the cost; the time spent is kept per link. A link aligns once for all
 rules (on the first rule's maps), so every rule fuses the same messages. The known frames, if
@@ -37,8 +38,9 @@ import numpy as np
 from ..config import ALIGN_MODES
 from ..maps.frames import invert, matrix_pose, pose_matrix
 
-#: registrations a link tries before it is refused for the run (bounds the cost of alignment)
-MAX_ATTEMPTS = 4
+#: registrations a link tries before it is refused for the run (bounds the cost of alignment);
+#: they are spread over the run: at the link's 1st, 2nd, 4th, 8th, ... delivered message
+MAX_ATTEMPTS = 5
 #: two estimates of a link confirm each other when they differ by at most this translation...
 AGREE_M = 0.3
 #: ... and this rotation angle (degrees)
@@ -54,6 +56,7 @@ class LinkAlignment:
     matrix: Optional[np.ndarray] = None  #: sender's frame -> receiver's frame; None: not aligned
     time_s: Optional[float] = None  #: time of the message it aligned on
     attempts: int = 0  #: registrations tried (the last one succeeded if aligned)
+    messages: int = 0  #: delivered messages while not aligned
     fitness: float = 0.0
     refusal: str = ""  #: why the last refused registration refused
     reference: Optional[np.ndarray] = None  #: the transform the agent frames give, if any
@@ -173,6 +176,9 @@ class AgentFrames:
         for s, d, lost, t in events:
             link = self._link(s, d)
             if lost or link.matrix is not None or link.exhausted:
+                continue
+            link.messages += 1
+            if link.messages & (link.messages - 1):  # not a power of two: wait
                 continue
             link.attempts += 1
             t0 = time.perf_counter()
