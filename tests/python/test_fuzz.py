@@ -15,7 +15,6 @@ import os
 import resource
 import shutil
 import signal
-import struct
 import subprocess
 import sys
 import textwrap
@@ -29,6 +28,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
+from conftest import map_with_values  # noqa: E402,F401  (also for the campaign)
 from bagfactory import PC2, S, SCAN, T0, TF, Recording, Robot  # noqa: E402
 
 OCTOFUSE = Path(sys.executable).parent / "octofuse"
@@ -339,18 +339,6 @@ def bt_all_inner(dst: Path, records: int) -> Path:
     """A ``.bt`` file whose every record says "8 inner children" (the tree never ends)."""
     head = b"# Octomap OcTree binary file\nid OcTree\nsize 1\nres 0.1\ndata\n"
     dst.write_bytes(head + b"\xff" * (2 * records))
-    return dst
-
-
-def map_with_values(src: Path, dst: Path, values) -> Path:
-    """``src`` (a .ot) with its first nodes' log-odds set to ``values`` (depth-first order)."""
-    raw = bytearray(src.read_bytes())
-    start = raw.index(b"data\n") + 5
-    n = (len(raw) - start) // 5
-    for k, v in enumerate(values):
-        i = start + 5 * (k % n)
-        raw[i:i + 4] = struct.pack("<f", v)
-    dst.write_bytes(bytes(raw))
     return dst
 
 
