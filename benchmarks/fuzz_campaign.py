@@ -1,7 +1,9 @@
 """A long, seeded fuzz campaign against the installed ``octofuse`` command.
 
-Draws cases from the generators of ``tests/python/test_fuzz.py`` (mutated map files, mutated
-and hostile bags, numbers through the API, command lines, configs, SIGINT, full disks), runs
+Draws cases from the generators of ``tests/python/test_fuzz.py`` (mutated map files, map values
+no clamping produces, impossible loss files, mutated and hostile bags, numbers through the API
+(maps, mixtures, exponential polynomials), command lines, configs, SIGINT and SIGTERM during a
+run or an export over an earlier file, full disks), runs
 each in a child process with a time and memory limit, and prints the counts per generator:
 clean errors, accepted inputs, tracebacks, signals, hangs, messy stderr, changed outputs.
 Exit status 1 if any case crashed, hung, printed a traceback, changed earlier outputs or
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import signal
 import sys
 import tempfile
 import threading
@@ -51,6 +54,14 @@ class Inputs:
         self.hostile["renamed_field"] = tf.bag_renamed_field(root)
         for w in ("nan_quaternion", "nan_angle", "huge_points", "huge_tf", "huge_ray"):
             self.hostile[w] = tf.bag_hostile_numbers(root, w)
+        self.big = root / "big.ot"  # an export of about a second, for signals while it writes
+        import octofuse
+
+        big = octofuse.OccupancyMap(0.05)
+        pts = np.random.default_rng(3).uniform(-5, 5, (4, 20000, 3))
+        for p in pts:
+            big.insert_scan(p, [0.0, 0.0, 0.0])
+        big.save(self.big)
         self.fifo = root / "fifo"
         import os
 
@@ -198,6 +209,39 @@ def gen_sigint(rng, x: Inputs) -> Case:
                 out=out, sigint_after=float(rng.uniform(0.0, 2.5)), exit_code=130, expect="any")
 
 
+def gen_interrupt_export(rng, x: Inputs) -> Case:
+    """SIGINT or SIGTERM while ``export`` replaces an earlier file: it must stay byte-identical
+    unless the command succeeds, and no partial file may stay beside it."""
+    out = x.fresh("export")
+    out.mkdir(parents=True)
+    target = out / f"cloud{rng.choice(['.ply', '.pcd', '.ot'])}"
+    target.write_bytes(b"earlier output\n")
+    sig = (signal.SIGINT, signal.SIGTERM)[int(rng.integers(2))]
+    return Case(f"{sig.name} in export", ["export", str(x.big), "--out", str(target)], out=out,
+                sigint_after=float(rng.uniform(0.0, 1.5)), stop_signal=sig, exit_code=128 + sig,
+                expect="any")
+
+
+MAP_VALUES = [-1e38, -100.0, 100.0, 1e-40, -1e-42, 3.0e38, 0.5, -1.0]
+
+
+def gen_map_values(rng, x: Inputs) -> Case:
+    values = [MAP_VALUES[int(rng.integers(len(MAP_VALUES)))] for _ in range(int(rng.integers(1, 6)))]
+    src = tf.map_with_values(x.maps[".ot"], x.fresh("values").with_suffix(".ot"), values)
+    out = x.copy_of(x.built)
+    if rng.random() < 0.5:
+        argv = ["export", str(src), "--out", str(out / "cloud.ply")]
+    else:
+        argv = ["fuse-maps", str(src), str(x.maps["built.ot"]), "--out", str(out / "fused.ot")]
+    return Case(f"map values {values}", argv, out=out, expect="any")
+
+
+def gen_loss_values(rng, x: Inputs) -> Case:
+    value = [np.inf, -np.inf, 1e300, 3.5e38, np.nan, -1.0, -1e-30][int(rng.integers(7))]
+    src = tf.loss_file(x.fresh("loss").with_suffix(".npz"), value)
+    return Case(f"loss value {value}", ["export", str(src), "--out", str(src.with_suffix(".ply"))])
+
+
 def gen_full_disk(rng, x: Inputs) -> Case:
     fsize = int(10 ** rng.uniform(2, 5.7))
     which = int(rng.integers(3))
@@ -220,12 +264,15 @@ GENERATORS = {
     "bag truncated": (gen_bag_truncate, 3), "bag flipped": (gen_bag_flip, 4),
     "bag hostile": (gen_bag_hostile, 2), "api numbers": (gen_api, 4), "cli args": (gen_cli, 2),
     "config": (gen_config, 3), "sigint": (gen_sigint, 1), "full disk": (gen_full_disk, 1),
+    "signal export": (gen_interrupt_export, 2), "map values": (gen_map_values, 2),
+    "loss values": (gen_loss_values, 1),
 }
 
 
 def classify(case: Case, outcome: tf.Outcome) -> str:
-    if case.sigint_after is not None and outcome.returncode == 130 \
-            and outcome.stderr.strip() == "error: interrupted" and outcome.kind in ("clean", "messy"):
+    said = {130: "error: interrupted", 143: "error: terminated"}.get(outcome.returncode)
+    if case.sigint_after is not None and said is not None and outcome.stderr.strip() == said \
+            and outcome.kind in ("clean", "messy"):
         return "interrupted"
     if outcome.kind == "ok" and case.expect == "error":
         return "lie"

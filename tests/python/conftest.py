@@ -1,5 +1,6 @@
 """Shared fixtures: small real OctoMap trees built by ray casting."""
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,18 @@ def expand(leaves, resolution):
     """Every finest voxel (integer key tuple) of a tree with its value, as a dict."""
     keys, values = finest_voxels(leaves, resolution)
     return dict(zip(map(tuple, keys.tolist()), values))
+
+
+def map_with_values(src: Path, dst: Path, values) -> Path:
+    """``src`` (a .ot) with its first nodes' log-odds set to ``values`` (depth-first order)."""
+    raw = bytearray(src.read_bytes())
+    start = raw.index(b"data\n") + 5
+    n = (len(raw) - start) // 5
+    for k, v in enumerate(values):
+        i = start + 5 * (k % n)
+        raw[i:i + 4] = struct.pack("<f", v)
+    dst.write_bytes(bytes(raw))
+    return dst
 
 
 @pytest.fixture

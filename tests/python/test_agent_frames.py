@@ -201,7 +201,8 @@ def test_a_link_that_cannot_register_fuses_nothing_and_tries_again():
     cfg = FuseConfig(rules=[RULE], topology="line", schedule="rounds:3", align="full")
     res = fuse_finished(maps, None, cfg, threads=1)
     assert [d["aligned"] for d in res.alignment] == [False, False]
-    assert all(d["attempts"] == 3 and "cannot register" in d["refusal"] for d in res.alignment)
+    # at the 1st and 2nd messages (the 3rd waits for the 4th)
+    assert all(d["attempts"] == 2 and "cannot register" in d["refusal"] for d in res.alignment)
     for a, m in maps.items():  # sent, counted, not fused
         assert_same_map(res.fused[RULE][a], m, a)
     tr = res.traffic[RULE]
@@ -211,11 +212,15 @@ def test_a_link_that_cannot_register_fuses_nothing_and_tries_again():
 def test_a_run_records_the_alignment_in_the_summary_and_report(tmp_path, capsys):
     bag = bf.team_bag(tmp_path, 2, 4)
     out = tmp_path / "o"
-    code, _, err = run_cli(capsys, "run", bag, "--resolution", "0.1", "--topology", "line",
-                           "--schedule", "periodic:0.5", "--align", "planar", "--agent-frame",
-                           "b=0.2,0,0,0,0,0.1", "--samples", "0", "--export-agents", "none",
-                           "--out", out)
+    code, said, err = run_cli(capsys, "run", bag, "--resolution", "0.1", "--topology", "line",
+                              "--schedule", "periodic:0.5", "--align", "planar", "--agent-frame",
+                              "b=0.2,0,0,0,0,0.1", "--samples", "0", "--export-agents", "none",
+                              "--out", out)
     assert code == 0, err
+    lines = [x for x in said.splitlines() if x.startswith("align")]  # every link on the terminal
+    assert {x.split(":")[0] for x in lines} == {"align a -> b", "align b -> a", "alignment"}
+    assert all("confirmed by" in x or "refused, not fused" in x for x in lines[:-1])
+    assert "registration(s)" in lines[-1] and "alignment registrations (wall)" in (out / "report.md").read_text()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["fuse"]["align"] == "planar"
     assert summary["agent_frames"]["b"]["x"] == pytest.approx(0.2)
@@ -288,3 +293,77 @@ def test_a_config_file_pose_of_the_wrong_length_names_the_key():
                   where="cfg")
     with pytest.raises(ValueError, match="cfg.fuse.align = 'yes'"):
         from_dict(FuseConfig, {"align": "yes"}, where="cfg.fuse")
+
+
+# -- confirmation of registrations, bounded attempts ------------------------------------------
+
+
+class _Stub:
+    """``register`` answering each (receiver, sender) with the next transform of a list."""
+
+    def __init__(self, answers):
+        self.answers = {k: list(v) for k, v in answers.items()}
+        self.calls = []
+
+    def __call__(self, a, b, planar=False, seed=0):
+        from octofuse.maps.registration import Registration
+
+        key = (b, a)  # (sender, receiver): the maps are named by themselves below
+        self.calls.append((*key, seed))
+        T = self.answers[key].pop(0) if self.answers[key] else None
+        if T is None:
+            raise ValueError("cannot register: stub refuses")
+        return Registration(T, 0.7, 0.05, 100, 200, 200, planar, conflict=0.01)
+
+
+def _frames_with(monkeypatch, answers):
+    from octofuse.fusion.agent_frames import AgentFrames
+    from octofuse.maps import registration
+
+    stub = _Stub(answers)
+    monkeypatch.setattr(registration, "register", stub)
+    return AgentFrames(["a", "b"], align="planar"), stub
+
+
+def test_a_registration_alone_is_not_fused_until_a_second_one_agrees(monkeypatch):
+    good = pose_matrix(1.0, 2.0, 0.0, 0, 0, 0.3)
+    wrong = pose_matrix(-8.0, 5.0, 0.0, 0, 0, 2.5)
+    frames, stub = _frames_with(monkeypatch, {("b", "a"): [wrong, good, good], ("a", "b"): []})
+    maps = {"a": "a", "b": "b"}
+    frames.align_links([("b", "a", False, 1.0)], maps)
+    assert not frames.aligned("b", "a")  # one estimate: unconfirmed
+    frames.align_links([("b", "a", False, 2.0)], maps)
+    assert not frames.aligned("b", "a")  # a second one that disagrees
+    assert "disagree" in frames.links[("b", "a")].refusal
+    frames.align_links([("b", "a", False, 3.0)], maps)  # the 3rd message: no registration
+    assert not frames.aligned("b", "a") and len(stub.calls) == 2
+    frames.align_links([("b", "a", False, 3.5)], maps)  # the 4th
+    assert frames.aligned("b", "a") and not frames.aligned("a", "b")
+    frames.align_links([("a", "b", False, 4.0)], maps)  # the reverse follows, no registration
+    assert frames.aligned("a", "b") and len(stub.calls) == 3
+    np.testing.assert_allclose(frames.links[("b", "a")].matrix, good)
+    np.testing.assert_allclose(frames.links[("a", "b")].matrix @ good, np.eye(4), atol=1e-12)
+    assert "second registration" in frames.links[("b", "a")].confirmed_by
+
+
+def test_the_reverse_link_confirms_and_wrong_pairs_are_never_fused(monkeypatch):
+    T = pose_matrix(1.0, 2.0, 0.0, 0, 0, 0.3)
+    frames, _ = _frames_with(monkeypatch, {("b", "a"): [T], ("a", "b"): [invert(T)]})
+    frames.align_links([("b", "a", False, 1.0), ("a", "b", False, 1.0)], {"a": "a", "b": "b"})
+    assert frames.aligned("a", "b") and frames.aligned("b", "a")
+    assert frames.links[("a", "b")].confirmed_by == "the reverse link"
+
+    # every estimate half a metre or more from every other (and from the reverse's inverses)
+    frames, stub = _frames_with(monkeypatch, {
+        ("b", "a"): [pose_matrix(1.0 + k, 2.0, 0.0, 0, 0, 0.3) for k in range(9)],
+        ("a", "b"): [invert(pose_matrix(1.5 + k, 2.0, 0.0, 0, 0, 0.3)) for k in range(9)]})
+    for k in range(40):  # attempts are bounded: the link is refused for the run
+        frames.align_links([("b", "a", False, k), ("a", "b", False, k)], {"a": "a", "b": "b"})
+    from octofuse.fusion.agent_frames import MAX_ATTEMPTS, alignment_lines
+
+    assert not frames.aligned("a", "b") and not frames.aligned("b", "a")
+    assert len(stub.calls) == 2 * MAX_ATTEMPTS
+    assert sorted({c[2] for c in stub.calls}) == list(range(MAX_ATTEMPTS))  # a new seed each time
+    lines = alignment_lines(frames.report())
+    assert lines[0].startswith("align a -> b: refused, not fused") and "disagree" in lines[0]
+    assert lines[-1].startswith(f"alignment: 0 of 2 links aligned; {2 * MAX_ATTEMPTS} registration(s)")

@@ -28,6 +28,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
+from conftest import map_with_values  # noqa: E402,F401  (also for the campaign)
 from bagfactory import PC2, S, SCAN, T0, TF, Recording, Robot  # noqa: E402
 
 OCTOFUSE = Path(sys.executable).parent / "octofuse"
@@ -47,6 +48,7 @@ class Case:
     out: Path | None = None  #: an earlier output folder that must stay unchanged
     fsize: int | None = None  #: file size limit (bytes): a full disk
     sigint_after: float | None = None  #: SIGINT this many seconds after the command started
+    stop_signal: int = signal.SIGINT  #: the signal sigint_after sends (SIGINT or SIGTERM)
     exit_code: int | None = None  #: the exit code a clean error must have (any non-zero if None)
     python: bool = False  #: argv is a Python script run by the interpreter (API cases)
     timeout: float = TIME_LIMIT
@@ -113,7 +115,7 @@ def run_case(case: Case, cwd: Path) -> Outcome:
             time.sleep(0.02)
         time.sleep(case.sigint_after)
         if p.poll() is None:
-            p.send_signal(signal.SIGINT)
+            p.send_signal(case.stop_signal)
     try:
         _, err_b = p.communicate(timeout=max(case.timeout - (time.monotonic() - t0), 1.0))
     except subprocess.TimeoutExpired:
@@ -340,6 +342,13 @@ def bt_all_inner(dst: Path, records: int) -> Path:
     return dst
 
 
+def loss_file(dst: Path, value: float) -> Path:
+    """An information-loss .npz of two voxels, the second with loss ``value``."""
+    np.savez(dst, centers=np.zeros((2, 3)), sizes=np.full(2, 0.1), values=np.array([0.5, value]),
+             depths=np.full(2, 16, np.uint8))
+    return dst
+
+
 def api_script(body: str) -> str:
     """A child script: a clean error prints one line and exits 1, as the command does."""
     return textwrap.dedent("""
@@ -550,6 +559,20 @@ API_CASES = {
                                        "np.array([[-1.0, -1.0, 0.0]]), np.eye(4), 1e-30)"),
     "point beside the origin": ("octofuse.OccupancyMap(0.1).insert_scan("
                                 "np.array([[-1e-30, -1e-30, 0.0]]), [0, 0, 0])"),
+    # beliefs: sizes beyond any machine, numbers that overflow, contracts of the arguments
+    "huge mixtures": ("from octofuse.beliefs.mixture import GaussianMixture as G\n"
+                      "g = G(np.ones(3000), np.arange(3000.0)[:, None], np.ones((3000, 1, 1)))\n"
+                      "octofuse.fuse_mixtures(g, g)"),
+    "huge sample count": ("from octofuse.beliefs.mixture import GaussianMixture as G\n"
+                          "g = G.gaussian([0.0], [[1.0]])\n"
+                          "octofuse.fuse_mixtures(g, g, n_samples=10**13)"),
+    "tiny measured range": ("from octofuse.beliefs.expoly import ExPoly2D\n"
+                            "ExPoly2D.range_likelihood([0, 0], 1e-200, a=1.0)"),
+    "mixture dict without covariances": ("from octofuse.beliefs.mixture import GaussianMixture\n"
+                                         "GaussianMixture.from_dict({'weights': [1], 'means': [[0]]})"),
+    "overflowing moments": ("from octofuse.beliefs.mixture import GaussianMixture\n"
+                            "GaussianMixture([.5, .5], [[1e308, 0], [-1e308, 0]], "
+                            "[np.eye(2)] * 2).moments()"),
 }
 
 
@@ -626,6 +649,37 @@ def test_sigint_keeps_outputs(work, ran):
     # click writes an empty line before its Abort, hence strip()
     assert outcome.returncode == 130 and outcome.kind in ("clean", "messy"), outcome
     assert outcome.stderr.strip() == "error: interrupted"
+
+
+@pytest.mark.parametrize("value,expect", [(-1e38, "warning"), (100.0, "warning"), (-100.0, "warning"),
+                                          (1e-40, "subnormal")])
+def test_map_values_no_clamping_produces(work, tmp_path, value, expect):
+    src = map_with_values(work["maps"][".ot"], tmp_path / "odd.ot", [value, value])
+    out = tmp_path / "kept"
+    out.mkdir()
+    (out / "cloud.ply").write_bytes(b"earlier")
+    outcome = run_case(Case("map values", ["export", str(src), "--out", str(out / "cloud.ply")],
+                            out=out, expect="any"), work["root"])
+    assert str(src) in outcome.stderr and expect in outcome.stderr, outcome
+    assert outcome.kind == ("ok" if expect == "warning" else "clean"), outcome
+
+
+@pytest.mark.parametrize("value", [np.inf, 1e300, np.nan, -1.0])
+def test_loss_files_with_impossible_losses(work, tmp_path, value):
+    src = loss_file(tmp_path / "loss.npz", value)
+    outcome = _go(Case("loss values", ["export", str(src), "--out", str(tmp_path / "h.ply")]), work)
+    assert str(src) in outcome.stderr and "values" in outcome.stderr
+
+
+def test_sigterm_keeps_outputs(work, ran):
+    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    case = Case("SIGTERM in run", ["run", str(lab8), "--topology", "ring", "--samples", "2",
+                                   "--resolution", "0.1", "--out", str(ran)],
+                out=ran, sigint_after=0.3, stop_signal=signal.SIGTERM, exit_code=143)
+    outcome = run_case(case, work["root"])
+    assert outcome.returncode == 143 and outcome.kind in ("clean", "messy"), outcome
+    assert outcome.stderr.strip() == "error: terminated"
+    assert not [p for p in ran.parent.iterdir() if ".partial" in p.name]
 
 
 def test_sigint_while_importing_is_one_line(work, tmp_path):

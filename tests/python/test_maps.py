@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import expand, random_map, scan_ring
+from conftest import expand, map_with_values, random_map, scan_ring
 
 import octofuse
 from octofuse import OccupancyMap, fuse_logodds, fuse_maps
@@ -451,7 +451,6 @@ def test_leaves_of_a_class_are_those_leaves_of_all(seed):
 
 
 # -- values no OctoMap clamping produces ---------------------------------------------------
-import struct  # noqa: E402
 import warnings  # noqa: E402
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
@@ -469,16 +468,7 @@ def _with_values(tmp_path, values):
     """A small .ot file whose first len(values) nodes hold ``values`` (depth-first order)."""
     m = octofuse.OccupancyMap(0.1)
     m.insert_scan(np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0]]), [0, 0, 0])
-    p = tmp_path / "m.ot"
-    m.save(p)
-    raw = bytearray(p.read_bytes())
-    start = raw.index(b"data\n") + 5
-    n = (len(raw) - start) // 5
-    for k, v in enumerate(values):
-        i = start + 5 * (k % n)
-        raw[i:i + 4] = struct.pack("<f", v)
-    p.write_bytes(bytes(raw))
-    return p
+    return map_with_values(m.save(tmp_path / "src.ot"), tmp_path / "m.ot", values)
 
 
 @settings(max_examples=25, deadline=None)

@@ -47,6 +47,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     error after a Ctrl-C is the Ctrl-C's (a library turned it into an error of its own)."""
     begin_command()
     warnings.showwarning = _show_warning
+    warnings.filterwarnings("always", module=r"octofuse\.")  # about the input: always said
     try:
         args = sys.argv[1:] if argv is None else list(argv)
         with cli.make_context("octofuse", args) as ctx:  # interruptions reach the handler below

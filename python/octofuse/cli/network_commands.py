@@ -61,9 +61,18 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                 passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     console().print(scores_table(res, title))
+    _say_alignment(res)
     if bag is not None:
         say(f"bag: {bag.path} ({bag.messages} map messages)")
     say(f"report: {out / 'report.md'}")
+
+
+def _say_alignment(res) -> None:
+    """Per link of a run with alignment: its estimate and confirmation, or why it was refused."""
+    from ..fusion.agent_frames import alignment_lines
+
+    for line in alignment_lines(getattr(res, "alignment", None) or []):
+        say(line)
 
 
 def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
@@ -259,6 +268,7 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
                                                   threads=cfg.build.workers)
         res, written = write_rule_groups(groups, stage, cfg, every)
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
+    _say_alignment(res)
     say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
         f"({len(res.events)} messages); report: {out / 'report.md'}")
     if bag is not None:

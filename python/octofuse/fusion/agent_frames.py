@@ -9,11 +9,17 @@ it is.
 
 With ``align`` (``planar`` or ``full``) a link's transform is estimated instead: at the first
 message on a link the receiver registers the message map against its own map
-(:func:`octofuse.maps.registration.register`). When registration refuses (too little overlap
-yet) the message is not fused (it still counts as sent) and the link tries again at its next
-message; once aligned, the link keeps its transform. A link aligns once for all rules (on the
-first rule's maps), so every rule fuses the same messages. The known frames, if any, then serve
-as the reference the estimate's error is measured against.
+(:func:`octofuse.maps.registration.register`). A registration alone is not trusted (in
+repetitive rooms one matches a similar place metres away): it must be confirmed by a second,
+independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the reverse link's
+(inverted), or the link's own at a later message on grown maps with a new RANSAC seed. Until then, or when
+registration refuses (too little overlap yet), the message is not fused (it still counts as
+sent) and the link tries again later (at its 2nd, 4th, 8th, ... message, on grown maps); once
+confirmed, the link (and its reverse)
+keeps the transform. A link registers at most :data:`MAX_ATTEMPTS` times and is then refused
+for the run, which bounds the cost; the time spent is kept per link. A link aligns once for all
+rules (on the first rule's maps), so every rule fuses the same messages. The known frames, if
+any, then serve as the reference the estimate's error is measured against.
 
 The centralized map and the scores are in the common frame: an agent's scans reach the
 centralized map moved by its frame, and its maps are moved into the common frame to be scored.
@@ -23,13 +29,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
 from ..config import ALIGN_MODES
 from ..maps.frames import invert, matrix_pose, pose_matrix
+
+#: registrations a link tries before it is refused for the run (bounds the cost of alignment);
+#: they are spread over the run: at the link's 1st, 2nd, 4th, 8th, ... delivered message
+MAX_ATTEMPTS = 5
+#: two estimates of a link confirm each other when they differ by at most this translation...
+AGREE_M = 0.3
+#: ... and this rotation angle (degrees)
+AGREE_DEG = 3.0
 
 
 @dataclass
@@ -41,17 +56,31 @@ class LinkAlignment:
     matrix: Optional[np.ndarray] = None  #: sender's frame -> receiver's frame; None: not aligned
     time_s: Optional[float] = None  #: time of the message it aligned on
     attempts: int = 0  #: registrations tried (the last one succeeded if aligned)
+    messages: int = 0  #: delivered messages while not aligned
     fitness: float = 0.0
     refusal: str = ""  #: why the last refused registration refused
     reference: Optional[np.ndarray] = None  #: the transform the agent frames give, if any
+    conflict: float = 0.0
+    confirmed_by: str = ""  #: what confirmed the estimate
+    seconds: float = 0.0  #: wall time of the link's registrations
+    #: estimates not confirmed yet: (matrix, fitness, conflict, time_s)
+    candidates: list = field(default_factory=list)
+
+    @property
+    def exhausted(self) -> bool:
+        return self.matrix is None and self.attempts >= MAX_ATTEMPTS
 
     def as_dict(self) -> dict:
         d = {"sender": self.sender, "receiver": self.receiver, "aligned": self.matrix is not None,
-             "time_s": self.time_s, "attempts": self.attempts, "fitness": self.fitness}
+             "time_s": self.time_s, "attempts": self.attempts, "fitness": self.fitness,
+             "seconds": self.seconds}
         if self.matrix is None:
             d["refusal"] = self.refusal
+            if self.candidates:
+                d["unconfirmed"] = [matrix_pose(c[0]) for c in self.candidates]
             return d
         d["estimate"] = matrix_pose(self.matrix)
+        d["conflict"], d["confirmed_by"] = self.conflict, self.confirmed_by
         if self.reference is not None:
             d["error_m"], d["error_deg"] = transform_error(self.matrix, self.reference)
         return d
@@ -145,20 +174,62 @@ class AgentFrames:
         from ..maps.registration import register
 
         for s, d, lost, t in events:
-            link = self.links.get((s, d))
-            if link is None:
-                ref = self.reference(s, d)
-                link = self.links[(s, d)] = LinkAlignment(
-                    s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None)
-            if lost or link.matrix is not None:
+            link = self._link(s, d)
+            if lost or link.matrix is not None or link.exhausted:
+                continue
+            link.messages += 1
+            if link.messages & (link.messages - 1):  # not a power of two: wait
                 continue
             link.attempts += 1
+            t0 = time.perf_counter()
             try:
-                reg = register(maps[d], maps[s], planar=self.align == "planar")
+                # a new RANSAC seed at each attempt: a repeat is a second, independent estimate
+                reg = register(maps[d], maps[s], planar=self.align == "planar",
+                               seed=link.attempts - 1)
             except ValueError as e:
                 link.refusal = str(e)
                 continue
-            link.matrix, link.time_s, link.fitness, link.refusal = reg.matrix, t, reg.fitness, ""
+            finally:
+                link.seconds += time.perf_counter() - t0
+            self._confirm(link, (reg.matrix, reg.fitness, reg.conflict, t))
+
+    def _link(self, s: str, d: str) -> LinkAlignment:
+        link = self.links.get((s, d))
+        if link is None:
+            ref = self.reference(s, d)
+            link = self.links[(s, d)] = LinkAlignment(
+                s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None)
+            back = self.links.get((d, s))
+            if back is not None and back.matrix is not None:  # confirmed the other way
+                self._adopt(link, back)
+        return link
+
+    @staticmethod
+    def _adopt(link: LinkAlignment, back: LinkAlignment) -> None:
+        """``link`` aligned by the inverse of its reverse link's confirmed transform."""
+        link.matrix, link.confirmed_by = invert(back.matrix), "the reverse link"
+        link.fitness, link.conflict, link.time_s = back.fitness, back.conflict, back.time_s
+        link.refusal, link.candidates = "", []
+
+    def _confirm(self, link: LinkAlignment, estimate: tuple) -> None:
+        """Keep ``estimate`` of ``link`` if an independent one agrees with it (the reverse
+        link's, inverted, or an earlier one of the link); else hold it as a candidate."""
+        T = estimate[0]
+        back = self.links.get((link.receiver, link.sender))
+        others = [(invert(c[0]), "the reverse link") for c in (back.candidates if back else [])]
+        others += [(c[0], f"a second registration (t = {c[3]:g} s)") for c in link.candidates]
+        for U, what in others:
+            dm, ddeg = transform_error(T, U)
+            if dm <= AGREE_M and ddeg <= AGREE_DEG:
+                link.matrix, link.fitness, link.conflict, link.time_s = estimate
+                link.confirmed_by, link.refusal, link.candidates = what, "", []
+                if back is not None and back.matrix is None:  # the reverse link is confirmed too
+                    self._adopt(back, link)
+                return
+        link.candidates.append(estimate)
+        link.refusal = ("not confirmed: " + ("no second estimate yet" if not others else
+                        "the estimates disagree by " + ", ".join(
+                            "{:.2f} m / {:.1f} deg".format(*transform_error(T, U)) for U, _ in others)))
 
     def report(self) -> list[dict]:
         """Per link (sorted): whether and when it aligned, its estimate and error."""
@@ -186,6 +257,35 @@ class AgentFrames:
         ``scan`` itself for an agent in the common frame)."""
         T = self.frames.get(self.agents[scan.agent])
         return scan if T is None else dataclasses.replace(scan, pose=T @ scan.pose)
+
+
+def alignment_lines(alignment: Sequence[dict]) -> list[str]:
+    """One line per link for the terminal: the estimate, its fitness, conflict and what
+    confirmed it, or why the link was refused; then the registrations' count and time."""
+    out = []
+    for d in alignment:
+        link = f"align {d['sender']} -> {d['receiver']}"
+        if d["aligned"]:
+            e = d["estimate"]
+            line = (f"{link}: x {e['x']:.2f} m, y {e['y']:.2f} m, z {e['z']:.2f} m, yaw "
+                    f"{math.degrees(e['yaw']):.1f} deg at t = {d['time_s']:g} s; fitness "
+                    f"{d['fitness']:.2f}, conflict {d.get('conflict', 0.0):.1%}, confirmed by "
+                    f"{d.get('confirmed_by') or 'its registration'}")
+            if "error_m" in d:
+                line += f"; error {d['error_m']:.2f} m, {d['error_deg']:.1f} deg"
+        elif d["attempts"]:
+            line = (f"{link}: refused, not fused ({d['attempts']} registration(s)): "
+                    f"{' '.join(str(d.get('refusal', '')).split())}")
+        else:
+            line = f"{link}: no message delivered, not aligned"
+        out.append(line)
+    if alignment:
+        tries = sum(d["attempts"] for d in alignment)
+        secs = sum(d.get("seconds", 0.0) for d in alignment)
+        out.append(f"alignment: {sum(d['aligned'] for d in alignment)} of {len(alignment)} links "
+                   f"aligned; {tries} registration(s) (at most {MAX_ATTEMPTS} per link) took "
+                   f"{secs:.1f} s")
+    return out
 
 
 def frames_section(frames: Mapping[str, np.ndarray], alignment: Sequence[dict]) -> list[str]:
@@ -216,5 +316,6 @@ def frames_section(frames: Mapping[str, np.ndarray], alignment: Sequence[dict]) 
             if with_error:
                 row += f" {d['error_m']:.3f} | {d['error_deg']:.2f} |"
             lines.append(row)
-        lines.append("")
+        lines += ["", "Per link, on the terminal as in this list:", "",
+                  *(f"- {x}" for x in alignment_lines(alignment)), ""]
     return lines

@@ -228,6 +228,9 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         exported = maps.finish()
     paths = {name: path for name, (path, _) in plots.items()}
     res.timings["export (wall)"] = maps.seconds  # the maps written group by group, the heat maps
+    if res.alignment:  # registrations run between the exchanges, outside the parts above
+        res.timings["alignment registrations (wall)"] = sum(d.get("seconds", 0.0)
+                                                            for d in res.alignment)
     timings = ordered_timings(res)  # every part timed by now
     fusions = sorted((e for r in res.rules for e in res.traffic[r].fusions),
                      key=lambda e: e.time_s)
