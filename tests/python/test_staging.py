@@ -84,8 +84,12 @@ def test_leftovers_of_dead_processes_are_removed_and_moved_aside_output_restored
     (aside / "out" / "kept.txt").write_text("earlier output")
     clean_leftovers(tmp_path / "a.ply")
     clean_leftovers(out)
+    sibling = partial_path(tmp_path / "out.mcap")  # a name that begins like out's
+    sibling.mkdir()
+    (tmp_path / f".out.mcap.{dead}-0a0b0c0d.partial").mkdir()  # out.mcap's, not out's
+    clean_leftovers(out)
     assert (out / "kept.txt").read_text() == "earlier output"
-    assert _leftovers(tmp_path) == [mine.name]
+    assert _leftovers(tmp_path) == sorted([mine.name, sibling.name, f".out.mcap.{dead}-0a0b0c0d.partial"])
 
 
 def test_interruption_as_outputs_go_in_place_keeps_the_earlier_bag_and_folder(tmp_path, monkeypatch):
@@ -164,6 +168,8 @@ def test_export_interrupted_at_any_moment_keeps_the_old_file(big_map, tmp_path, 
         if rc == 0:  # done before the signal, or the signal came as the file went in place
             assert out.read_bytes() == new
             out.write_bytes(b"earlier output\n")
+        elif rc == -sig:  # the signal came before the interpreter had loaded octofuse
+            assert out.read_bytes() == b"earlier output\n"
         else:
             assert rc == 128 + sig, (after, sig, err)
             word = "terminated" if sig == signal.SIGTERM else "interrupted"

@@ -53,7 +53,9 @@ def clean_leftovers(final: str | os.PathLike) -> list[Path]:
     earlier output a killed rename had moved aside (``.NAME.*.old``) is put back if ``final`` is
     missing, else removed. Returns the paths removed."""
     final = Path(final).absolute()
-    pattern = re.compile(r"\.+" + re.escape(final.name) + r"\.(?:(\d+)-)?[^/]*?\.(partial|old)")
+    # NAME, then the writer's pid and a random part without dots: '.demo.PID-x.partial' is
+    # demo's, '.demo.mcap.PID-x.partial' is demo.mcap's
+    pattern = re.compile(r"\.+" + re.escape(final.name) + r"\.(?:(\d+)-)?\w+\.(partial|old)")
     removed = []
     try:
         entries = list(final.parent.iterdir())
