@@ -2,6 +2,8 @@
 #include "octofuse/carried_loss.hpp"
 
 #include "loss_tree.hpp"
+#include "prune_or_max.hpp"
+#include "walk.hpp"
 
 namespace octofuse {
 
@@ -36,39 +38,44 @@ class LeavesOfSettled {
       : t_(t), s_(side), values_(values), depths_(depths) {}
 
   void run() {
-    const Part p = visit(t_.getRoot(), s_.getRoot(), 0);
+    const Part p = visit(MapWalk::root(t_), SideWalk::root(s_), 0);
     if (p.kind == Part::Uniform) put(values_.size(), p.value, 0);
   }
 
  private:
-  // The node of the map (null: none there, or a leaf above that carries nothing) and of the
-  // side tree (null: none) at one position of `depth`. A voxel's loss is its leaf's carried
-  // loss, else the side tree's (never both).
-  Part visit(const OccupancyNode* o, const ScalarNode* s, unsigned depth) {
-    if (s != nullptr && !s_.nodeHasChildren(s)) return {Part::Uniform, s->getValue()};
-    if (o != nullptr && !t_.nodeHasChildren(o)) {
-      if (o->carries_loss()) return {Part::Uniform, o->carried_loss()};
-      o = nullptr;  // the side tree's below it, if any
+  using MapWalk = detail::WalkNode<OccupancyTree>;
+  using SideWalk = detail::WalkNode<ScalarTree>;
+
+  // The node of the map (none: none there, or a leaf above that carries nothing) and of the
+  // side tree at one position of `depth`. A voxel's loss is its leaf's carried loss, else the
+  // side tree's (never both).
+  Part visit(MapWalk o, const SideWalk& s, unsigned depth) {
+    if (s.present() && s.leaf) return {Part::Uniform, s.node->getValue()};
+    if (o.present() && o.leaf) {
+      if (o.node->carries_loss()) return {Part::Uniform, o.node->carried_loss()};
+      o = MapWalk{};  // the side tree's below it, if any
     }
-    if (o == nullptr && s == nullptr) return {Part::Empty, 0.0f};
-    // the children, merged as prune_or_max merges them: 8 equal values, the first one's kept
+    if (!o.present() && !s.present()) return {Part::Empty, 0.0f};
+    // the children, merged by the prune rule: 8 equal values, the first one's kept
     Part kids[8];
-    bool uniform = true;
+    detail::PruneRule rule(kMaxOfNoChildren<ScalarNode>);
     for (unsigned i = 0; i < 8; ++i) {
-      const OccupancyNode* oc = o != nullptr && t_.nodeChildExists(o, i) ? t_.getNodeChild(o, i) : nullptr;
-      const ScalarNode* sc = s != nullptr && s_.nodeChildExists(s, i) ? s_.getNodeChild(s, i) : nullptr;
       const std::size_t before = values_.size();
-      kids[i] = visit(oc, sc, depth + 1);
-      const bool still = uniform && kids[i].kind == Part::Uniform &&
-                         (i == 0 || kids[i].value == kids[0].value);
-      if (uniform && !still) {  // the earlier children, equal so far, are leaves after all
+      kids[i] = visit(o.child(i), s.child(i), depth + 1);
+      const bool was_mergeable = rule.may_merge();
+      if (kids[i].kind == Part::Empty) {
+        rule.absent();
+      } else {
+        rule.child(kids[i].value, kids[i].kind == Part::Uniform);
+      }
+      const bool still = rule.may_merge();
+      if (was_mergeable && !still) {  // the earlier children, equal so far, are leaves after all
         std::size_t at = kids[i].kind == Part::Written ? before : values_.size();
         for (unsigned k = 0; k < i; ++k) put(at++, kids[k].value, depth + 1);
       }
       if (!still && kids[i].kind == Part::Uniform) put(values_.size(), kids[i].value, depth + 1);
-      uniform = still;
     }
-    return uniform ? kids[0] : Part{Part::Written, 0.0f};
+    return rule.merges() ? kids[0] : Part{Part::Written, 0.0f};
   }
 
   void put(std::size_t at, float value, unsigned depth) {

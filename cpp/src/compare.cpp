@@ -35,15 +35,12 @@ constexpr std::array<std::uint8_t, 256> kSetBits = [] {
 // coarse leaf stands for the voxels below it): only the children that either tree has are
 // visited, found from a mask of each node's children.
 struct Comparer {
-  // a node of one side in the walk (null when unknown) and the mask of its children (none:
-  // a leaf, which stands for all 8)
-  template <class Node>
-  struct Side {
-    const Node* node;
+  // a node of the reference in the walk (null when unknown) and the mask of its children
+  // (none: a leaf, which stands for all 8)
+  struct RefSide {
+    const ReferenceMap::Node* node;
     unsigned kids;
   };
-  using RefSide = Side<ReferenceMap::Node>;
-  using MapSide = Side<OcNode>;
 
   const std::vector<ReferenceMap::Node>& ref;
   const OccupancyTree& mt;
@@ -56,13 +53,13 @@ struct Comparer {
   static float value(const ReferenceMap::Node* n) { return n->value; }
   static float value(const OcNode* n) { return n->getLogOdds(); }
 
-  template <class Node>
-  int cls(const Side<Node>& n) const {
+  template <class Side>
+  int cls(const Side& n) const {
     if (n.node == nullptr) return kUnknown;
     return value(n.node) > thr ? kOccupied : kFree;
   }
 
-  void count(const RefSide& r, const MapSide& m, double weight) {
+  void count(const RefSide& r, const W& m, double weight) {
     out.confusion[cls(r)][cls(m)] += weight;
     if (r.node == nullptr) return;
     const float stored_r = r.node->value;
@@ -76,16 +73,8 @@ struct Comparer {
     }
   }
 
-  MapSide map_side(const OcNode* n) const {
-    unsigned kids = 0;
-    if (mt.nodeHasChildren(n))
-      for (unsigned i = 0; i < 8; ++i) kids |= unsigned{mt.nodeChildExists(n, i)} << i;
-    return {n, kids};
-  }
-
-  // The children a side has in the walk: all 8 for a leaf, none when unknown.
-  template <class Node>
-  static unsigned mask(const Side<Node>& s) {
+  // The children the reference has in the walk: all 8 for a leaf, none when unknown.
+  static unsigned mask(const RefSide& s) {
     if (s.node == nullptr) return 0;
     return s.kids == 0 ? 0xFFu : s.kids;
   }
@@ -97,29 +86,23 @@ struct Comparer {
     return {&c, c.kids};
   }
 
-  MapSide child(const MapSide& s, unsigned i) const {
-    if (s.kids == 0) return s;
-    if (!((s.kids >> i) & 1u)) return {nullptr, 0};
-    return map_side(mt.getNodeChild(s.node, i));
-  }
-
-  void walk(const RefSide& r, const MapSide& m, double weight) {
-    if (r.kids == 0 && m.kids == 0) {
+  void walk(const RefSide& r, const W& m, double weight) {
+    if (r.kids == 0 && m.leaf_or_unknown()) {
       count(r, m, weight);
       return;
     }
     const double w = weight / 8.0;
-    for (unsigned both = mask(r) | mask(m); both != 0; both &= both - 1) {
+    for (unsigned both = mask(r) | m.children_mask(); both != 0; both &= both - 1) {
       const unsigned i = static_cast<unsigned>(__builtin_ctz(both));
-      walk(child(r, i), child(m, i), w);
+      walk(child(r, i), m.child(i), w);
     }
   }
 
   void run() {
     const RefSide r = ref.empty() ? RefSide{nullptr, 0} : RefSide{&ref[0], ref[0].kids};
-    const MapSide m = mt.getRoot() == nullptr ? MapSide{nullptr, 0} : map_side(mt.getRoot());
+    const W m = W::root(mt);
     // weight 8^16: the root stands for all finest voxels
-    if (r.node != nullptr || m.node != nullptr) walk(r, m, std::pow(8.0, 16));
+    if (r.node != nullptr || m.present()) walk(r, m, std::pow(8.0, 16));
   }
 };
 

@@ -2,6 +2,7 @@
 #include "octofuse/fuse.hpp"
 
 #include "lazy_tree.hpp"
+#include "walk.hpp"
 
 #include <memory>
 #include <type_traits>
@@ -11,6 +12,7 @@ namespace octofuse {
 namespace {
 
 using OcNode = OccupancyNode;
+using W = detail::WalkNode<OccupancyTree>;
 using detail::Kids;
 using detail::Lazy;
 
@@ -38,44 +40,24 @@ struct Walker {
     counts.add(v, depth);
   }
 
-  /// Child i of an input node of tree t as seen by the walk: a leaf stands for all its
-  /// children, unknown stays unknown (null).
-  static const OcNode* child(const OccupancyTree& t, const OcNode* n, bool leaf, unsigned i,
-                             bool& child_leaf) {
-    if (n == nullptr || leaf) {
-      child_leaf = true;
-      return n;
-    }
-    if (!t.nodeChildExists(n, i)) {
-      child_leaf = true;
-      return nullptr;
-    }
-    const OcNode* c = t.getNodeChild(n, i);
-    child_leaf = !t.nodeHasChildren(c);
-    return c;
-  }
-
   /// Walks the node pair (a, b) at `depth`, not both leaves or unknown. Returns for each
   /// output tree whether the subtree collapsed to one leaf, whose value is then in vm / vl.
-  void walk(const OcNode* a, bool a_leaf, const OcNode* b, bool b_leaf, unsigned depth,
-            Lazy<OccupancyTree>& om, Lazy<ScalarTree>& ol, bool& leaf_m, float& vm,
-            bool& leaf_l, float& vl) {
+  void walk(const W& a, const W& b, unsigned depth, Lazy<OccupancyTree>& om,
+            Lazy<ScalarTree>& ol, bool& leaf_m, float& vm, bool& leaf_l, float& vl) {
     Kids km, kl;
     for (unsigned i = 0; i < 8; ++i) {
-      bool ca_leaf, cb_leaf;
-      const OcNode* ca = child(ta, a, a_leaf, i, ca_leaf);
-      const OcNode* cb = child(tb, b, b_leaf, i, cb_leaf);
-      if (ca == nullptr && cb == nullptr) continue;
-      if (ca_leaf && cb_leaf) {
+      const W ca = a.child(i), cb = b.child(i);
+      if (!ca.present() && !cb.present()) continue;
+      if (ca.leaf_or_unknown() && cb.leaf_or_unknown()) {
         km.mark(i);
         kl.mark(i);
-        leaf(ca, cb, depth + 1, km.value[i], kl.value[i]);
+        leaf(ca.node, cb.node, depth + 1, km.value[i], kl.value[i]);
         continue;
       }
       Lazy<OccupancyTree> cm{&om, i, nullptr};
       Lazy<ScalarTree> cl{&ol, i, nullptr};
       bool lm, ll;
-      walk(ca, ca_leaf, cb, cb_leaf, depth + 1, cm, cl, lm, km.value[i], ll, kl.value[i]);
+      walk(ca, cb, depth + 1, cm, cl, lm, km.value[i], ll, kl.value[i]);
       km.mark(i, !lm);
       kl.mark(i, !ll);
     }
@@ -86,21 +68,18 @@ struct Walker {
   }
 
   void run() {
-    const OcNode* ra = ta.getRoot();
-    const OcNode* rb = tb.getRoot();
-    const bool a_leaf = ra == nullptr || !ta.nodeHasChildren(ra);
-    const bool b_leaf = rb == nullptr || !tb.nodeHasChildren(rb);
+    const W ra = W::root(ta), rb = W::root(tb);
     Lazy<OccupancyTree> om{nullptr, 0, nullptr};
     Lazy<ScalarTree> ol{nullptr, 0, nullptr};
     float vm, vl;
-    if (a_leaf && b_leaf) {
-      leaf(ra, rb, 0, vm, vl);
+    if (ra.leaf_or_unknown() && rb.leaf_or_unknown()) {
+      leaf(ra.node, rb.node, 0, vm, vl);
       om.get(out)->setLogOdds(vm);
       ol.get(loss)->setValue(vl);
       return;
     }
     bool leaf_m, leaf_l;
-    walk(ra, a_leaf, rb, b_leaf, 0, om, ol, leaf_m, vm, leaf_l, vl);
+    walk(ra, rb, 0, om, ol, leaf_m, vm, leaf_l, vl);
     if (leaf_m) om.get(out)->setLogOdds(vm);
     if (leaf_l) ol.get(loss)->setValue(vl);
   }

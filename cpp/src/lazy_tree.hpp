@@ -5,7 +5,10 @@
 #include "octofuse/detail/tree_access.hpp"
 #include "octofuse/tree.hpp"
 
+#include "prune_or_max.hpp"
+
 #include <cstdint>
+#include <limits>
 
 namespace octofuse::detail {
 
@@ -42,30 +45,35 @@ struct Kids {
     if (is_inner) inner |= static_cast<std::uint8_t>(1u << i);
   }
 
-  /// Whether the children are 8 equal leaves (OctoMap's isNodeCollapsible).
-  bool collapsible() const {
-    if (present != 0xFF || inner != 0) return false;
-    bool equal = true;
-    for (unsigned i = 1; i < 8; ++i) equal &= value[i] == value[0];
-    return equal;
+  /// The children under the prune rule, the max from `max_of_none` up.
+  PruneRule judged(float max_of_none) const {
+    PruneRule rule(max_of_none);
+    for (unsigned i = 0; i < 8; ++i) {
+      if (present & (1u << i)) {
+        rule.child(value[i], !(inner & (1u << i)));
+      } else {
+        rule.absent();
+      }
+    }
+    return rule;
   }
 
-  /// Ends a node: true if the children collapse to one leaf (collapsible() and
+  /// Whether the children are 8 equal leaves (OctoMap's isNodeCollapsible).
+  bool collapsible() const { return judged(-std::numeric_limits<float>::infinity()).merges(); }
+
+  /// Ends a node: true if the children collapse to one leaf (the prune rule, and
   /// `may_collapse`), else allocates the node and its leaf children and sets its value to the
   /// max of its children (OctoMap's updateOccupancyChildren). Either way `value[0]` is then
   /// the node's value, which its parent takes as the value of this child.
   template <class Tree, class SetValue>
   bool finish(Tree& t, Lazy<Tree>& self, SetValue set, bool may_collapse = true) {
-    if (may_collapse && collapsible()) return true;
+    const PruneRule rule = judged(kMaxOfNoChildren<typename Lazy<Tree>::Node>);
+    if (may_collapse && rule.merges()) return true;
     auto* n = self.get(t);
-    float mx = kMaxOfNoChildren<typename Lazy<Tree>::Node>;
-    for (unsigned i = 0; i < 8; ++i) {
-      if (!(present & (1u << i))) continue;
-      if (!(inner & (1u << i))) set(t.create_child(n, i), value[i]);
-      if (value[i] > mx) mx = value[i];
-    }
-    set(n, mx);
-    value[0] = mx;
+    for (unsigned i = 0; i < 8; ++i)
+      if ((present & ~inner) & (1u << i)) set(t.create_child(n, i), value[i]);
+    set(n, rule.max());
+    value[0] = rule.max();
     return false;
   }
 };

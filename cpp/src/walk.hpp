@@ -1,4 +1,5 @@
-// octofuse: a node of an input tree as seen by a simultaneous walk of several trees.
+// octofuse: a node of an input tree as seen by a simultaneous walk of several trees (the one
+// place where a coarse leaf stands for its children), and a walk of one tree's leaves.
 #pragma once
 
 #include "octofuse/detail/tree_access.hpp"
@@ -18,6 +19,17 @@ struct WalkNode {
   bool leaf = false;
 
   bool present() const { return node != nullptr; }
+  /// Whether the walk ends here: a leaf, or unknown space.
+  bool leaf_or_unknown() const { return node == nullptr || leaf; }
+
+  /// The children the walk visits, bit i for child i: all 8 below a leaf, none below unknown.
+  unsigned children_mask() const {
+    if (node == nullptr) return 0;
+    if (leaf) return 0xFFu;
+    unsigned mask = 0;
+    for (unsigned i = 0; i < 8; ++i) mask |= unsigned{tree->nodeChildExists(node, i)} << i;
+    return mask;
+  }
 
   /// The walk node of child i.
   WalkNode child(unsigned i) const {

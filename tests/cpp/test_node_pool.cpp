@@ -65,7 +65,8 @@ TEST(NodePool, DeepCopyIsIndependentAndPooled) {
     OccupancyMap c(m);
     EXPECT_EQ(expand(c.tree()), want);
     EXPECT_EQ(c.num_nodes(), c.tree().calcNumNodes());
-    for (auto it = c.tree().begin_leafs(); it != c.tree().end_leafs(); ++it) it->setLogOdds(1.0f);
+    OccupancyTree& t = c.settled_tree();
+    for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) it->setLogOdds(1.0f);
   }  // the copy's nodes go back to the pool; the original is untouched
   EXPECT_EQ(expand(m.tree()), want);
 }

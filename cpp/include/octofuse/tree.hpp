@@ -1,6 +1,12 @@
 // octofuse: the tree types of octofuse's maps: OctoMap's occupancy and scalar trees with
 // their nodes and child arrays in octofuse's pools (node_pool.hpp). Same nodes, same
 // algorithms, same .ot/.bt streams as octomap::OcTree; only where the nodes live differs.
+//
+// A node is 16 bytes and has no vtable: bytes 0-7 the pointer to its array of children
+// (null for a leaf), 8-11 its float value (log-odds, or a scalar such as a loss), 12-15
+// OctoMap's padding, where an OccupancyNode keeps its carried loss (kNoLoss: none). An array
+// of children is 64 bytes: 8 pointers, null where a child does not exist; a node with an
+// array and no child is a leaf too. A pruned leaf stands for all the voxels below it.
 #pragma once
 
 #include "octofuse/node_pool.hpp"

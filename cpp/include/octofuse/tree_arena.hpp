@@ -134,11 +134,8 @@ class ArenaTree : public Base {
     if (!this->isNodeCollapsible(node)) return false;
     node->copyData(*this->getNodeChild(node, 0));
     octomap::AbstractOcTreeNode**& kids = node->children_array();
-    for (unsigned i = 0; i < 8; ++i) {
-      auto* child = static_cast<Node*>(kids[i]);
-      child->~Node();
-      detail::NodePool::release_to_pool(child);
-    }
+    // a leaf child may still have an array, emptied by OctoMap's deleteNodeChild
+    for (unsigned i = 0; i < 8; ++i) free_pool_nodes(static_cast<Node*>(kids[i]));
     detail::ChildrenPool::release_to_pool(kids);
     kids = nullptr;
     this->tree_size -= 8;
