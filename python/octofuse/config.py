@@ -311,6 +311,141 @@ class RunConfig:
         self.formats = list(dict.fromkeys(names))
 
 
+@dataclass
+class PartitionConfig:
+    """A partition of a live fleet: from ``start`` to ``end`` (seconds of mission time) the
+    agents ``agents`` hear nothing from the others and the others nothing from them."""
+
+    start: float
+    end: float
+    agents: list[str] = field(default_factory=list)
+
+    def validate(self, where: str) -> None:
+        if not 0 <= self.start < self.end:
+            raise ValueError(f"{where}: start {self.start} and end {self.end}: expected "
+                             "0 <= start < end (seconds)")
+        if not self.agents:
+            raise ValueError(f"{where}.agents: name the agents cut off from the others")
+
+
+@dataclass
+class FaultConfig:
+    """Faults a live fleet's links inject where messages leave an agent (seeded per agent):
+    each message is lost, duplicated or held back (reordered behind the next) with these
+    probabilities, and delayed by a uniform 0 to ``delay`` seconds."""
+
+    loss: float = 0.0
+    duplicate: float = 0.0
+    reorder: float = 0.0
+    delay: float = 0.0
+    partitions: list[PartitionConfig] = field(default_factory=list)
+    seed: int = 0
+
+    def validate(self, where: str) -> None:
+        for name in ("loss", "duplicate", "reorder"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"{where}.{name} = {getattr(self, name)}: expected a "
+                                 "probability from 0 to below 1")
+        if not 0.0 <= self.delay <= 60.0:
+            raise ValueError(f"{where}.delay = {self.delay}: expected 0 to 60 seconds")
+        for i, part in enumerate(self.partitions):
+            part.validate(f"{where}.partitions[{i}]")
+
+    @property
+    def any(self) -> bool:
+        return bool(self.loss or self.duplicate or self.reorder or self.delay or self.partitions)
+
+
+@dataclass
+class LiveConfig:
+    """A live fleet: one ``octofuse agent`` process per robot and rule, exchanging over Zenoh
+    (:mod:`octofuse.live`)."""
+
+    #: the fleet's name: its Zenoh keys are under ``octofuse/<fleet>/``
+    fleet: str = "octofuse"
+    #: agent k (in the agents' order) listens on ``tcp/<host>:<base_port + k>`` (``tls/`` with
+    #: TLS); one port per agent and rule
+    host: str = "127.0.0.1"
+    base_port: int = 7447
+    #: replay speed of the bags (1: their recorded rate)
+    speed: float = 1.0
+    #: hold every agent at each exchange time until its messages of that time have arrived:
+    #: the fleet's maps are then those of ``octofuse run`` with the same schedule
+    lockstep: bool = False
+    #: seconds of mission time between checkpoints of an agent's state (0: none)
+    checkpoint_period: float = 5.0
+    #: the largest message an agent takes (bytes); larger ones are dropped and counted
+    max_message_bytes: int = 256 * 2**20
+    #: seconds an agent waits for a neighbour (to appear, or in lockstep for its message)
+    timeout: float = 120.0
+    #: after the mission, rounds of fault-free exchanges in which the fleet settles
+    settle_rounds: int = 0
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    #: TLS (PEM files): the certificate authority, this machine's certificate and key
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
+    #: Zenoh user/password authentication: this agent's user and password, and the file of
+    #: accepted ``user:password`` lines
+    user: str = ""
+    password: str = ""
+    users_file: str = ""
+
+    def validate(self, where: str) -> None:
+        if not self.fleet or "/" in self.fleet or any(c in self.fleet for c in "*$?#"):
+            raise ValueError(f"{where}.fleet = {self.fleet!r}: expected a name without '/', "
+                             "'*', '$', '?' or '#'")
+        if not 1 <= self.base_port <= 65000:
+            raise ValueError(f"{where}.base_port = {self.base_port}: expected 1 to 65000")
+        if not (math.isfinite(self.speed) and 0 < self.speed <= 1000):
+            raise ValueError(f"{where}.speed = {self.speed}: expected above 0, up to 1000")
+        if not 0 <= self.checkpoint_period <= 86400:
+            raise ValueError(f"{where}.checkpoint_period = {self.checkpoint_period}: expected 0 "
+                             "(none) to 86400 seconds")
+        if not 1024 <= self.max_message_bytes <= 2**32 - 1:
+            raise ValueError(f"{where}.max_message_bytes = {self.max_message_bytes}: expected "
+                             "1024 to 4 GiB")
+        if not 0 < self.timeout <= 3600:
+            raise ValueError(f"{where}.timeout = {self.timeout}: expected above 0, up to 3600 s")
+        if not 0 <= self.settle_rounds <= 1000:
+            raise ValueError(f"{where}.settle_rounds = {self.settle_rounds}: expected 0 to 1000")
+        self.faults.validate(f"{where}.faults")
+        if self.lockstep and self.faults.any:
+            raise ValueError(f"{where}: lockstep waits for every message of the schedule, which "
+                             "injected faults would lose; use fuse.loss for lost messages")
+        tls = [self.tls_root_ca, self.tls_certificate, self.tls_private_key]
+        if any(tls) and not all(tls):
+            raise ValueError(f"{where}: TLS needs tls_root_ca, tls_certificate and "
+                             "tls_private_key together")
+        for name in ("tls_root_ca", "tls_certificate", "tls_private_key", "users_file"):
+            path = getattr(self, name)
+            if path and not Path(path).is_file():
+                raise ValueError(f"{where}.{name}: file '{path}' does not exist")
+        if bool(self.user) != bool(self.password):
+            raise ValueError(f"{where}: authentication needs both user and password")
+
+    @property
+    def scheme(self) -> str:
+        return "tls" if self.tls_root_ca else "tcp"
+
+
+@dataclass
+class FleetConfig(RunConfig):
+    """A run as a live fleet: the run's configuration and how its agents meet."""
+
+    live: LiveConfig = field(default_factory=LiveConfig)
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        self.live.validate(f"{where}.live")
+        if self.fuse.robust.enabled:
+            raise ValueError(f"{where}.fuse.robust: a live fleet has no place where every "
+                             "robot's map meets to vote; run robust fusion with `run`")
+        if self.fuse.align != "off" or self.fuse.own_frames:
+            raise ValueError(f"{where}.fuse: a live fleet maps every robot in the common frame "
+                             "for now; agent frames and alignment run in `run` and the swarm")
+
+
 # ------------------------------------------------------------------------------ plain data
 
 

@@ -204,14 +204,16 @@ def _given(**values) -> dict:
     return {k: v for k, v in values.items() if v is not None and v != () and v != []}
 
 
-def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunConfig:
+def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None, cls=RunConfig,
+               extra: Optional[dict] = None) -> RunConfig:
     """The configuration of a command: the configuration's defaults, then the command's own
-    ``defaults`` (e.g. bench's every rule), then ``--config``, then the flags in ``p``."""
+    ``defaults`` (e.g. bench's every rule), then ``--config``, then the flags in ``p`` (and
+    the sections ``extra`` of a configuration ``cls`` beyond a run's, from its own flags)."""
     from ..config import from_dict, merge, read_yaml
 
     data = read_yaml(p["config"]) if p.get("config") else {}
     if data:  # the file's own errors name the file and the key
-        from_dict(RunConfig, data, where=str(p["config"]))
+        from_dict(cls, data, where=str(p["config"]))
     data = merge(defaults or {}, data)
     build = _given(fixed_frame=p.get("fixed_frame"), max_range=p.get("max_range"),
                    no_return=p.get("no_return"), scan_stride=p.get("every"),
@@ -241,9 +243,9 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None) -> RunCon
                  truth=str(p["truth"]) if p.get("truth") else None,
                  samples=p.get("samples"), export_agents=",".join(p["export_agents"]) if p.get("export_agents") else None,
                  export=p.get("export"), formats=[p["formats"]] if p.get("formats") else None)
-    data = merge(data, {"build": build, "fuse": fuse, **run})
+    data = merge(data, {"build": build, "fuse": fuse, **run, **(extra or {})})
     _agent_poses(data, p)
-    return from_dict(RunConfig, data, where="options")
+    return from_dict(cls, data, where="options")
 
 
 def _agent_poses(data: dict, p: dict) -> None:

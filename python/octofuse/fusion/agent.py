@@ -85,6 +85,10 @@ class Agent:
             self._loss = InfoLossMap.carried_by(self.map)
         return self._loss
 
+    def reset_loss(self) -> None:
+        """Forget the loss counted so far (the map was replaced)."""
+        self._loss = None
+
     def loss_map(self) -> InfoLossMap:
         """:attr:`loss`, or an empty loss map where there is none."""
         return self._loss if self._loss is not None else InfoLossMap(self.map.resolution)
@@ -104,10 +108,12 @@ class Agent:
             snapshot = state if state is not None else self.map
             if delta:  # kept as the next baseline: a copy of the map as sent
                 snapshot = snapshot.copy()
+        whole = link.sends_whole()
         seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable)
         if self.exact and payload is not snapshot:
             open_map(payload)
-        return MapMessage(self.name, to, self.rule, seq, link.applied, payload, delta)
+        return MapMessage(self.name, to, self.rule, seq, link.applied, payload,
+                          delta and not whole)
 
     # -- receiving ---------------------------------------------------------------------------
     def deliver(self, msg: MapMessage, *, unknown: str = "copy", threads: int = 1,
@@ -116,9 +122,14 @@ class Agent:
         maps in another). False if it was not newer than the last applied on its link, which
         then changes nothing."""
         link = self.link(msg.sender)
+        if msg.seq >> 32 > link.applied >> 32 and link.applied:
+            link.restart()  # the neighbour restarted: it may have lost what it had of us
         link.acknowledged(msg.ack)
+        if link.needs_whole and msg.delta:
+            return False  # a delta on what this agent held before its restart
         if not link.accept(msg.seq):
             return False
+        link.needs_whole = False
         payload = moved if moved is not None else msg.payload
         if self.exact:
             self.apply_contribution(msg.sender, payload, msg.delta)

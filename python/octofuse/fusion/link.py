@@ -36,6 +36,11 @@ class Link:
     pending: dict[int, OccupancyMap] = field(default_factory=dict)
     #: the channel filter's common information: the neighbour's last applied contribution
     received: Optional[OccupancyMap] = None
+    #: after a restart (this agent's or the neighbour's): send whole maps until the first of
+    #: them (its sequence number here) is acknowledged
+    resync: int = 0
+    #: after this agent's restart: apply no delta of the neighbour before a whole map
+    needs_whole: bool = False
 
     def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
                  reliable: bool) -> tuple[int, OccupancyMap]:
@@ -45,7 +50,9 @@ class Link:
         its acknowledgement."""
         self.seq += 1
         payload = snapshot
-        if delta:
+        if self.resync < 0:
+            self.resync = self.seq
+        if delta and not self.sends_whole():
             if self.baseline is not None:
                 payload = snapshot.changed_since(self.baseline)
             if reliable:
@@ -57,10 +64,21 @@ class Link:
     def acknowledged(self, ack: int) -> None:
         """The neighbour has applied this agent's messages up to ``ack``: the snapshot of
         ``ack`` becomes the baseline and older ones are let go."""
+        if self.resync > 0 and ack >= self.resync:
+            self.resync = 0
         if ack in self.pending:
             self.baseline = self.pending[ack]
             for k in [k for k in self.pending if k <= ack]:
                 del self.pending[k]
+
+    def restart(self) -> None:
+        """What either side held of the other may be gone: deltas start again from whole maps."""
+        self.baseline = None
+        self.pending.clear()
+        self.resync = -1  # set to the first whole map's number when it is sent
+
+    def sends_whole(self) -> bool:
+        return self.resync != 0
 
     def accept(self, seq: int) -> bool:
         """Whether a message numbered ``seq`` from the neighbour is newer than every one

@@ -1,0 +1,349 @@
+"""One robot's ``octofuse agent``: its scans, its links to its neighbours over Zenoh, its map.
+
+The agent replays its own scans at the bags' rate (``live.speed``) and exchanges with its
+neighbours at the times of the fleet's schedule, which every agent computes alike from the
+configuration (graph, schedule, seed). It sends as an :class:`~octofuse.fusion.agent.Agent`
+composes (the link protocol: sequence numbers, acknowledgements, deltas) and applies what
+arrives from its configured neighbours only; frames that are malformed, oversized, foreign or
+from others are dropped and counted.
+
+Two ways to run:
+
+* **in time** (default): scans are inserted at their time, messages sent at theirs through the
+  fault layer and applied as they arrive; a checkpoint is written every
+  ``live.checkpoint_period`` seconds of mission time, and an agent started again resumes from
+  it (a new epoch of its links). After the mission, ``live.settle_rounds`` rounds of
+  fault-free exchanges let the fleet settle.
+* **lockstep**: at each exchange time an agent sends its messages, then waits for those the
+  schedule sends it and applies them in the schedule's order, as ``octofuse run`` does: the
+  fleet's maps are then ``run``'s, bit for bit.
+
+At the end the agent writes its fused map, its own map, its loss leaves and its counts into
+``out/<agent>/`` (each file renamed into place when complete) and publishes its fused map.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from ..config import CHANNEL_FILTER, FleetConfig
+from ..fusion.agent import Agent, MapMessage
+from ..fusion.agent_frames import AgentFrames
+from ..fusion.graph import make_graph
+from ..fusion.network import message_bytes
+from ..fusion.schedule import EXCHANGE, mission_events, moments, parse_schedule
+from ..maps.build import insert_scans
+from ..maps.occupancy import OccupancyMap
+from ..scans.source import ScanSource, prefetch
+from . import checkpoint, keys
+from .faults import FaultyLinks
+from .transport import ZenohTransport, endpoint
+
+
+@dataclass
+class AgentCounts:
+    """What an agent did, published as its status and written at the end."""
+
+    scans: int = 0
+    sent: int = 0  #: messages sent (through the fault layer)
+    applied: int = 0  #: messages applied
+    refused: dict = field(default_factory=lambda: defaultdict(int))  #: dropped, by reason
+    bytes_sent: int = 0  #: OctoMap stream bytes (5 per node), as ``run`` counts them
+    bytes_received: int = 0
+    sent_32b: int = 0
+    behind: int = 0  #: scans inserted later than their time plus a second
+    restarts: int = 0
+
+
+class LiveAgent:
+    """Agent ``name`` of the fleet ``cfg`` under ``rule`` (one of ``cfg.fuse.rules``; each
+    rule's agents are a fleet of their own, on ports of their own)."""
+
+    def __init__(self, cfg: FleetConfig, name: str, rule: str, out: Path,
+                 log: Callable[[str], None] = lambda _m: None):
+        if rule not in cfg.fuse.rules:
+            raise ValueError(f"rule '{rule}' is not one of the fleet's: "
+                             f"{', '.join(cfg.fuse.rules)}")
+        self.cfg, self.name, self.live, self.log = cfg, name, cfg.live, log
+        self.rule, self.rule_index = rule, cfg.fuse.rules.index(rule)
+        names = [a.name for a in cfg.build.agents]
+        if name not in names:
+            raise ValueError(f"agent '{name}' is not in the fleet: its agents are "
+                             f"{', '.join(names) or 'none (build.agents is empty)'}")
+        self.names, self.index = names, names.index(name)
+        graph = make_graph(cfg.fuse.topology, len(names), seed=cfg.fuse.seed, names=names)
+        self.graph = graph
+        self.neighbours = [names[j] for j in graph.neighbors(self.index)]
+        self.tree: set[tuple[str, str]] = set()
+        if self.rule == CHANNEL_FILTER:
+            from ..fusion.channel_filter import spanning_tree
+
+            for a, b in spanning_tree(graph, cfg.fuse.spanning_tree):
+                self.tree |= {(names[a], names[b]), (names[b], names[a])}
+        self.out = Path(out) / rule / name
+        self.out.mkdir(parents=True, exist_ok=True)
+        mk = lambda: OccupancyMap.from_config(cfg.build.map)  # noqa: E731
+        self.agent = Agent(name, self.rule, mk())
+        self.local = mk()
+        self.frames = AgentFrames.from_config(names, cfg.fuse)
+        self.counts = AgentCounts()
+        self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
+
+    # -- the link protocol on frames ---------------------------------------------------------
+    def uses(self, other: str) -> bool:
+        """Whether this agent's rule exchanges with ``other`` (the channel filter on its tree)."""
+        if self.rule != CHANNEL_FILTER:
+            return other in self.neighbours
+        return (self.name, other) in self.tree
+
+    def compose(self, receiver: str) -> bytes:
+        """The frame for ``receiver`` now."""
+        f = self.cfg.fuse
+        msg = self.agent.compose(receiver, delta=f.delta,
+                                 reliable=f.loss == 0 and not self.live.faults.any)
+        self.counts.sent += 1
+        self.counts.bytes_sent += message_bytes(msg.payload)
+        self.counts.sent_32b += 32 * msg.payload.num_leaves
+        return msg.encode(self.live.fleet)
+
+    def apply(self, sender: str, frame: bytes) -> bool:
+        """Apply a frame that arrived from ``sender``; False (counted) if it is refused."""
+        if sender not in self.neighbours or not self.uses(sender):
+            self.counts.refused["not a neighbour"] += 1
+            return False
+        try:
+            msg = MapMessage.decode(frame, self.live.max_message_bytes)
+        except (ValueError, OSError) as e:  # a bad frame, or a payload that is no map
+            self.counts.refused[f"malformed: {type(e).__name__}"] += 1
+            return False
+        if (msg.sender, msg.receiver, msg.rule) != (sender, self.name, self.rule):
+            self.counts.refused["not for this link"] += 1
+            return False
+        self.counts.bytes_received += message_bytes(msg.payload)
+        moved = self.frames.to_receiver(sender, self.name, msg.payload, self.agent.map.resolution)
+        if not self.agent.deliver(msg, unknown=self.cfg.fuse.unknown, moved=moved):
+            self.counts.refused["old or repeated"] += 1
+            return False
+        self.counts.applied += 1
+        return True
+
+    # -- the mission ---------------------------------------------------------------------------
+    def run(self, resume: bool = True) -> AgentCounts:
+        cfg, live = self.cfg, self.live
+        build = _own_build(cfg, self.index)
+        with ScanSource(build) as src:
+            start, end = src.bags.start_ns, src.bags.end_ns
+            spec = parse_schedule(cfg.fuse.schedule)
+            duration, events = mission_events(spec, self.graph, cfg.fuse, start, end)
+            timed = [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
+            progress = {"t": -1.0, "scans": 0}
+            ckpt = self.out / "checkpoint.pkl"
+            epoch = checkpoint.next_epoch(self.out / "epoch")
+            if resume and ckpt.is_file():
+                self.local, progress = checkpoint.restore(ckpt, self.agent, epoch)
+                self.counts.restarts = epoch - 1
+                self.log(f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s "
+                         f"(start {epoch})")
+            connect = [endpoint(live, self._port_index(n)) for n in self.neighbours]
+            transport = ZenohTransport(live, self.rule, self.name,
+                                       endpoint(live, self._port_index(self.name)), connect)
+            try:
+                transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
+                scans = (s for i, s in enumerate(prefetch(src.scans()))
+                         if i >= progress["scans"])
+                timed = [(t, g) for t, g in timed if t > progress["t"]]
+                if live.lockstep:
+                    self._lockstep(transport, scans, timed, start, progress)
+                else:
+                    self._in_time(transport, scans, timed, start, progress, ckpt)
+                # every neighbour has sent all it will: nothing is sent to an agent gone
+                transport.declare_done()
+                self._drain(transport, until=None,
+                            done=[n for n in self.neighbours if self.uses(n)])
+                self._finish(transport)
+            finally:
+                transport.close()
+        return self.counts
+
+    def _port_index(self, name: str) -> int:
+        """Agent ``name``'s port offset: one port per agent and rule."""
+        return self.rule_index * len(self.names) + self.names.index(name)
+
+    def _insert(self, batch: list, progress: dict) -> None:
+        if batch:
+            insert_scans(batch, [[self.agent.map, self.local]] * len(batch), 1)
+            self.counts.scans += len(batch)
+            progress["scans"] += len(batch)
+            batch.clear()
+
+    def _scans_until(self, scans, t: float, start: int, progress: dict, carry: list) -> None:
+        """Insert the scans stamped at or before mission time ``t`` (``carry``: a scan read
+        ahead, at most one)."""
+        batch: list = []
+        while True:
+            scan = carry.pop() if carry else next(scans, None)
+            if scan is None:
+                break
+            if (scan.stamp_ns - start) / 1e9 > t:
+                carry.append(scan)
+                break
+            batch.append(scan)
+            if len(batch) >= self.cfg.build.batch_size:
+                self._insert(batch, progress)
+        self._insert(batch, progress)
+
+    def _lockstep(self, transport, scans, timed, start, progress) -> None:
+        carry: list = []
+        for t, group in timed:
+            self._scans_until(scans, t, start, progress, carry)
+            for e in group:  # every message of the group composed before any is applied
+                s, d = self.names[e.sender], self.names[e.receiver]
+                if s == self.name and self.uses(d):
+                    frame = self.compose(d)
+                    if not e.lost:
+                        transport.send(d, frame)
+            for e in group:
+                s, d = self.names[e.sender], self.names[e.receiver]
+                if d == self.name and self.uses(s) and not e.lost:
+                    self.apply(s, self._wait_from(transport, s))
+            progress["t"] = t
+            self._status(transport, t)
+        self._scans_until(scans, float("inf"), start, progress, carry)
+
+    def _wait_from(self, transport, sender: str) -> bytes:
+        """The next frame from ``sender`` (frames of others kept for later)."""
+        deadline = time.monotonic() + self.live.timeout
+        while not self.pending[sender]:
+            left = deadline - time.monotonic()
+            item = None
+            if left > 0:
+                try:
+                    item = transport.inbox.get(timeout=left)
+                except Exception:  # noqa: BLE001 - queue.Empty
+                    item = None
+            if item is None:
+                raise TimeoutError(f"agent {self.name}: no message from {sender} within "
+                                   f"{self.live.timeout:g} s (lockstep)")
+            self.pending[item[0]].append(item[1])
+        return self.pending[sender].popleft()
+
+    def _in_time(self, transport, scans, timed, start, progress, ckpt) -> None:
+        live = self.live
+        t0 = time.monotonic() - max(progress["t"], 0.0) / live.speed
+        now = lambda: (time.monotonic() - t0) * live.speed  # noqa: E731 - mission time
+        links = FaultyLinks(live.faults, self.name, self.index, transport.send, now)
+        next_ckpt = progress["t"] + live.checkpoint_period if live.checkpoint_period else None
+        carry: list = []
+        for t, group in [*timed, (float("inf"), [])]:
+            # scans and arrivals until the exchange at t
+            while True:
+                scan = carry.pop() if carry else next(scans, None)
+                if scan is None:
+                    self._drain(transport, until=None if t == float("inf") else t0 + t / live.speed)
+                    break
+                at = (scan.stamp_ns - start) / 1e9
+                if at > t:
+                    carry.append(scan)
+                    self._drain(transport, until=t0 + t / live.speed)
+                    break
+                self._drain(transport, until=t0 + at / live.speed)
+                if now() > at + 1.0:
+                    self.counts.behind += 1
+                self._insert([scan], progress)
+            if t == float("inf"):
+                break
+            for e in group:
+                s, d = self.names[e.sender], self.names[e.receiver]
+                if s == self.name and self.uses(d):
+                    links.send(d, self.compose(d))
+            progress["t"] = t
+            self._status(transport, t)
+            if next_ckpt is not None and t >= next_ckpt:
+                checkpoint.save(ckpt, self.agent, self.local, progress)
+                next_ckpt = t + live.checkpoint_period
+        links.flush()
+        for _ in range(live.settle_rounds):  # fault-free rounds: the fleet settles
+            for n in self.neighbours:
+                if self.uses(n):
+                    transport.send(n, self.compose(n))
+            self._drain(transport, until=time.monotonic() + 0.5)
+
+    def _drain(self, transport, until: Optional[float], done: Optional[list] = None) -> None:
+        """Apply what arrives until the monotonic time ``until``; with None, until every agent
+        of ``done`` has finished and nothing has arrived for a second."""
+        deadline = time.monotonic() + self.live.timeout
+        while True:
+            wait = 1.0 if until is None else until - time.monotonic()
+            if wait <= 0 and until is not None:
+                return
+            if until is None and time.monotonic() > deadline:
+                late = ", ".join(transport.running(done or []))
+                raise TimeoutError(f"agent {self.name}: neighbours still running after "
+                                   f"{self.live.timeout:g} s: {late}")
+            try:
+                sender, frame = transport.inbox.get(timeout=max(wait, 0.0))
+            except Exception:  # noqa: BLE001 - queue.Empty
+                if until is None and not transport.running(done or []):
+                    return
+                continue
+            self.apply(sender, frame)
+
+    def _status(self, transport, t: float) -> None:
+        transport.publish_status({"agent": self.name, "rule": self.rule, "t": round(t, 3),
+                                  "scans": self.counts.scans, "sent": self.counts.sent,
+                                  "applied": self.counts.applied,
+                                  "refused": sum(self.counts.refused.values()),
+                                  "behind": self.counts.behind,
+                                  "links": {n: {"seq": l.seq & 0xFFFFFFFF,
+                                                "applied": l.applied & 0xFFFFFFFF}
+                                            for n, l in self.agent.links.items()}})
+
+    def _finish(self, transport) -> None:
+        """Write the final state and publish the fused map."""
+        from ..outputs.rosbag_export import _header, occupied_cloud, octomap_message, typestore
+        from ..fusion.channel_filter import clamped
+
+        scored = clamped(self.agent.map) if self.agent.exact else self.agent.map
+        _write(self.out / "fused.ot", scored.to_bytes())
+        _write(self.out / "local.ot", self.local.to_bytes())
+        values, depths = self.agent.loss_map().values_depths()
+        _write_npz(self.out / "loss.npz", values=values, depths=depths)
+        c = self.counts
+        _write(self.out / "counts.json", json.dumps({
+            "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
+            "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
+            "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
+            "frames_over_bound": transport.dropped}).encode())
+        ts = typestore(ros1=False)
+        header = _header(ts, time.time_ns(), self.cfg.build.fixed_frame)
+        transport.publish(keys.fused_map(self.name), bytes(ts.serialize_cdr(
+            octomap_message(ts, scored, header), "octomap_msgs/msg/Octomap")))
+        transport.publish(keys.occupied_cloud(self.name), bytes(ts.serialize_cdr(
+            occupied_cloud(ts, scored, header), "sensor_msgs/msg/PointCloud2")))
+
+
+def _own_build(cfg: FleetConfig, index: int):
+    """The build configuration of agent ``index``'s own scans alone."""
+    from dataclasses import replace
+
+    return replace(cfg.build, agents=[cfg.build.agents[index]])
+
+
+def _write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _write_npz(path: Path, **arrays) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)

@@ -1,0 +1,170 @@
+"""One agent's Zenoh session: messages to its neighbours, its inbox, liveliness and status.
+
+Peers meet on explicit endpoints (no multicast scouting): every agent listens on its own
+endpoint and connects to its neighbours'. Messages are put reliably with congestion control
+that blocks rather than drops, so loss comes only from the network or the fault layer
+(:mod:`.faults`). What arrives is queued as it comes (Zenoh's callback thread) and taken by the
+agent's loop; a frame over the size bound is dropped and counted before it is copied.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from typing import Optional
+
+from ..config import LiveConfig
+from . import keys
+
+
+def endpoint(live: LiveConfig, index: int) -> str:
+    """Where agent ``index`` (in the fleet's agents' order) listens."""
+    return f"{live.scheme}/{live.host}:{live.base_port + index}"
+
+
+def zenoh_config(live: LiveConfig, listen: str, connect: list[str]):
+    """A Zenoh peer configuration: explicit endpoints, no scouting, TLS and user/password
+    authentication as configured."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("listen/endpoints", json.dumps([listen]))
+    c.insert_json5("connect/endpoints", json.dumps(connect))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/gossip/enabled", "false")
+    if live.tls_root_ca:
+        tls = {"root_ca_certificate": live.tls_root_ca,
+               "listen_certificate": live.tls_certificate,
+               "listen_private_key": live.tls_private_key,
+               "connect_certificate": live.tls_certificate,
+               "connect_private_key": live.tls_private_key,
+               "enable_mtls": True}
+        for k, v in tls.items():
+            c.insert_json5(f"transport/link/tls/{k}", json.dumps(v))
+    if live.user:
+        auth = {"user": live.user, "password": live.password}
+        if live.users_file:
+            auth["dictionary_file"] = live.users_file
+        c.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+    return c
+
+
+class ZenohTransport:
+    """Agent ``name``'s session in fleet ``live.fleet`` under ``rule``.
+
+    ``inbox`` holds ``(sender, frame)`` in arrival order; :meth:`wait_for_neighbours` returns
+    once every neighbour has declared it listens."""
+
+    def __init__(self, live: LiveConfig, rule: str, name: str, listen: str,
+                 connect: list[str]):
+        import zenoh
+
+        self.live, self.rule, self.name = live, rule, name
+        self.inbox: "queue.Queue[tuple[str, bytes]]" = queue.Queue()
+        self.dropped = 0  #: frames over the size bound
+        self.received = 0
+        self._alive: set[str] = set()
+        self._alive_changed = threading.Condition()
+        self.session = zenoh.open(zenoh_config(live, listen, connect))
+        self._publishers: dict[str, object] = {}
+        self._subscriber = self.session.declare_subscriber(
+            keys.inbox(live.fleet, rule, name), self._on_message)
+        prefix = keys.alive(live.fleet, rule, "")
+        self._watch = self.session.liveliness().declare_subscriber(
+            prefix + "*", self._on_alive, history=True)
+        self._token = self.session.liveliness().declare_token(keys.alive(live.fleet, rule, name))
+        self._done: set[str] = set()
+        self._done_token = None
+        self._watch_done = self.session.liveliness().declare_subscriber(
+            keys.done(live.fleet, rule, "*"), self._on_done, history=True)
+
+    # -- messages ----------------------------------------------------------------------------
+    def send(self, receiver: str, frame: bytes) -> None:
+        """Put ``frame`` to ``receiver`` (reliably; blocks while the link is congested)."""
+        import zenoh
+
+        pub = self._publishers.get(receiver)
+        if pub is None:
+            pub = self._publishers[receiver] = self.session.declare_publisher(
+                keys.message(self.live.fleet, self.rule, receiver, self.name),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE)
+        pub.put(frame)
+
+    def _on_message(self, sample) -> None:
+        payload = sample.payload
+        if len(payload) > self.live.max_message_bytes:
+            self.dropped += 1
+            return
+        self.received += 1
+        self.inbox.put((keys.sender_of(sample.key_expr), payload.to_bytes()))
+
+    # -- who is there --------------------------------------------------------------------------
+    def _on_alive(self, sample) -> None:
+        import zenoh
+
+        agent = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._alive_changed:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(agent)
+            else:
+                self._alive.discard(agent)
+            self._alive_changed.notify_all()
+
+    def wait_for(self, agents: list[str], timeout: float) -> None:
+        """Return once every agent of ``agents`` listens; ``TimeoutError`` naming the missing
+        ones after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._alive_changed:
+            while not set(agents) <= self._alive:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    missing = sorted(set(agents) - self._alive)
+                    raise TimeoutError(f"agent {self.name}: no word from {', '.join(missing)} "
+                                       f"within {timeout:g} s (are they running, on the "
+                                       "fleet's endpoints?)")
+                self._alive_changed.wait(left)
+
+    def _on_done(self, sample) -> None:
+        import zenoh
+
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._done.add(str(sample.key_expr).rsplit("/", 1)[-1])
+
+    def declare_done(self) -> None:
+        """Say that this agent has sent everything it will."""
+        self._done_token = self.session.liveliness().declare_token(
+            keys.done(self.live.fleet, self.rule, self.name))
+
+    def running(self, agents: list[str]) -> list[str]:
+        """The agents of ``agents`` that have not said they are done."""
+        return [a for a in agents if a not in self._done]
+
+    # -- what others see -------------------------------------------------------------------------
+    def publish(self, key: str, payload: bytes) -> None:
+        self.session.put(key, payload)
+
+    def publish_status(self, status: dict) -> None:
+        self.session.put(keys.status(self.live.fleet, self.rule, self.name),
+                         json.dumps(status).encode())
+
+    def close(self) -> None:
+        held = (self._token, self._done_token, self._watch, self._watch_done, self._subscriber,
+                *self._publishers.values())
+        for x in (h for h in held if h is not None):
+            try:
+                x.undeclare()
+            except Exception:  # noqa: BLE001 - the session closes them anyway
+                pass
+        self.session.close()
+
+
+def next_frame(transport: ZenohTransport, timeout: Optional[float]) -> Optional[tuple[str, bytes]]:
+    """The next ``(sender, frame)`` of the inbox, or None after ``timeout`` seconds."""
+    try:
+        return transport.inbox.get(timeout=timeout)
+    except queue.Empty:
+        return None
