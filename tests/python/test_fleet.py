@@ -291,3 +291,44 @@ def test_a_checkpoint_restores_the_maps_and_links_in_a_new_epoch(tmp_path):
     assert not reply.delta and restored.deliver(reply)
     with pytest.raises(ValueError, match="is agent a's under channel-filter, not b's"):
         checkpoint.restore(tmp_path / "ckpt", Agent("b", "channel-filter", OccupancyMap(0.2)), 3)
+
+
+# -- a ROS 2 robot behind zenoh-bridge-ros2dds ------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_agents_map_what_a_ros2_bridge_publishes_as_the_bag_would_give_it(bag, tmp_path):
+    """Each message of the bag put on the key of its topic without the leading slash, as CDR
+    (what zenoh-bridge-ros2dds does with ROS 2 topics): each agent's own map equals the one
+    built from the bag, and the agents exchange."""
+    from rosbags.highlevel import AnyReader
+
+    from octofuse.live.transport import ZenohTransport, endpoint
+    from octofuse.maps.build import build, make_build_config
+
+    cfg, path = fleet_config(bag, tmp_path, base_port=20447)
+    cfg = replace(cfg, fuse=replace(cfg.fuse, rules=["chernoff"], schedule="periodic:0.5"))
+    path.write_text(dump_yaml(cfg))
+    out = tmp_path / "agents"
+    names = [a.name for a in cfg.build.agents]
+    procs = {n: subprocess.Popen(
+        [sys.executable, "-m", "octofuse", "agent", n, "--fleet", str(path), "--out", str(out),
+         "--from-zenoh", "pointcloud2", "--duration", "4"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for n in names}
+    bridge = ZenohTransport(cfg.live, "chernoff", "bridge", endpoint(cfg.live, 9),
+                            [endpoint(cfg.live, k) for k in range(len(names))])
+    try:
+        bridge.wait_for(names, 60)
+        with AnyReader([Path(bag)]) as reader:
+            for conn, _, raw in sorted(reader.messages(), key=lambda m: m[1]):
+                bridge.publish(conn.topic.lstrip("/"), bytes(raw))
+    finally:
+        bridge.close()
+    finish(procs)
+    own = build(make_build_config(bag, resolution=float(RES))).maps
+    for n in names:
+        d = out / "chernoff" / n
+        counts = json.loads((d / "counts.json").read_text())
+        assert counts["scans"] == 4 and counts["applied"] > 0, (n, counts)
+        assert (d / "local.ot").read_bytes() == own[n].to_bytes(), n
+        assert OccupancyMap.load(d / "fused.ot").num_leaves > own[n].num_leaves, n

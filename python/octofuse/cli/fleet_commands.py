@@ -114,7 +114,12 @@ def fleet(bags, **p):
               help="bag(s) to replay instead of the fleet's")
 @click.option("--speed", type=click.FloatRange(min=0.001, max=1000), help="replay speed")
 @click.option("--fresh", is_flag=True, help="start over instead of resuming from a checkpoint")
-def agent(name, fleet_file, rule, out, replay, speed, fresh):
+@click.option("--from-zenoh", "scan_type", type=click.Choice(["pointcloud2", "laserscan"]),
+              help="map the scans a ROS 2 robot publishes through zenoh-bridge-ros2dds (its "
+                   "scan topic, tf, tf_static as CDR) instead of replaying bags")
+@click.option("--duration", type=click.FloatRange(min=0.1), default=60.0,
+              help="seconds to run with --from-zenoh")
+def agent(name, fleet_file, rule, out, replay, speed, fresh, scan_type, duration):
     """One robot's agent: maps its scans, exchanges with its neighbours over Zenoh."""
     from dataclasses import replace
 
@@ -132,7 +137,9 @@ def agent(name, fleet_file, rule, out, replay, speed, fresh):
                            f"(one of {', '.join(cfg.fuse.rules)})")
         rule = cfg.fuse.rules[0]
     try:
-        counts = LiveAgent(cfg, name, rule, out, log=say).run(resume=not fresh)
+        live = LiveAgent(cfg, name, rule, out, log=say)
+        counts = (live.run_bridged(scan_type, duration) if scan_type
+                  else live.run(resume=not fresh))
     except TimeoutError as e:
         raise CliError(str(e)) from None
     say(f"agent {name} ({rule}): {counts.scans} scans, {counts.sent} messages sent, "

@@ -152,9 +152,7 @@ class LiveAgent:
                 self.counts.restarts = epoch - 1
                 self.log(f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s "
                          f"(start {epoch})")
-            connect = [endpoint(live, self._port_index(n)) for n in self.neighbours]
-            transport = ZenohTransport(live, self.rule, self.name,
-                                       endpoint(live, self._port_index(self.name)), connect)
+            transport = self._open()
             try:
                 transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
                 scans = (s for i, s in enumerate(prefetch(src.scans()))
@@ -172,6 +170,54 @@ class LiveAgent:
             finally:
                 transport.close()
         return self.counts
+
+    def run_bridged(self, scan_type: str, duration: float) -> AgentCounts:
+        """Map the scans a ROS 2 robot publishes through zenoh-bridge-ros2dds (its agent's
+        scan topic, ``tf``, ``tf_static``: :mod:`.bridged`) for ``duration`` seconds, exchanging
+        at the schedule's times from now."""
+        from .bridged import BridgedScans
+
+        cfg, live = self.cfg, self.live
+        spec = parse_schedule(cfg.fuse.schedule)
+        _, events = mission_events(spec, self.graph, cfg.fuse, 0, int(duration * 1e9))
+        timed = [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
+        progress = {"t": -1.0, "scans": 0}
+        transport = self._open()
+        feed = BridgedScans(transport.session, cfg.build.agents[self.index].topic, scan_type,
+                            cfg.build)
+        try:
+            transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
+            t0 = time.monotonic()
+            links = FaultyLinks(live.faults, self.name, self.index, transport.send,
+                                lambda: time.monotonic() - t0)
+            for t, group in [*timed, (duration, [])]:
+                while time.monotonic() - t0 < t:
+                    self._insert(feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))),
+                                 progress)
+                    self._drain(transport, until=time.monotonic())
+                for e in group:
+                    s, d = self.names[e.sender], self.names[e.receiver]
+                    if s == self.name and self.uses(d):
+                        links.send(d, self.compose(d))
+                progress["t"] = t
+                self._status(transport, t)
+            links.flush()
+            for reason, n in feed.skipped.items():
+                self.counts.refused[f"scan: {reason}"] += n
+            transport.declare_done()
+            self._drain(transport, until=None, done=[n for n in self.neighbours if self.uses(n)])
+            self._finish(transport)
+        finally:
+            feed.close()
+            transport.close()
+        return self.counts
+
+    def _open(self) -> ZenohTransport:
+        """This agent's Zenoh session, listening on its endpoint, connected to its neighbours'."""
+        live = self.live
+        connect = [endpoint(live, self._port_index(n)) for n in self.neighbours]
+        return ZenohTransport(live, self.rule, self.name,
+                              endpoint(live, self._port_index(self.name)), connect)
 
     def _port_index(self, name: str) -> int:
         """Agent ``name``'s port offset: one port per agent and rule."""

@@ -371,19 +371,24 @@ class ScanSource:
         return out
 
     def _decode(self, msg) -> tuple[np.ndarray, float]:
-        cfg = self.cfg
-        if hasattr(msg, "ranges"):
-            hits, free_dirs = laserscan_to_xyz(msg, no_return=cfg.no_return)
-            rmax = float(msg.range_max)
-            if cfg.max_range > 0:
-                rmax = min(rmax, cfg.max_range)
-            if len(free_dirs):
-                # past the range limit: OctoMap clears the ray up to max_range only
-                far = free_dirs * (rmax + 2.0 * cfg.map.resolution + 1.0)
-                return np.concatenate([hits, far]), rmax
-            return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
-        pts = pointcloud2_to_xyz(msg)
-        return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)
+        return decode_scan(msg, self.cfg)
+
+
+def decode_scan(msg, cfg: BuildConfig) -> tuple[np.ndarray, float]:
+    """A ``LaserScan`` or ``PointCloud2`` as end points in the sensor frame and the range past
+    which rays only clear (-1: none), as ``cfg`` asks (range limit, beams without a return)."""
+    if hasattr(msg, "ranges"):
+        hits, free_dirs = laserscan_to_xyz(msg, no_return=cfg.no_return)
+        rmax = float(msg.range_max)
+        if cfg.max_range > 0:
+            rmax = min(rmax, cfg.max_range)
+        if len(free_dirs):
+            # past the range limit: OctoMap clears the ray up to max_range only
+            far = free_dirs * (rmax + 2.0 * cfg.map.resolution + 1.0)
+            return np.concatenate([hits, far]), rmax
+        return hits, (cfg.max_range if cfg.max_range > 0 else -1.0)
+    pts = pointcloud2_to_xyz(msg)
+    return pts, (cfg.max_range if cfg.max_range > 0 else -1.0)
 
 
 @dataclass
