@@ -162,11 +162,7 @@ class LiveAgent:
                     self._lockstep(transport, scans, timed, start, progress)
                 else:
                     self._in_time(transport, scans, timed, start, progress, ckpt)
-                # every neighbour has sent all it will: nothing is sent to an agent gone
-                transport.declare_done()
-                self._drain(transport, until=None,
-                            done=[n for n in self.neighbours if self.uses(n)])
-                self._finish(transport)
+                self._end(transport)
             finally:
                 transport.close()
         return self.counts
@@ -195,22 +191,31 @@ class LiveAgent:
                     self._insert(feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))),
                                  progress)
                     self._drain(transport, until=time.monotonic())
-                for e in group:
-                    s, d = self.names[e.sender], self.names[e.receiver]
-                    if s == self.name and self.uses(d):
-                        links.send(d, self.compose(d))
-                progress["t"] = t
-                self._status(transport, t)
+                self._exchange(group, links.send, transport, t, progress)
             links.flush()
             for reason, n in feed.skipped.items():
                 self.counts.refused[f"scan: {reason}"] += n
-            transport.declare_done()
-            self._drain(transport, until=None, done=[n for n in self.neighbours if self.uses(n)])
-            self._finish(transport)
+            self._end(transport)
         finally:
             feed.close()
             transport.close()
         return self.counts
+
+    def _exchange(self, group, send, transport, t: float, progress: dict) -> None:
+        """Send this agent's messages of ``group`` (mission time ``t``) through ``send``."""
+        for e in group:
+            s, d = self.names[e.sender], self.names[e.receiver]
+            if s == self.name and self.uses(d):
+                send(d, self.compose(d))
+        progress["t"] = t
+        self._status(transport, t)
+
+    def _end(self, transport) -> None:
+        """Say this agent has sent all it will, apply what its neighbours still send until
+        they have too (so nothing is sent to an agent gone), and write the result."""
+        transport.declare_done()
+        self._drain(transport, until=None, done=[n for n in self.neighbours if self.uses(n)])
+        self._finish(transport)
 
     def _open(self) -> ZenohTransport:
         """This agent's Zenoh session, listening on its endpoint, connected to its neighbours'."""
@@ -306,12 +311,7 @@ class LiveAgent:
                 self._insert([scan], progress)
             if t == float("inf"):
                 break
-            for e in group:
-                s, d = self.names[e.sender], self.names[e.receiver]
-                if s == self.name and self.uses(d):
-                    links.send(d, self.compose(d))
-            progress["t"] = t
-            self._status(transport, t)
+            self._exchange(group, links.send, transport, t, progress)
             if next_ckpt is not None and t >= next_ckpt:
                 checkpoint.save(ckpt, self.agent, self.local, progress)
                 next_ckpt = t + live.checkpoint_period
