@@ -115,7 +115,9 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
             (True, True), (False, True)}
     sw = simulate_swarm(cfg.build, fuse, samples=3, collect_maps=True,
                         agents_per_worker=per_worker)
-    assert sw.alignment == ref.alignment
+    untimed = lambda links: [{k: v for k, v in d.items() if k != "seconds"}  # noqa: E731
+                             for d in links]
+    assert untimed(sw.alignment) == untimed(ref.alignment)
     assert len(sw.timeline) == 3 * (len(rules) + 1) * 4 and sw.timeline == ref.timeline
     assert sw.excluded == ref.excluded and (sw.robust is None) == (ref.robust is None)
     assert sw.agents == ref.agents and sw.events == ref.events

@@ -11,12 +11,13 @@ With ``align`` (``planar`` or ``full``) a link's transform is estimated instead:
 message on a link the receiver registers the message map against its own map
 (:func:`octofuse.maps.registration.register`). A registration alone is not trusted (in
 repetitive rooms one matches a similar place metres away): it must be confirmed by a second,
-independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the reverse link's
-(inverted), or the link's own at a later message on grown maps with a new RANSAC seed. Until then, or when
-registration refuses (too little overlap yet), the message is not fused (it still counts as
-sent) and the link tries again later (at its 2nd, 4th, 8th, ... message, on grown maps); once
-confirmed, the link (and its reverse)
-keeps the transform. A link registers at most :data:`MAX_ATTEMPTS` times and is then refused
+independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the link's own with
+a new RANSAC seed, at once for its first estimate, then at later messages on grown maps. Only
+the receiver's own estimates count
+(what a robot knows without further messages), so agents in different processes align alike.
+Until then, or when registration refuses (too little overlap yet), the message is not fused
+(it still counts as sent) and the link tries again later (at its 2nd, 4th, 8th, ... message);
+once confirmed, the link keeps the transform. A link registers at most :data:`MAX_ATTEMPTS` times and is then refused
 for the run, which bounds the cost; the time spent is kept per link. A link aligns once for all
 rules (on the first rule's maps), so every rule fuses the same messages. The known frames, if
 any, then serve as the reference the estimate's error is measured against.
@@ -180,18 +181,24 @@ class AgentFrames:
             link.messages += 1
             if link.messages & (link.messages - 1):  # not a power of two: wait
                 continue
-            link.attempts += 1
-            t0 = time.perf_counter()
-            try:
-                # a new RANSAC seed at each attempt: a repeat is a second, independent estimate
-                reg = register(maps[d], maps[s], planar=self.align == "planar",
-                               seed=link.attempts - 1)
-            except ValueError as e:
-                link.refusal = str(e)
-                continue
-            finally:
-                link.seconds += time.perf_counter() - t0
-            self._confirm(link, (reg.matrix, reg.fitness, reg.conflict, t))
+            # a link's first estimate is checked at once by a second registration
+            for _ in range(1 if link.candidates else 2):
+                if link.exhausted:
+                    break
+                link.attempts += 1
+                t0 = time.perf_counter()
+                try:
+                    # a new RANSAC seed each time: a repeat is a second, independent estimate
+                    reg = register(maps[d], maps[s], planar=self.align == "planar",
+                                   seed=link.attempts - 1)
+                except ValueError as e:
+                    link.refusal = str(e)
+                    break
+                finally:
+                    link.seconds += time.perf_counter() - t0
+                self._confirm(link, (reg.matrix, reg.fitness, reg.conflict, t))
+                if link.matrix is not None:
+                    break
 
     def _link(self, s: str, d: str) -> LinkAlignment:
         link = self.links.get((s, d))
@@ -199,32 +206,19 @@ class AgentFrames:
             ref = self.reference(s, d)
             link = self.links[(s, d)] = LinkAlignment(
                 s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None)
-            back = self.links.get((d, s))
-            if back is not None and back.matrix is not None:  # confirmed the other way
-                self._adopt(link, back)
         return link
 
     @staticmethod
-    def _adopt(link: LinkAlignment, back: LinkAlignment) -> None:
-        """``link`` aligned by the inverse of its reverse link's confirmed transform."""
-        link.matrix, link.confirmed_by = invert(back.matrix), "the reverse link"
-        link.fitness, link.conflict, link.time_s = back.fitness, back.conflict, back.time_s
-        link.refusal, link.candidates = "", []
-
-    def _confirm(self, link: LinkAlignment, estimate: tuple) -> None:
-        """Keep ``estimate`` of ``link`` if an independent one agrees with it (the reverse
-        link's, inverted, or an earlier one of the link); else hold it as a candidate."""
+    def _confirm(link: LinkAlignment, estimate: tuple) -> None:
+        """Keep ``estimate`` of ``link`` if an earlier one of the link agrees with it; else
+        hold it as a candidate."""
         T = estimate[0]
-        back = self.links.get((link.receiver, link.sender))
-        others = [(invert(c[0]), "the reverse link") for c in (back.candidates if back else [])]
-        others += [(c[0], f"a second registration (t = {c[3]:g} s)") for c in link.candidates]
+        others = [(c[0], f"a second registration (t = {c[3]:g} s)") for c in link.candidates]
         for U, what in others:
             dm, ddeg = transform_error(T, U)
             if dm <= AGREE_M and ddeg <= AGREE_DEG:
                 link.matrix, link.fitness, link.conflict, link.time_s = estimate
                 link.confirmed_by, link.refusal, link.candidates = what, "", []
-                if back is not None and back.matrix is None:  # the reverse link is confirmed too
-                    self._adopt(back, link)
                 return
         link.candidates.append(estimate)
         link.refusal = ("not confirmed: " + ("no second estimate yet" if not others else
