@@ -3,9 +3,9 @@
 For each loss level, a fleet replays the bag at ``--speed`` times its rate (one process per
 robot and rule over Zenoh on loopback, the loss injected where messages leave an agent) and
 `run` simulates the same schedule with the same share of messages lost. Printed per level and
-rule: the agents' CPU seconds and peak memory (from the processes' resource usage), the bytes
-each link carried per second of mission, and the final KL to the centralized map of the fleet
-beside `run`'s.
+rule: the agents' CPU seconds (mean) and peak resident memory (the largest), each agent's
+own as it wrote them when it ended; the bytes each link carried per second of mission; and
+the final KL to the centralized map of the fleet beside `run`'s.
 
     .venv/bin/python benchmarks/fleet.py [--bag data/lab8.bag] [--every 4] [--speed 2]
         [--rules min-info-loss,channel-filter] [--losses 0,0.2,0.5] [--json FILE]
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import tempfile
 import time
@@ -38,7 +37,7 @@ def main() -> None:
 
     from octofuse.config import FleetConfig, RunConfig, from_dict
     from octofuse.fusion.simulate import simulate
-    from octofuse.live.fleet import resolved, run_fleet
+    from octofuse.live.fleet import agent_counts, resolved, run_fleet
 
     rows = []
     for loss in (float(x) for x in a.losses.split(",")):
@@ -51,27 +50,25 @@ def main() -> None:
         sim_s = time.perf_counter() - t0
         fleet_cfg = resolved(from_dict(FleetConfig, {**base, "live": {
             "speed": a.speed, "faults": {"loss": loss, "seed": 1}, "base_port": 21447}}))
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
             res = run_fleet(fleet_cfg, Path(tmp), log=lambda m: print(m, file=sys.stderr))
             wall = time.perf_counter() - t0
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        n = len(res.agents) * len(res.rules)
-        cpu = (after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime) / n
+            counts = {r: [agent_counts(Path(tmp) / "agents", r, n) for n in res.agents]
+                      for r in res.rules}
         mission = max(e.time_s for e in res.events) / a.speed if res.events else wall
         links = len(res.graph.edges) * 2
         for r in res.rules:
             rows.append({
                 "loss": loss, "rule": r, "agents": len(res.agents),
-                "cpu_s_per_agent": round(cpu, 2),
-                "peak_rss_mib": round(after.ru_maxrss / 1024, 1),
+                "cpu_s_per_agent": round(sum(c["cpu_s"] for c in counts[r]) / len(res.agents), 2),
+                "peak_rss_mib": round(max(c["peak_rss"] for c in counts[r]) / 2**20, 1),
                 "bytes_per_link_s": round(sum(res.traffic[r].sent.values()) / links / mission),
                 "kl_fleet": round(_mean(res.scores[r], "kl_mean"), 4),
                 "kl_run": round(_mean(sim.scores[r], "kl_mean"), 4),
                 "fleet_wall_s": round(wall, 1), "run_wall_s": round(sim_s, 1)})
             print(json.dumps(rows[-1]))
-    print(f"\n| loss | rule | CPU s/agent | peak MiB | B/link/s | KL fleet | KL run |\n"
+    print("\n| loss | rule | CPU s/agent | peak MiB | B/link/s | KL fleet | KL run |\n"
           "|---:|---|---:|---:|---:|---:|---:|")
     for x in rows:
         print(f"| {x['loss']:.0%} | {x['rule']} | {x['cpu_s_per_agent']} | {x['peak_rss_mib']} | "
