@@ -27,3 +27,19 @@ def _malloc_trim() -> Optional[Callable[[int], int]]:
         return ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):
         return None
+
+
+def resident_memory() -> tuple[int, int, int]:
+    """(private, total, peak total) resident memory of this process, bytes (Linux /proc; 0
+    elsewhere). Private memory leaves out shared memory (Ray's object store is mapped into
+    every worker that reads an object from it, and counts in the total)."""
+    vals: dict[str, int] = {}
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                key, _, rest = line.partition(":")
+                if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile"):
+                    vals[key] = int(rest.split()[0]) * 1024
+    except OSError:
+        pass
+    return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)

@@ -14,28 +14,12 @@ from collections import defaultdict
 from typing import Iterable, Optional
 
 from ..config import CHANNEL_FILTER, MapConfig
-from ..memory import return_freed_memory
+from ..memory import resident_memory, return_freed_memory
 from .agent import Agent, MapMessage
 from .agent_frames import AgentFrames
 from .channel_filter import clamped
 from .network import message_bytes
 from .results import LOCAL, timeline_point
-
-
-def _rss_bytes() -> tuple[int, int, int]:
-    """(private, total, peak total) resident memory of this process, bytes (Linux /proc; 0
-    elsewhere). Private memory leaves out shared memory (Ray's object store is mapped into
-    every worker that reads an object from it, and counts in the total)."""
-    vals: dict[str, int] = {}
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                key, _, rest = line.partition(":")
-                if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile"):
-                    vals[key] = int(rest.split()[0]) * 1024
-    except OSError:
-        pass
-    return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)
 
 
 class SwarmWorker:
@@ -213,7 +197,7 @@ class SwarmWorker:
                     LOCAL: self.local[a].to_bytes()} for a in self.names}
 
     def stats(self) -> dict:
-        private, cur, peak = _rss_bytes()
+        private, cur, peak = resident_memory()
         self.peak_private = max(self.peak_private, private)
         maps_bytes = sum(m.memory_bytes for a in self.names
                          for m in [*(n.map for n in self.nodes[a].values()), self.local[a]])
@@ -286,7 +270,7 @@ class SwarmWorker:
 
     def _check_memory(self) -> None:
         return_freed_memory(pools=False)
-        cur = _rss_bytes()[0]
+        cur = resident_memory()[0]
         self.peak_private = max(self.peak_private, cur)
         if self.cap:
             if cur > self.cap:

@@ -40,9 +40,9 @@ from ..fusion.agent_frames import AgentFrames
 from ..fusion.graph import make_graph
 from ..fusion.network import message_bytes
 from ..fusion.schedule import EXCHANGE, mission_events, moments, parse_schedule
-from ..fusion.swarm_worker import _rss_bytes
 from ..maps.build import insert_scans
 from ..maps.occupancy import OccupancyMap
+from ..memory import resident_memory
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
 from .faults import FaultyLinks
@@ -368,7 +368,7 @@ class LiveAgent:
             "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
             "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
             "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
-            "frames_over_bound": transport.dropped, "peak_rss": _rss_bytes()[2],
+            "frames_over_bound": transport.dropped, "peak_rss": resident_memory()[2],
             "cpu_s": sum(os.times()[:2])}).encode())
         ts = typestore(ros1=False)
         header = _header(ts, time.time_ns(), self.cfg.build.fixed_frame)
