@@ -6,6 +6,7 @@
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
 #include "octofuse/detail/ray_codes.hpp"
+#include "octofuse/insert_fast.hpp"
 #include "octofuse/scan_check.hpp"
 #include "octofuse/tree_access.hpp"
 
@@ -327,10 +328,16 @@ void check_threads(unsigned threads) {
 }  // namespace
 
 RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
-                    unsigned threads, bool targeted_only) {
+                    unsigned threads, bool targeted_only, const FastInsert* fast) {
   check_threads(threads);
   RayItems out;
   out.resolution = grid.params().resolution;
+  FastInsert each;  // a lone scan takes the threads, else each scan one
+  if (fast != nullptr) {
+    each = *fast;
+    each.threads = scans.size() == 1 ? threads : 1;
+    out.fast.resize(scans.size());
+  }
   out.per_scan.resize(scans.size());
   detail::parallel_for(scans.size(), threads, [&](std::size_t i) {
     const ScanInput& s = scans[i];
@@ -342,8 +349,13 @@ RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& gri
                       : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
-    out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range,
-                                    "scan " + std::to_string(i) + ": ");
+    const std::string where = "scan " + std::to_string(i) + ": ";
+    if (fast != nullptr) {
+      out.fast[i] = std::make_shared<const FastScan>(
+          trace_fast(grid.tree(), pts.data(), s.n, origin, s.max_range, each, where));
+    } else {
+      out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range, where);
+    }
   });
   return out;
 }
@@ -370,11 +382,13 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
   detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
-    apply_scans(*maps[k], items.per_scan, per_map[maps[k]]);
+    if (items.fast.empty()) return apply_scans(*maps[k], items.per_scan, per_map[maps[k]]);
+    for (std::size_t i : per_map[maps[k]]) apply_fast(*maps[k], *items.fast[i]);
   });
 }
 
-void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
+void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
+                  const FastInsert* fast) {
   std::vector<std::vector<OccupancyMap*>> targets;
   const OccupancyMap* grid = nullptr;
   for (const ScanInput& s : scans) {
@@ -382,7 +396,7 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
     if (grid == nullptr && !s.targets.empty()) grid = s.targets.front();
   }
   if (grid == nullptr) return check_threads(threads);
-  apply_rays(trace_rays(scans, *grid, threads, true), targets, threads);
+  apply_rays(trace_rays(scans, *grid, threads, true, fast), targets, threads);
 }
 
 template <class Real>
