@@ -122,6 +122,9 @@ void define_insert(py::module_& m) {
       .def_property_readonly("nbytes", [](const RayItems& r) {
         std::size_t n = 0;
         for (const auto& v : r.per_scan) n += v.capacity() * sizeof(std::uint64_t);
+        for (const auto& f : r.fast) {
+          if (f) n += (f->items.capacity() + f->cells.capacity()) * 8 + f->ends.capacity() * 4;
+        }
         return n;
       });
   m.def(

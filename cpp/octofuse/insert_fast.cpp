@@ -402,15 +402,28 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   }
   sort_unique(occ);
 
-  // the rays crossing each cell (counted on each thread's share of the rays, then summed),
-  // and the cells of the end points
+  // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
+  // on each thread's share of the rays, then summed; and the cells of the end points
+  std::vector<std::uint32_t> distinct;
+  distinct.reserve(n);
+  {
+    CellTally seen(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const float* e = &scan.ends[3 * i];
+      const std::uint64_t c = morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2])));
+      if (seen.get(c) == 0) {
+        seen.add(c, 1);
+        distinct.push_back(static_cast<std::uint32_t>(i));
+      }
+    }
+  }
   const unsigned nt = threads_for(n, opt.threads);
-  const std::size_t share = (n + nt - 1) / nt;
+  const std::size_t share = (distinct.size() + nt - 1) / nt;
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
   detail::parallel_for(nt, nt, [&](std::size_t k) {
-    const std::size_t hi = std::min(n, (k + 1) * share);
-    for (std::size_t i = k * share; i < hi; ++i) {
-      const float* e = &scan.ends[3 * i];
+    const std::size_t hi = std::min(distinct.size(), (k + 1) * share);
+    for (std::size_t j = k * share; j < hi; ++j) {
+      const float* e = &scan.ends[3 * distinct[j]];
       walk_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }

@@ -16,8 +16,10 @@
 //    exact mode's voxels (found when the scan is applied: its rays are traced again there).
 //
 // So the fast map differs from the exact one only in cleared cells, which held no occupied
-// voxel: voxels there between the rays become free (the exact mode leaves them unknown). A scan whose every cell is crossed by fewer than min_rays rays (a single ray)
-// gives the exact map. test_insert_fast.py states the bound on real lidar clouds.
+// voxel: voxels there between the rays become free (the exact mode leaves them unknown), and
+// a voxel hit later starts from that miss. A scan whose every cell is crossed by fewer than
+// min_rays rays (a single ray) gives the exact map. tests/python/test_insert_fast.py states
+// the bound on real lidar clouds.
 #pragma once
 
 #include "octofuse/insert.hpp"
@@ -39,7 +41,7 @@ InsertMode parse_insert_mode(const std::string& name);
 /// Parameters of the fast mode (see above).
 struct FastInsert {
   unsigned coarse_levels = 3;  ///< a cleared cell has 2^L voxels per edge (1 to 8)
-  unsigned min_rays = 4;       ///< rays that must cross a cell to clear it whole (>= 1)
+  unsigned min_rays = 8;       ///< rays that must cross a cell to clear it whole (>= 1)
   unsigned threads = 1;        ///< threads tracing one scan (1 to kMaxThreads)
 
   /// Throws std::invalid_argument naming a value out of range.
