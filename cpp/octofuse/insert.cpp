@@ -332,17 +332,12 @@ RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& gri
   check_threads(threads);
   RayItems out;
   out.resolution = grid.params().resolution;
-  FastInsert each;  // a lone scan takes the threads, else each scan one
-  if (fast != nullptr) {
-    each = *fast;
-    each.threads = scans.size() == 1 ? threads : 1;
-    out.fast.resize(scans.size());
-  }
+  std::vector<FastInput> fast_in(fast != nullptr ? scans.size() : 0);
   out.per_scan.resize(scans.size());
   detail::parallel_for(scans.size(), threads, [&](std::size_t i) {
     const ScanInput& s = scans[i];
     if (targeted_only && s.targets.empty()) return;
-    const std::vector<float> pts =
+    std::vector<float> pts =
         s.map_frame ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
                                    : as_float(static_cast<const float*>(s.xyz), s.n))
         : s.is_double ? to_map_frame(static_cast<const double*>(s.xyz), s.n, s.pose)
@@ -350,13 +345,19 @@ RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& gri
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
     const std::string where = "scan " + std::to_string(i) + ": ";
-    if (fast != nullptr) {
-      out.fast[i] = std::make_shared<const FastScan>(
-          trace_fast(grid.tree(), pts.data(), s.n, origin, s.max_range, each, where));
+    if (fast != nullptr) {  // traced below, with the end points of the scans before
+      FastInput& f = fast_in[i];
+      f.pts = std::move(pts);
+      std::copy(origin, origin + 3, f.origin);
+      f.max_range = s.max_range;
+      f.map = targeted_only ? &s.targets.front()->tree() : nullptr;
+      f.where = where;
+      f.skip = false;
     } else {
       out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range, where);
     }
   });
+  if (fast != nullptr) out.fast = trace_fast_batch(grid.tree(), fast_in, *fast, threads);
   return out;
 }
 

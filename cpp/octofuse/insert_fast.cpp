@@ -11,6 +11,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
+#include <memory>
 #include <iterator>
 #include <limits>
 #include <stdexcept>
@@ -380,7 +382,8 @@ unsigned threads_for(std::size_t n, unsigned threads) {
 
 FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
                     const float origin[3], double max_range, const FastInsert& opt,
-                    const std::string& where, const OccupancyTree* map) {
+                    const std::string& where, const OccupancyTree* map,
+                    const std::function<bool(std::uint64_t)>& blocked) {
   opt.validate();
   const octomap::point3d o(origin[0], origin[1], origin[2]);
   const ScanCheck check(grid, o, max_range, where);
@@ -456,6 +459,15 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
     kept.insert(kept.end(), next, cells.end());
     cells.swap(kept);
   }
+  if (blocked) {
+    cells.erase(std::remove_if(cells.begin(), cells.end(),
+                               [&](std::uint64_t c) {
+                                 if (!blocked(c)) return false;
+                                 tally.add(c, CellTally::kHasEnd);
+                                 return true;
+                               }),
+                cells.end());
+  }
   const std::vector<std::uint64_t> fr =
       free_voxels(grid, scan, nt, [&](std::uint64_t c) { return is_cleared(tally.get(c)); });
 
@@ -473,6 +485,51 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   for (std::size_t i = 0; i < cells.size(); ++i) cell_items[i] = (cells[i] << (3 * level)) | kCell;
   scan.items = merged(items, cell_items);
   return scan;
+}
+
+std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTree& grid,
+                                                              const std::vector<FastInput>& in,
+                                                              const FastInsert& opt,
+                                                              unsigned threads) {
+  opt.validate();
+  const unsigned shift = 3 * opt.coarse_levels;
+  // the cells of each scan's end points (its points checked first)
+  std::vector<std::vector<std::uint64_t>> ends(in.size());
+  detail::parallel_for(in.size(), threads, [&](std::size_t i) {
+    const FastInput& s = in[i];
+    if (s.skip) return;
+    const octomap::point3d o(s.origin[0], s.origin[1], s.origin[2]);
+    const ScanCheck check(grid, o, s.max_range, s.where);
+    for (std::size_t j = 0; 3 * j < s.pts.size(); ++j) {
+      const octomap::point3d p(s.pts[3 * j], s.pts[3 * j + 1], s.pts[3 * j + 2]);
+      check.check(j, p);
+      if (s.max_range < 0.0 || (p - o).norm() <= s.max_range)
+        ends[i].push_back(morton(grid.coordToKey(p)) >> shift);
+    }
+    sort_unique(ends[i]);
+  });
+  // the first scan (1-based) with an end point in each cell
+  std::size_t total = 0;
+  for (const auto& e : ends) total += e.size();
+  CellTally first(total);
+  for (std::size_t i = 0; i < in.size(); ++i)
+    for (std::uint64_t c : ends[i])
+      if (first.get(c) == 0) first.add(c, static_cast<std::uint32_t>(i + 1));
+  FastInsert each = opt;  // a lone scan takes the threads, else each scan one
+  each.threads = in.size() == 1 ? threads : 1;
+  std::vector<std::shared_ptr<const FastScan>> out(in.size());
+  detail::parallel_for(in.size(), threads, [&](std::size_t i) {
+    const FastInput& s = in[i];
+    if (s.skip) return;
+    const auto earlier = [&first, i](std::uint64_t c) {
+      const std::uint32_t k = first.get(c);
+      return k != 0 && k <= i;
+    };
+    out[i] = std::make_shared<const FastScan>(trace_fast(grid, s.pts.data(), s.pts.size() / 3,
+                                                         s.origin, s.max_range, each, s.where,
+                                                         s.map, earlier));
+  });
+  return out;
 }
 
 namespace {

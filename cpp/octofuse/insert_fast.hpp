@@ -27,6 +27,8 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -64,10 +66,30 @@ struct FastScan {
 /// std::invalid_argument prefixed by `where`; and for options out of range). With `map` (the
 /// map the scan goes into, not changed while this runs), cells where it holds occupied
 /// voxels are traced voxel by voxel at once, so that applying the scan to it needs no second
-/// walk.
+/// walk; and so are the cells for which `blocked(cell code)` is true.
 FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
                     const float origin[3], double max_range, const FastInsert& opt,
-                    const std::string& where, const OccupancyTree* map = nullptr);
+                    const std::string& where, const OccupancyTree* map = nullptr,
+                    const std::function<bool(std::uint64_t)>& blocked = {});
+
+/// One scan of a batch for trace_fast_batch().
+struct FastInput {
+  std::vector<float> pts;        ///< map-frame points, x y z
+  float origin[3] = {0, 0, 0};
+  double max_range = -1.0;
+  const OccupancyTree* map = nullptr;  ///< trace_fast()'s `map` (not changed meanwhile)
+  std::string where;             ///< prefix of error messages
+  bool skip = true;              ///< no scan here (no result)
+};
+
+/// Traces a batch of scans for the fast mode, in parallel on `threads` threads (all checked
+/// before the result is returned). A scan's cells where an earlier scan of the batch has an
+/// end point are traced voxel by voxel (the occupied voxels it leaves), so that applying the
+/// batch in order needs no second walk for them.
+std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTree& grid,
+                                                              const std::vector<FastInput>& in,
+                                                              const FastInsert& opt,
+                                                              unsigned threads);
 
 /// Applies a traced scan to a map in one walk of its tree; a cell where the map holds an
 /// occupied voxel is left out of it and gets the exact mode's voxels in a second walk (its
