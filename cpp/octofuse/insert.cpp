@@ -2,6 +2,7 @@
 #include "octofuse/insert.hpp"
 
 #include "octofuse/carried_loss.hpp"
+#include "octofuse/detail/child_runs.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
@@ -160,23 +161,11 @@ class BatchApplier {
     const unsigned shift = 3 * (depth_ - 1 - depth);
     bool any = false;
     while (b != e) {
-      const unsigned pos = static_cast<unsigned>(((*b & kCode) >> shift) & 7);
-      const std::uint64_t* g = b + 1;
-      if (static_cast<unsigned>(((*(e - 1) & kCode) >> shift) & 7) == pos) {
-        g = e;  // the whole range lies under one child
-      } else {
-        while (g != e && static_cast<unsigned>(((*g & kCode) >> shift) & 7) == pos) ++g;
-      }
-      bool created = false;
-      if (!t_.nodeChildExists(node, pos)) {
-        if (!t_.nodeHasChildren(node) && !just_created) {
-          t_.expandNode(node);  // a pruned leaf
-        } else {
-          t_.createNodeChild(node, pos);
-          created = true;
-        }
-      }
-      any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g, loss_.child(lc, pos));
+      unsigned pos;
+      const std::uint64_t* g = detail::child_run_end(b, e, shift, kCode, pos);
+      bool created;
+      OccupancyNode* child = detail::child_to_update(t_, node, just_created, pos, created);
+      any |= visit(child, created, depth + 1, b, g, loss_.child(lc, pos));
       b = g;
     }
     if (any) {

@@ -2,6 +2,7 @@
 // a scan's rays are dense (see insert_fast.hpp).
 #include "octofuse/insert_fast.hpp"
 
+#include "octofuse/detail/child_runs.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/prune_or_max.hpp"
@@ -21,12 +22,9 @@ namespace octofuse {
 
 namespace {
 
-using detail::CodeSet;
-using detail::kCode;
 using detail::kHit;
 using detail::kNoCode;
 using detail::morton;
-using detail::sort_unique;
 
 // An item that stands for a whole cell (its first voxel's code); never with kHit.
 constexpr std::uint64_t kCell = 1ULL << 62;
@@ -333,7 +331,7 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
       if ((e & ~kHit) != cell) e = cell | (jump(cell) ? kHit : 0);
       return (e & kHit) != 0;
     };
-    CodeSet voxels(share * 2);
+    detail::CodeSet voxels(share * 2);
     const std::size_t hi = std::min(n, (k + 1) * share);
     for (std::size_t i = k * share; i < hi; ++i) {
       const float* e = &scan.ends[3 * i];
@@ -403,7 +401,7 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
     for (unsigned a = 0; a < 3; ++a) scan.ends[3 * i + a] = e(a);
     if (hit) occ.push_back(morton(grid.coordToKey(p)));
   }
-  sort_unique(occ);
+  detail::sort_unique(occ);
 
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
   // on each thread's share of the rays, then summed; and the cells of the end points
@@ -506,7 +504,7 @@ std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTre
       if (s.max_range < 0.0 || (p - o).norm() <= s.max_range)
         ends[i].push_back(morton(grid.coordToKey(p)) >> shift);
     }
-    sort_unique(ends[i]);
+    detail::sort_unique(ends[i]);
   });
   // the first scan (1-based) with an end point in each cell
   std::size_t total = 0;
@@ -602,19 +600,11 @@ class CellApplier {
     const unsigned shift = 3 * (depth_ - 1 - depth);
     bool any = false;
     while (b != e) {
-      const unsigned pos = static_cast<unsigned>(((*b & kCodeOnly) >> shift) & 7);
-      const std::uint64_t* g = b + 1;
-      while (g != e && static_cast<unsigned>(((*g & kCodeOnly) >> shift) & 7) == pos) ++g;
-      bool created = false;
-      if (!t_.nodeChildExists(node, pos)) {
-        if (!t_.nodeHasChildren(node) && !just_created) {
-          t_.expandNode(node);  // a pruned leaf
-        } else {
-          t_.createNodeChild(node, pos);
-          created = true;
-        }
-      }
-      any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g);
+      unsigned pos;
+      const std::uint64_t* g = detail::child_run_end(b, e, shift, kCodeOnly, pos);
+      bool created;
+      OccupancyNode* child = detail::child_to_update(t_, node, just_created, pos, created);
+      any |= visit(child, created, depth + 1, b, g);
       b = g;
     }
     if (any) detail::prune_or_max(t_, node);
@@ -656,7 +646,7 @@ void apply_fast(OccupancyMap& map, const FastScan& scan) {
   std::vector<std::uint64_t> conflicts = first.conflicts();
   if (conflicts.empty()) return;
   // the cells where the map holds occupied voxels get the exact mode's voxels instead
-  sort_unique(conflicts);
+  detail::sort_unique(conflicts);
   const std::vector<std::uint64_t> fr =
       free_voxels(map.tree(), scan, threads_for(scan.ends.size() / 3, scan.threads),
                   [&conflicts](std::uint64_t c) {
