@@ -71,7 +71,7 @@ build_options = _options(
                  show_default="1"),
     click.option("--threads", type=click.IntRange(0, 256),
                  help="threads for ray casting, fusion and scoring; 0: one per core", show_default="0"),
-    click.option("--insert-mode", type=click.Choice(["exact", "fast"]),
+    click.option("--insert-mode", type=click.Choice(["exact", "fast"]), metavar="MODE",
                  help="exact: OctoMap's insertPointCloud; fast: real time for dense 3D lidar scans",
                  show_default=_DEFAULT.build.insert_mode),
 )
