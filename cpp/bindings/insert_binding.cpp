@@ -2,6 +2,7 @@
 #include "common.hpp"
 
 #include "octofuse/insert.hpp"
+#include "octofuse/insert_fast.hpp"
 
 #include <pybind11/stl.h>
 
@@ -66,6 +67,17 @@ void check_targets(const std::vector<OccupancyMap*>& maps) {
   }
 }
 
+/// The fast mode's parameters for `mode` ("exact": none), or ValueError.
+const FastInsert* fast_mode(const std::string& mode, FastInsert& opt) {
+  try {
+    if (parse_insert_mode(mode) == InsertMode::Exact) return nullptr;
+    opt.validate();
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+  return &opt;
+}
+
 }  // namespace
 
 void define_insert(py::module_& m) {
@@ -76,8 +88,10 @@ void define_insert(py::module_& m) {
       "_insert_batch",
       [](const std::vector<std::vector<OccupancyMap*>>& targets, const py::list& points,
          const Poses& poses, const Poses& max_ranges, int threads,
-         const std::vector<bool>& map_frame) {
+         const std::vector<bool>& map_frame, const std::string& mode) {
         check_thread_count(threads);
+        FastInsert opt;
+        const FastInsert* fast = fast_mode(mode, opt);
         if (points.size() != targets.size()) {
           throw py::value_error("insert batch: targets and points must agree");
         }
@@ -88,17 +102,18 @@ void define_insert(py::module_& m) {
           check_targets(targets[i]);
         }
         py::gil_scoped_release release;
-        insert_batch(scans, static_cast<unsigned>(threads));
+        insert_batch(scans, static_cast<unsigned>(threads), fast);
       },
       py::arg("targets"), py::arg("points"), py::arg("poses"), py::arg("max_ranges"),
       py::arg("threads") = static_cast<int>(default_threads()),
-      py::arg("map_frame") = std::vector<bool>{},
+      py::arg("map_frame") = std::vector<bool>{}, py::arg("mode") = "exact",
       "Insert a batch of sensor-frame scans into their target maps (ray keys computed once "
       "per scan, in parallel); the GIL is released. threads: 1 to MAX_THREADS, by default "
       "the machine's hardware threads. ValueError naming the scan and point row if a ray "
       "cannot be traced (non-finite, outside the map's extent, or too long); no map changes "
       "then. map_frame: per scan, True if its points are in the map frame (the pose's "
-      "translation is then the sensor origin and its rotation is not used).");
+      "translation is then the sensor origin and its rotation is not used). mode: 'exact' "
+      "(insertPointCloud's map) or 'fast' (the real-time mode of insert_fast.hpp).");
 
   py::class_<RayItems>(m, "_RayItems",
                        "A batch's ray updates, traced once (see _trace_rays, _apply_rays).")
@@ -107,21 +122,27 @@ void define_insert(py::module_& m) {
       .def_property_readonly("nbytes", [](const RayItems& r) {
         std::size_t n = 0;
         for (const auto& v : r.per_scan) n += v.capacity() * sizeof(std::uint64_t);
+        for (const auto& f : r.fast) {
+          if (f) n += (f->items.capacity() + f->cells.capacity()) * 8 + f->ends.capacity() * 4;
+        }
         return n;
       });
   m.def(
       "_trace_rays",
       [](const OccupancyMap& grid, const py::list& points, const Poses& poses,
-         const Poses& max_ranges, int threads, const std::vector<bool>& map_frame) {
+         const Poses& max_ranges, int threads, const std::vector<bool>& map_frame,
+         const std::string& mode) {
         check_thread_count(threads);
+        FastInsert opt;
+        const FastInsert* fast = fast_mode(mode, opt);
         std::vector<py::array> keep;
         const std::vector<ScanInput> scans =
             scan_inputs(points, poses, max_ranges, map_frame, keep);
         py::gil_scoped_release release;
-        return trace_rays(scans, grid, static_cast<unsigned>(threads));
+        return trace_rays(scans, grid, static_cast<unsigned>(threads), false, fast);
       },
       py::arg("grid"), py::arg("points"), py::arg("poses"), py::arg("max_ranges"),
-      py::arg("threads"), py::arg("map_frame") = std::vector<bool>{},
+      py::arg("threads"), py::arg("map_frame") = std::vector<bool>{}, py::arg("mode") = "exact",
       "Trace a batch of scans' rays on the grid of map `grid` once (arguments and errors as "
       "_insert_batch; no map changes); the GIL is released.");
   m.def(
@@ -149,7 +170,10 @@ void define_insert(py::module_& m) {
   m.def(
       "_insert_scan_batched",
       [](OccupancyMap& map, py::array points,
-         py::array_t<double, py::array::c_style | py::array::forcecast> origin, double max_range) {
+         py::array_t<double, py::array::c_style | py::array::forcecast> origin, double max_range,
+         const std::string& mode, int threads, unsigned cell_levels, unsigned min_rays) {
+        FastInsert opt{cell_levels, min_rays, static_cast<unsigned>(std::max(threads, 0))};
+        const FastInsert* fast = fast_mode(mode, opt);
         const bool dbl = py::isinstance<py::array_t<double>>(points);
         if (!(dbl || py::isinstance<py::array_t<float>>(points)) || points.ndim() != 2 ||
             points.shape(1) != 3 || !(points.flags() & py::array::c_style)) {
@@ -162,15 +186,37 @@ void define_insert(py::module_& m) {
         const std::size_t n = static_cast<std::size_t>(points.shape(0));
         const void* p = points.data();
         py::gil_scoped_release release;
-        if (dbl) {
+        if (fast != nullptr && dbl) {
+          insert_scan_fast(map, static_cast<const double*>(p), n, o, max_range, *fast);
+        } else if (fast != nullptr) {
+          insert_scan_fast(map, static_cast<const float*>(p), n, o, max_range, *fast);
+        } else if (dbl) {
           insert_scan_batched(map, static_cast<const double*>(p), n, o, max_range);
         } else {
           insert_scan_batched(map, static_cast<const float*>(p), n, o, max_range);
         }
       },
       py::arg("map"), py::arg("points"), py::arg("origin"), py::arg("max_range"),
+      py::arg("mode") = "exact", py::arg("threads") = 1, py::arg("cell_levels") = FastInsert{}.coarse_levels,
+      py::arg("min_rays") = FastInsert{}.min_rays,
       "Insert one map-frame scan into one map by the depth-first batch path: the same map as "
-      "insert_scan (OctoMap's insertPointCloud); the GIL is released.");
+      "insert_scan (OctoMap's insertPointCloud), or with mode='fast' the real-time mode "
+      "(threads tracing the scan, its cells of 2^cell_levels voxels cleared whole where "
+      "min_rays rays cross them); the GIL is released.");
+  m.def(
+      "_insert_ray_loop",
+      [](OccupancyMap& map, py::array_t<float, py::array::c_style | py::array::forcecast> points,
+         py::array_t<double, py::array::c_style | py::array::forcecast> origin, double max_range) {
+        if (points.ndim() != 2 || points.shape(1) != 3 || origin.size() != 3) {
+          throw py::value_error("expected (N, 3) points and an origin of 3 values");
+        }
+        const double o[3] = {origin.data()[0], origin.data()[1], origin.data()[2]};
+        py::gil_scoped_release release;
+        insert_ray_loop(map, points.data(), static_cast<std::size_t>(points.shape(0)), o,
+                        max_range);
+      },
+      py::arg("map"), py::arg("points"), py::arg("origin"), py::arg("max_range"),
+      "A benchmark baseline: OctoMap's insertRay() for every point of a map-frame scan.");
 }
 
 }  // namespace octofuse::bindings

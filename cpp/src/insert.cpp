@@ -1,10 +1,12 @@
 // octofuse: batched scan insertion (ray keys once per scan, applied to several maps).
 #include "octofuse/insert.hpp"
 
+#include "octofuse/detail/child_runs.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/ray_codes.hpp"
 #include "octofuse/detail/tree_access.hpp"
+#include "octofuse/insert_fast.hpp"
 #include "octofuse/scan_check.hpp"
 
 #include "carried_loss_walk.hpp"
@@ -161,23 +163,11 @@ class BatchApplier {
     const unsigned shift = 3 * (depth_ - 1 - depth);
     bool any = false;
     while (b != e) {
-      const unsigned pos = static_cast<unsigned>(((*b & kCode) >> shift) & 7);
-      const std::uint64_t* g = b + 1;
-      if (static_cast<unsigned>(((*(e - 1) & kCode) >> shift) & 7) == pos) {
-        g = e;  // the whole range lies under one child
-      } else {
-        while (g != e && static_cast<unsigned>(((*g & kCode) >> shift) & 7) == pos) ++g;
-      }
-      bool created = false;
-      if (!t_.nodeChildExists(node, pos)) {
-        if (!t_.nodeHasChildren(node) && !just_created) {
-          t_.expandNode(node);  // a pruned leaf
-        } else {
-          t_.createNodeChild(node, pos);
-          created = true;
-        }
-      }
-      any |= visit(t_.getNodeChild(node, pos), created, depth + 1, b, g, loss_.child(lc, pos));
+      unsigned pos;
+      const std::uint64_t* g = detail::child_run_end(b, e, shift, kCode, pos);
+      bool created;
+      OccupancyNode* child = detail::child_to_update(t_, node, just_created, pos, created);
+      any |= visit(child, created, depth + 1, b, g, loss_.child(lc, pos));
       b = g;
     }
     if (any) {
@@ -330,24 +320,36 @@ void check_threads(unsigned threads) {
 }  // namespace
 
 RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
-                    unsigned threads, bool targeted_only) {
+                    unsigned threads, bool targeted_only, const FastInsert* fast) {
   check_threads(threads);
   RayItems out;
   out.resolution = grid.params().resolution;
+  std::vector<FastInput> fast_in(fast != nullptr ? scans.size() : 0);
   out.per_scan.resize(scans.size());
   detail::parallel_for(scans.size(), threads, [&](std::size_t i) {
     const ScanInput& s = scans[i];
     if (targeted_only && s.targets.empty()) return;
-    const std::vector<float> pts =
+    std::vector<float> pts =
         s.map_frame ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
                                    : as_float(static_cast<const float*>(s.xyz), s.n))
         : s.is_double ? to_map_frame(static_cast<const double*>(s.xyz), s.n, s.pose)
                       : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
                              static_cast<float>(s.pose[11])};
-    out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range,
-                                    "scan " + std::to_string(i) + ": ");
+    const std::string where = "scan " + std::to_string(i) + ": ";
+    if (fast != nullptr) {  // traced below, with the end points of the scans before
+      FastInput& f = fast_in[i];
+      f.pts = std::move(pts);
+      std::copy(origin, origin + 3, f.origin);
+      f.max_range = s.max_range;
+      f.map = targeted_only ? &s.targets.front()->tree() : nullptr;
+      f.where = where;
+      f.skip = false;
+    } else {
+      out.per_scan[i] = compute_items(grid.tree(), pts.data(), s.n, origin, s.max_range, where);
+    }
   });
+  if (fast != nullptr) out.fast = trace_fast_batch(grid.tree(), fast_in, *fast, threads);
   return out;
 }
 
@@ -373,11 +375,13 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
   for (auto& kv : per_map) maps.push_back(kv.first);
   std::sort(maps.begin(), maps.end(), [&](auto* a, auto* b) { return work[a] > work[b]; });
   detail::parallel_for(maps.size(), threads, [&](std::size_t k) {
-    apply_scans(*maps[k], items.per_scan, per_map[maps[k]]);
+    if (items.fast.empty()) return apply_scans(*maps[k], items.per_scan, per_map[maps[k]]);
+    for (std::size_t i : per_map[maps[k]]) apply_fast(*maps[k], *items.fast[i]);
   });
 }
 
-void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
+void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
+                  const FastInsert* fast) {
   std::vector<std::vector<OccupancyMap*>> targets;
   const OccupancyMap* grid = nullptr;
   for (const ScanInput& s : scans) {
@@ -385,7 +389,7 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads) {
     if (grid == nullptr && !s.targets.empty()) grid = s.targets.front();
   }
   if (grid == nullptr) return check_threads(threads);
-  apply_rays(trace_rays(scans, *grid, threads, true), targets, threads);
+  apply_rays(trace_rays(scans, *grid, threads, true, fast), targets, threads);
 }
 
 template <class Real>

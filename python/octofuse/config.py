@@ -102,6 +102,8 @@ class BuildConfig:
     batch_size: int = 32
     #: threads for ray casting and fusion; 0: one per core of the machine
     threads: int = 0
+    #: "exact" (OctoMap's insertPointCloud) or "fast" (real time for dense 3D lidar scans)
+    insert_mode: str = "exact"
 
     def validate(self, where: str) -> None:
         self.map.validate(f"{where}.map")
@@ -117,6 +119,9 @@ class BuildConfig:
             raise ValueError(f"{where}.scan_stride = {self.scan_stride}: expected 1 or more")
         if not 1 <= self.batch_size <= 4096:
             raise ValueError(f"{where}.batch_size = {self.batch_size}: expected 1 to 4096")
+        if self.insert_mode not in ("exact", "fast"):
+            raise ValueError(f"{where}.insert_mode = {self.insert_mode!r}: expected 'exact' or "
+                             "'fast'")
         if not 0 <= self.threads <= MAX_THREADS:
             raise ValueError(f"{where}.threads = {self.threads}: expected 0 (one per core) "
                              f"to {MAX_THREADS}")

@@ -8,6 +8,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace octofuse {
@@ -25,6 +26,9 @@ struct ScanInput {
   bool map_frame = false;
 };
 
+struct FastInsert;  // insert_fast.hpp
+struct FastScan;
+
 /// Most threads insert_batch() takes.
 inline constexpr unsigned kMaxThreads = 256;
 
@@ -36,14 +40,18 @@ unsigned default_threads();
 struct RayItems {
   double resolution = 0.0;                           ///< the grid's voxel size
   std::vector<std::vector<std::uint64_t>> per_scan;  ///< one scan's items each
+  /// the fast mode (insert_fast.hpp): each scan traced (per_scan's items then empty)
+  std::vector<std::shared_ptr<const FastScan>> fast;
 };
 
 /// Traces the rays of `scans` on `grid`'s grid, scans in parallel on `threads` threads (with
 /// `targeted_only`, a scan without targets is skipped: no items). Every scan is checked
 /// (ScanCheck) first: throws std::invalid_argument naming the scan and point row if a ray
-/// cannot be traced, or if threads is not in 1..kMaxThreads.
+/// cannot be traced, or if threads is not in 1..kMaxThreads. With `fast`, the items of
+/// the fast mode (insert_fast.hpp), which apply_rays() applies scan by scan.
 RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
-                    unsigned threads, bool targeted_only = false);
+                    unsigned threads, bool targeted_only = false,
+                    const FastInsert* fast = nullptr);
 
 /// Applies `items.per_scan[i]` to every map of `targets[i]`: each map receives its scans in
 /// batch order, several in one walk of its tree (a voxel's updates in scan order: the same
@@ -55,8 +63,10 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
 
 /// Inserts a batch of scans: trace_rays() on the grid of the scans' targets, then
 /// apply_rays() to the targets. The result equals inserting each scan with
-/// insertPointCloud() into each of its targets. Exceptions as in those two.
-void insert_batch(const std::vector<ScanInput>& scans, unsigned threads);
+/// insertPointCloud() into each of its targets (with `fast`: the fast mode). Exceptions as in
+/// those two.
+void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
+                  const FastInsert* fast = nullptr);
 
 /// One scan in the map frame into one map by the depth-first batch path of insert_batch():
 /// the same map as OccupancyMap::insert_scan() (OctoMap's insertPointCloud), with the same

@@ -132,6 +132,9 @@ build_options = _options(
                  show_default="1"),
     click.option("--threads", type=click.IntRange(0, 256),
                  help="threads for ray casting, fusion and scoring; 0: one per core", show_default="0"),
+    click.option("--insert-mode", type=click.Choice(["exact", "fast"]), metavar="MODE",
+                 help="exact: OctoMap's insertPointCloud; fast: real time for dense 3D lidar scans",
+                 show_default=_DEFAULT.build.insert_mode),
 )
 rule_option = click.option("--rule", "--rules", "rule", multiple=True, cls=ListOption,
                            type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
@@ -217,7 +220,7 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None, cls=RunCo
     data = merge(defaults or {}, data)
     build = _given(fixed_frame=p.get("fixed_frame"), max_range=p.get("max_range"),
                    no_return=p.get("no_return"), scan_stride=p.get("every"),
-                   threads=p.get("threads"))
+                   threads=p.get("threads"), insert_mode=p.get("insert_mode"))
     if bags:
         build["bags"] = [str(b) for b in bags]
     if p.get("resolution") is not None:

@@ -191,7 +191,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             targets = [[net.fused[r][agents[s.agent]] for r in rules]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             scans, per_scan = frames.scan_targets(batch, targets, common)
-            traced = trace(scans, central, build_cfg.workers)  # its grid only, not its nodes
+            # its grid only, not its nodes
+            traced = trace(scans, central, build_cfg.workers, build_cfg.insert_mode)
             net.add_time("insertion", t0)
             applied = []
             for lane, ids in lane_maps.items():

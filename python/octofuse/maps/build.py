@@ -16,16 +16,16 @@ from .ray_batches import insert_batch, trace_rays
 
 
 def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]],
-                 threads: int) -> None:
+                 threads: int, mode: str = "exact") -> None:
     """Insert posed scans into their target maps (``targets[k]`` for ``scans[k]``)."""
     if scans:
-        insert_batch(*_scan_arrays(scans), targets, threads)
+        insert_batch(*_scan_arrays(scans), targets, threads, mode)
 
 
-def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int):
+def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int, mode: str = "exact"):
     """The posed scans' rays traced once on ``grid``'s grid, to apply to maps with
     :func:`~octofuse.maps.ray_batches.apply_rays`."""
-    return trace_rays(grid, *_scan_arrays(scans), threads)
+    return trace_rays(grid, *_scan_arrays(scans), threads, mode)
 
 
 def _scan_arrays(scans: Sequence[Scan]) -> tuple[list, np.ndarray, np.ndarray]:
@@ -66,7 +66,8 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
         done = 0
         for batch in prefetch(batched(src.scans(), cfg.batch_size)):
             t0 = time.perf_counter()
-            insert_scans(batch, [(agent_maps[s.agent], central) for s in batch], cfg.workers)
+            insert_scans(batch, [(agent_maps[s.agent], central) for s in batch], cfg.workers,
+                         cfg.insert_mode)
             dt = time.perf_counter() - t0
             t_insert += dt
             n_pts = sum(len(s.points) for s in batch)

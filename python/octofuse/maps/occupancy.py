@@ -89,10 +89,16 @@ class OccupancyMap:
         return obj
 
     # -- insertion ---------------------------------------------------------------------
-    def insert_scan(self, points, origin, max_range: float = -1.0) -> None:
+    def insert_scan(self, points, origin, max_range: float = -1.0, mode: str = "exact",
+                    threads: int = 1) -> None:
         """Insert one scan with OctoMap's ray casting update (the map is the one
         ``insertPointCloud`` gives: the rays traced with OctoMap's steps and arithmetic, the
         voxels updated by octofuse's depth-first batch update).
+
+        ``mode="fast"``: the real-time mode for dense 3D lidar scans (OctoMap's update rules,
+        free space cleared a cell of 8^3 voxels at a time where 8 or more of the scan's rays
+        cross it and the map holds no occupied voxel; see ``cpp/octofuse/insert_fast.hpp``),
+        its rays traced on ``threads`` threads.
 
         ``points`` is an (N, 3) float32 or float64 array in the map frame (passed to C++
         without a copy when C-contiguous), ``origin`` the sensor position. Rays longer than
@@ -101,9 +107,11 @@ class OccupancyMap:
         """
         pts = _points(points)
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
-        _core._insert_scan_batched(self._m, pts, o, float(max_range))
+        _core._insert_scan_batched(self._m, pts, o, float(max_range), mode=insert_mode(mode),
+                                   threads=thread_count(threads))
 
-    def insert_scans(self, scans, max_range: float = -1.0, threads: int | None = None) -> None:
+    def insert_scans(self, scans, max_range: float = -1.0, threads: int | None = None,
+                     mode: str = "exact") -> None:
         """Insert several scans in order, as :meth:`insert_scan` (or
         :meth:`insert_scan_from_sensor`) one after the other would.
 
@@ -112,7 +120,7 @@ class OccupancyMap:
         scans' ray keys are computed on ``threads`` threads (default: one per core), then
         applied to the map in order, several scans per walk of the tree; the GIL is released.
         Every scan is checked before the map changes (``ValueError`` naming the scan and point
-        row).
+        row). ``mode``: as in :meth:`insert_scan`.
         """
         pts_list, poses, map_frame = [], [], []
         for k, item in enumerate(scans):
@@ -138,7 +146,9 @@ class OccupancyMap:
         if not pts_list:
             return
         n = len(pts_list)
-        kw = {} if threads is None else {"threads": thread_count(threads)}
+        kw = {"mode": insert_mode(mode)}
+        if threads is not None:
+            kw["threads"] = thread_count(threads)
         _core._insert_batch([[self._m]] * n, pts_list, np.ascontiguousarray(np.stack(poses)),
                             np.full(n, float(max_range)), map_frame=map_frame, **kw)
 
@@ -385,6 +395,17 @@ def thread_count(threads) -> int:
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
         raise ValueError(f"threads must be a whole number, got {threads!r}")
     return int(threads)
+
+
+#: how scans update a map: OctoMap's insertPointCloud, or the real-time mode
+INSERT_MODES = ("exact", "fast")
+
+
+def insert_mode(mode) -> str:
+    """``mode`` if it is one of :data:`INSERT_MODES`, else a ValueError naming it."""
+    if mode not in INSERT_MODES:
+        raise ValueError(f"insert mode {mode!r}: expected 'exact' or 'fast'")
+    return mode
 
 
 def _points(points) -> np.ndarray:

@@ -8,27 +8,30 @@ from typing import Sequence
 import numpy as np
 
 from .. import _core
-from .occupancy import OccupancyMap
+from .occupancy import OccupancyMap, insert_mode
 
 
 def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np.ndarray,
-                 targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:
+                 targets: Sequence[Sequence[OccupancyMap]], threads: int,
+                 mode: str = "exact") -> None:
     """Insert scans (sensor frame, 4x4 poses) into their target maps in one C++ call.
 
     Each scan's ray keys are computed once (scans in parallel) and applied to each of its
     targets, different maps in parallel; the result equals OctoMap's insertPointCloud of
-    every scan into every target, in order. The GIL is released.
+    every scan into every target, in order (``mode="fast"``: the real-time mode of
+    :meth:`OccupancyMap.insert_scan`). The GIL is released.
     """
     _core._insert_batch(_core_targets(targets), *_batch_arrays(points, poses, max_ranges),
-                        int(threads))
+                        int(threads), mode=insert_mode(mode))
 
 
 def trace_rays(grid: OccupancyMap, points: Sequence[np.ndarray], poses: np.ndarray,
-               max_ranges: np.ndarray, threads: int):
+               max_ranges: np.ndarray, threads: int, mode: str = "exact"):
     """Trace scans' rays once on ``grid``'s grid (as :func:`insert_batch`, no map changes):
     the updates, to apply to any maps of that grid with :func:`apply_rays`. The GIL is
     released."""
-    return _core._trace_rays(grid._m, *_batch_arrays(points, poses, max_ranges), int(threads))
+    return _core._trace_rays(grid._m, *_batch_arrays(points, poses, max_ranges), int(threads),
+                             mode=insert_mode(mode))
 
 
 def apply_rays(rays, targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:

@@ -35,7 +35,7 @@ class RayReplay:
             raise RuntimeError(f"ray replay: pass {k + 1} of a replay of {self.passes}")
         batch = iter(range(len(self._kept))) if k > 0 else iter(())
 
-        def trace(scans: Sequence[Scan], grid: OccupancyMap, threads: int):
+        def trace(scans: Sequence[Scan], grid: OccupancyMap, threads: int, mode: str = "exact"):
             i = next(batch, None)
             if i is not None:
                 ids, rays = self._kept[i]
@@ -45,7 +45,7 @@ class RayReplay:
                 if last:
                     self._kept[i] = None
                 return rays
-            rays = trace_scans(scans, grid, threads)
+            rays = trace_scans(scans, grid, threads, mode)
             if k == 0 and not self._full:
                 self._size += rays.nbytes
                 if self._size <= self.max_bytes:
