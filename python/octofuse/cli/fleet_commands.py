@@ -119,7 +119,10 @@ def fleet(bags, **p):
                    "scan topic, tf, tf_static as CDR) instead of replaying bags")
 @click.option("--duration", type=click.FloatRange(min=0.1), default=60.0,
               help="seconds to run with --from-zenoh")
-def agent(name, fleet_file, rule, out, replay, speed, fresh, scan_type, duration):
+@click.option("--insert-mode", type=click.Choice(["exact", "fast"]),
+              help="scan insertion", show_default="fast for --from-zenoh pointcloud2, else the "
+                                                  "fleet's")
+def agent(name, fleet_file, rule, out, replay, speed, fresh, scan_type, duration, insert_mode):
     """One robot's agent: maps its scans, exchanges with its neighbours over Zenoh."""
     from dataclasses import replace
 
@@ -138,6 +141,8 @@ def agent(name, fleet_file, rule, out, replay, speed, fresh, scan_type, duration
         rule = cfg.fuse.rules[0]
     try:
         live = LiveAgent(cfg, name, rule, out, log=say)
+        if insert_mode or scan_type == "pointcloud2":  # a 3D lidar in real time: fast
+            live.insert_mode = insert_mode or "fast"
         counts = (live.run_bridged(scan_type, duration) if scan_type
                   else live.run(resume=not fresh))
     except TimeoutError as e:

@@ -151,10 +151,11 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         t0 = time.perf_counter()
         workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
                                  threads, memory_per_worker, frames=frames, tree=tree,
-                                 reliable=fuse_cfg.loss == 0)
+                                 reliable=fuse_cfg.loss == 0, insert_mode=build_cfg.insert_mode)
                    for w, names in enumerate(groups)]
         central = ray.remote(SwarmWorker).options(**opts).remote(
-            n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True)
+            n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True,
+            insert_mode=build_cfg.insert_mode)
         ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
         timings["start workers"] = time.perf_counter() - t0
         say(f"swarm: {len(agents)} agents in {n_workers} worker(s) + 1 for the centralized map")

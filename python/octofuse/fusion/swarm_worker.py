@@ -36,13 +36,14 @@ class SwarmWorker:
     def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
                  unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
                  central: bool = False, frames: Optional[AgentFrames] = None,
-                 tree: Iterable[tuple[str, str]] = (), reliable: bool = True):
+                 tree: Iterable[tuple[str, str]] = (), reliable: bool = True,
+                 insert_mode: str = "exact"):
         from ..maps.occupancy import OccupancyMap
 
         self.index, self.names, self.rules = index, list(names), list(rules)
         self.frames = frames or AgentFrames(self.names)
         self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
-        self.tree, self.reliable = set(tree), reliable
+        self.tree, self.reliable, self.insert_mode = set(tree), reliable, insert_mode
         mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
         self.resolution = map_cfg.resolution
         self.central = mk() if central else None
@@ -68,11 +69,12 @@ class SwarmWorker:
 
         t0 = time.perf_counter()
         if self.central is not None:
-            insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads)
+            insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads,
+                         self.insert_mode)
         else:
             targets = [[n.map for n in self.nodes[a].values()] + [self.local[a]]
                        for a, _ in scans]
-            insert_scans([s for _, s in scans], targets, self.threads)
+            insert_scans([s for _, s in scans], targets, self.threads, self.insert_mode)
         self.seconds["insertion"] += time.perf_counter() - t0
         self._check_memory()
         return len(scans)

@@ -96,6 +96,8 @@ class LiveAgent:
         self.local = mk()
         self.frames = AgentFrames.from_config(names, cfg.fuse)
         self.counts = AgentCounts()
+        self.insert_mode = cfg.build.insert_mode
+        self.queued = 0  #: scans arrived and not inserted yet (the agent falls behind)
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
 
     # -- the link protocol on frames ---------------------------------------------------------
@@ -171,7 +173,8 @@ class LiveAgent:
     def run_bridged(self, scan_type: str, duration: float) -> AgentCounts:
         """Map the scans a ROS 2 robot publishes through zenoh-bridge-ros2dds (its agent's
         scan topic, ``tf``, ``tf_static``: :mod:`.bridged`) for ``duration`` seconds, exchanging
-        at the schedule's times from now."""
+        at the schedule's times from now. Its status says how many scans wait (it falls
+        behind when they grow)."""
         from .bridged import BridgedScans
 
         cfg, live = self.cfg, self.live
@@ -191,6 +194,7 @@ class LiveAgent:
                 while time.monotonic() - t0 < t:
                     self._insert(feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))),
                                  progress)
+                    self.queued = feed.backlog()
                     self._drain(transport, until=time.monotonic())
                 self._exchange(group, links.send, transport, t, progress)
             links.flush()
@@ -231,7 +235,8 @@ class LiveAgent:
 
     def _insert(self, batch: list, progress: dict) -> None:
         if batch:
-            insert_scans(batch, [[self.agent.map, self.local]] * len(batch), 1)
+            insert_scans(batch, [[self.agent.map, self.local]] * len(batch), 1,
+                         self.insert_mode)
             self.counts.scans += len(batch)
             progress["scans"] += len(batch)
             batch.clear()
@@ -348,7 +353,7 @@ class LiveAgent:
                                   "scans": self.counts.scans, "sent": self.counts.sent,
                                   "applied": self.counts.applied,
                                   "refused": sum(self.counts.refused.values()),
-                                  "behind": self.counts.behind,
+                                  "behind": self.counts.behind, "queued": self.queued,
                                   "links": {n: {"seq": l.seq & 0xFFFFFFFF,
                                                 "applied": l.applied & 0xFFFFFFFF}
                                             for n, l in self.agent.links.items()}})

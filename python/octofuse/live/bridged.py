@@ -62,6 +62,10 @@ class BridgedScans:
                 break
         return self._placed()
 
+    def backlog(self) -> int:
+        """Messages arrived and scans waiting, not placed yet."""
+        return self._arrivals.qsize() + len(self._waiting)
+
     def _read(self, kind: str, data: bytes) -> None:
         try:
             msg = self.ts.deserialize_cdr(data, TF if kind != "scan" else self.msgtype)
