@@ -100,6 +100,8 @@ HELP_DEFAULTS = {
     "fuse-maps": ["min-info-loss", "copy", "the coarsest input's"],
     "align": ["0.5"],
     "info": [],
+    "fleet": ["min-info-loss", "aperiodic:10", "1", "7447", "all"],
+    "agent": ["60.0"],
 }
 
 
