@@ -9,7 +9,9 @@ how a message travels: as a :class:`MapMessage` within a process, or as the byte
 
 Rules: every per-voxel rule fuses what arrives into the agent's map (its loss map carried by
 the map); the channel filter (:mod:`.channel_filter`) sends its map minus what it got from the
-receiver and replaces the sender's previous contribution, on unclamped maps.
+receiver and replaces the sender's previous contribution, on unclamped maps; source layers
+(:mod:`.source_layers`) send per source what the receiver lacks and keep the map the sum of
+the newest layer of every source.
 """
 
 from __future__ import annotations
@@ -17,13 +19,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-from ..config import CHANNEL_FILTER
+from ..config import CHANNEL_FILTER, EXACT_MODES, SOURCE_LAYERS
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import exchange_maps, fuse_into, subtract_into
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .link import Link
-from .wire import DEFAULT_MAX_PAYLOAD, Kind, Message, decode
+from .source_layers import LayeredPayload, Layers
+from .wire import DEFAULT_MAX_PAYLOAD, Encoding, Kind, Message, decode
 
 
 @dataclass
@@ -35,21 +38,29 @@ class MapMessage:
     rule: str
     seq: int  #: 1, 2, ... per link and direction
     ack: int  #: the newest seq the sender has applied from the receiver (0: none)
-    payload: OccupancyMap  #: the sender's map (or contribution), whole or its changed voxels
+    #: the sender's map (or contribution), whole or its changed voxels; source layers': its
+    #: layers (:class:`~.source_layers.LayeredPayload`)
+    payload: OccupancyMap | LayeredPayload
     delta: bool  #: applied voxel by voxel (the payload holds changed voxels only)
 
     def encode(self, fleet: str = "", payload: Optional[bytes] = None) -> bytes:
-        """The message as one frame (:mod:`.wire`); ``payload``: the payload's ``.ot`` stream,
-        if it was written already."""
+        """The message as one frame (:mod:`.wire`); ``payload``: the payload's bytes (an
+        ``.ot`` stream, or source layers), if they were written already."""
+        encoding = (Encoding.LAYERS if isinstance(self.payload, LayeredPayload)
+                    else Encoding.OCTOMAP_OT)
         return Message(fleet, self.rule, self.sender, self.receiver, self.seq, self.ack,
                        Kind.DELTA if self.delta else Kind.WHOLE,
-                       payload if payload is not None else self.payload.to_bytes()).encode()
+                       payload if payload is not None else self.payload.to_bytes(),
+                       encoding).encode()
 
     @classmethod
     def decode(cls, frame: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> "MapMessage":
         """The message of a frame; ``WireError`` if the frame is not one, and the map
         stream's error if its payload is not a map."""
         msg = decode(frame, max_payload)
+        if msg.encoding == Encoding.LAYERS:
+            return cls(msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack,
+                       LayeredPayload.from_bytes(msg.payload), msg.kind == Kind.DELTA)
         payload = OccupancyMap.from_bytes(msg.payload)
         if msg.rule == CHANNEL_FILTER:
             open_map(payload)  # contributions are unclamped (a stream keeps no clamping)
@@ -58,13 +69,19 @@ class MapMessage:
 
 
 class Agent:
-    """Agent ``name``'s map under ``rule``, fused in place, and its links by neighbour."""
+    """Agent ``name``'s map under ``rule``, fused in place, and its links by neighbour.
+    ``layers_max_bytes``: source layers' memory budget (0: unlimited)."""
 
-    def __init__(self, name: str, rule: str, map: OccupancyMap):
+    def __init__(self, name: str, rule: str, map: OccupancyMap, layers_max_bytes: int = 0):
         self.name, self.rule, self.map = name, rule, map
-        self.exact = rule == CHANNEL_FILTER
+        self.exact = rule in EXACT_MODES
         if self.exact:
             open_map(map)  # clamping breaks the additivity exact fusion needs
+        #: source layers: the layers (the own one: the map given), ``map`` their sum
+        self.layers: Optional[Layers] = None
+        if rule == SOURCE_LAYERS:
+            self.map = unclamped_copy(map)
+            self.layers = Layers(name, map, self.map, layers_max_bytes)
         self.links: dict[str, Link] = {}
         self._loss: Optional[InfoLossMap] = None
 
@@ -89,6 +106,14 @@ class Agent:
         """:attr:`loss`, or an empty loss map where there is none."""
         return self._loss if self._loss is not None else InfoLossMap(self.map.resolution)
 
+    def scan_targets(self) -> list[OccupancyMap]:
+        """The maps this agent's next scans go into: its map, and with source layers its own
+        layer too (with open clamping a scan adds to both alike: the map stays the sum)."""
+        if self.layers is None:
+            return [self.map]
+        self.layers.own_changed = True
+        return [self.map, self.layers.own]
+
     # -- sending -----------------------------------------------------------------------------
     def compose(self, to: str, *, delta: bool = False, reliable: bool = True,
                 state: Optional[OccupancyMap] = None) -> MapMessage:
@@ -96,6 +121,14 @@ class Agent:
         at an earlier moment), or the channel filter's contribution; with ``delta``, only what
         changed since the snapshot the neighbour is known to hold."""
         link = self.link(to)
+        if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
+            parts = self.layers.parts_for(link.known)
+            held = self.layers.layers
+            seq = link.sent_layers([(p.source, p.version, held[p.source].map) for p in parts
+                                    if p.map is not None], reliable=reliable)
+            return MapMessage(self.name, to, self.rule, seq, link.applied,
+                              LayeredPayload(parts, self.map.resolution),
+                              any(p.base for p in parts))
         if self.exact:
             snapshot = unclamped_copy(self.map)
             if link.received is not None:
@@ -120,7 +153,9 @@ class Agent:
         if not link.accept(msg.seq):
             return False
         payload = moved if moved is not None else msg.payload
-        if self.exact:
+        if self.layers is not None:
+            self.apply_layers(msg.sender, payload)
+        elif self.exact:
             self.apply_contribution(msg.sender, payload, msg.delta)
         else:
             fuse_into(self.map, payload, rule=self.rule, unknown=unknown, loss=self.loss,
@@ -144,6 +179,18 @@ class Agent:
         # kept as it came: a whole contribution is never modified (copied if not unclamped)
         link.received = payload if is_open(payload) else unclamped_copy(payload)
 
+    def apply_layers(self, sender: str, payload: LayeredPayload) -> None:
+        """Source layers' merge, without sequence numbers: per source the newer version; what
+        ``sender`` holds is learnt (no layer it holds is sent back to it)."""
+        link, held = self.link(sender), self.layers.layers
+        for p in payload.parts:
+            if p.map is None:  # a version the sender holds: the base of deltas if held here too
+                mine = held.get(p.source)
+                link.learn(p.source, p.version,
+                           mine.map if mine is not None and mine.version == p.version else None)
+        for source, version, m in self.layers.merge(payload.parts):
+            link.learn(source, version, m)
+
     def exchange_with(self, other: "Agent", *, unknown: str = "copy") -> tuple[int, int]:
         """A two-way exchange of whole maps, both fused in one walk (a per-voxel rule, both
         agents in one frame). Returns the leaves of this agent's and ``other``'s map as sent
@@ -155,5 +202,8 @@ class Agent:
                              loss_a=self.loss, loss_b=other.loss)
 
     def held_maps(self) -> list[OccupancyMap]:
-        """The maps the links hold (for memory accounting)."""
-        return [m for link in self.links.values() for m in link.maps()]
+        """The maps the links hold, and source layers' layers (for memory accounting)."""
+        held = [m for link in self.links.values() for m in link.maps()]
+        if self.layers is not None:
+            held += self.layers.maps()
+        return list({id(m): m for m in held}.values())

@@ -10,7 +10,8 @@ Both directions of a link run the same protocol, whatever the rule:
   to hold: on a lossless link the last one sent, otherwise the last one acknowledged (what was
   not acknowledged is sent again until it is).
 
-The channel filter also keeps, per link, the neighbour's last contribution (:attr:`received`).
+The channel filter also keeps, per link, the neighbour's last contribution (:attr:`received`);
+source layers keep, per source, the version the neighbour is known to hold (:attr:`known`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,12 @@ class Link:
     pending: dict[int, OccupancyMap] = field(default_factory=dict)
     #: the channel filter's common information: the neighbour's last applied contribution
     received: Optional[OccupancyMap] = None
+    #: source layers: per source, the newest version the neighbour is known to hold (sent on
+    #: a lossless link, acknowledged, or named by the neighbour) and that version's layer if
+    #: this agent holds it (the base of the next delta)
+    known: dict[str, tuple[int, Optional[OccupancyMap]]] = field(default_factory=dict)
+    #: source layers on a lossy link: the layers sent and not acknowledged yet (seq -> them)
+    pending_layers: dict[int, list[tuple[str, int, OccupancyMap]]] = field(default_factory=dict)
 
     def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
                  reliable: bool) -> tuple[int, OccupancyMap]:
@@ -61,6 +68,28 @@ class Link:
             self.baseline = self.pending[ack]
             for k in [k for k in self.pending if k <= ack]:
                 del self.pending[k]
+        for k in [k for k in self.pending_layers if k <= ack]:
+            for source, version, m in self.pending_layers.pop(k):
+                self.learn(source, version, m)
+
+    def sent_layers(self, layers: list[tuple[str, int, OccupancyMap]], *,
+                    reliable: bool) -> int:
+        """The next message's sequence number, for one carrying ``layers`` (source, version,
+        the layer as held): known to be held at once (``reliable``) or once acknowledged."""
+        self.seq += 1
+        if reliable:
+            for source, version, m in layers:
+                self.learn(source, version, m)
+        elif layers:
+            self.pending_layers[self.seq] = layers
+        return self.seq
+
+    def learn(self, source: str, version: int, m: Optional[OccupancyMap] = None) -> None:
+        """The neighbour holds ``version`` of ``source``'s layer (``m``: that layer, if this
+        agent holds the same)."""
+        held, base = self.known.get(source, (0, None))
+        if version > held or (version == held and base is None and m is not None):
+            self.known[source] = (version, m)
 
     def accept(self, seq: int) -> bool:
         """Whether a message numbered ``seq`` from the neighbour is newer than every one
@@ -72,5 +101,7 @@ class Link:
 
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""
-        held = [self.baseline, self.received, *self.pending.values()]
+        held = [self.baseline, self.received, *self.pending.values(),
+                *(m for _, m in self.known.values()),
+                *(m for sent in self.pending_layers.values() for _, _, m in sent)]
         return [m for m in held if m is not None]

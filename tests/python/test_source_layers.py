@@ -1,0 +1,222 @@
+"""Exact fusion by per-source map layers (``source-layers``) on any graph: every agent's map is
+the sum of the newest layer of every source it has heard of, on loopy graphs, in time, under
+message loss, repeated and reordered messages; a memory budget folds layers conservatively.
+
+The expected maps are sums of unclamped scan prefixes, as in :mod:`test_channel_filter`.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bagfactory import voxel_keys  # noqa: E402
+from conftest import random_map  # noqa: E402
+from test_channel_filter import (PERIOD, RES, Knowledge, assert_values, empty_open,  # noqa: E402,F401
+                                 prefixes, team_bag, team_scans)
+
+from octofuse import fuse_into  # noqa: E402
+from octofuse.config import SOURCE_LAYERS as SL, FuseConfig  # noqa: E402
+from octofuse.fusion.agent import Agent, MapMessage  # noqa: E402
+from octofuse.fusion.channel_filter import add_into, clamped, open_map, unclamped_copy  # noqa: E402
+from octofuse.fusion.graph import make_graph  # noqa: E402
+from octofuse.fusion.rounds import fuse_finished  # noqa: E402
+from octofuse.fusion.simulate import simulate  # noqa: E402
+from octofuse.maps.build import insert_scans, make_build_config  # noqa: E402
+
+
+def total(maps) -> "object":
+    """The unclamped sum of ``maps``."""
+    want = open_map(type(next(iter(maps)))(next(iter(maps)).resolution))
+    for m in maps:
+        add_into(want, unclamped_copy(m))
+    return want
+
+
+@pytest.fixture(scope="module")
+def finished():
+    """Six robots' finished maps, overlapping in part."""
+    return {f"r{k}": random_map(k, 3, offset=(0.3 * k, 0.2 * (k % 2), 0.0)) for k in range(6)}
+
+
+class Last:
+    """An observer keeping the network of the last round."""
+
+    def __call__(self, t, group, net, inserted):
+        self.net = net
+
+
+# -- finished maps on loopy graphs -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("topology,loss", [("ring", 0.0), ("complete", 0.0),
+                                           ("max-robust:3", 0.0), ("ring", 0.3)])
+def test_finished_maps_on_loopy_graphs_sum_exactly(finished, topology, loss):
+    last = Last()
+    rounds = 12 if loss else 4
+    res = fuse_finished(finished, finished["r0"], FuseConfig(
+        topology=topology, schedule=f"rounds:{rounds}", rules=[SL, "naive-bayes"], loss=loss,
+        seed=2), threads=1, observer=last)
+    want = total(finished.values())
+    if loss:
+        assert res.traffic[SL].lost > 0
+    for a in res.agents:
+        assert_values(last.net.fused[SL][a], want, f"{topology} {a}")
+        # scored and written clamped
+        assert res.fused[SL][a].to_bytes() == clamped(last.net.fused[SL][a]).to_bytes()
+        assert res.memory[SL][a]["layers"] == 6 and res.memory[SL][a]["folded"] == 0
+    assert res.scores[SL]["r0"].loss_mean is None
+    # naive Bayes counts what arrives over two paths twice: far from the sum on loops
+    _, v_nb = voxel_keys(res.fused["naive-bayes"]["r0"])
+    _, v_sl = voxel_keys(res.fused[SL]["r0"])
+    assert np.abs(v_nb).sum() > np.abs(v_sl).sum()
+
+
+def test_layers_sent_once_then_versions_only(finished):
+    """Finished maps do not change: once every agent knows what the others hold, messages
+    carry versions and no map."""
+    def sent(rounds):
+        res = fuse_finished(finished, None, FuseConfig(
+            topology="complete", schedule=f"rounds:{rounds}", rules=[SL]), threads=1)
+        return sum(res.traffic[SL].sent.values())
+
+    # the second round still sends what the first delivered at the same time over other links
+    assert 0 < sent(1) < sent(2) == sent(5)
+
+
+# -- in time -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("topology,loss", [("ring", 0.0), ("complete", 0.0), ("ring", 0.35)])
+def test_in_time_agents_hold_exactly_the_scans_they_heard_of(team_bag, prefixes, topology,
+                                                              loss):
+    cfg = make_build_config(team_bag, resolution=RES)
+    fcfg = FuseConfig(topology=topology, schedule=PERIOD if not loss else "periodic:0.2",
+                      rules=[SL, "min-info-loss"], loss=loss, seed=3)
+    fcfg.validate("fuse")
+    agents = list(prefixes)
+    graph = make_graph(topology, len(agents), names=agents)
+    check = Knowledge(agents, graph.edges, prefixes, rule=SL)
+    res = simulate(cfg, fcfg, samples=2, observer=check)
+    assert check.checked > 5
+    if loss:
+        assert res.traffic[SL].lost > 0
+    for a in res.agents:  # at the end: own scans since the last exchange too (scored clamped)
+        know = {**check.know[a], a: len(prefixes[a]) - 1}
+        want = empty_open()
+        for b, n in know.items():
+            add_into(want, prefixes[b][n])
+        assert_values(res.fused[SL][a], clamped(want), f"final {a}")
+        if all(n == len(prefixes[b]) - 1 for b, n in know.items()):
+            # heard everything: the centralized map without clamping, clamped once
+            assert_values(res.fused[SL][a], clamped(res.central_unclamped), f"final {a}")
+
+
+# -- repeated, reordered and lost messages -----------------------------------------------------
+
+
+def test_repeated_reordered_and_relayed_layers_count_once(team_scans, prefixes):
+    pa, pb, pc = prefixes["a"], prefixes["b"], prefixes["c"]
+    a, b, c = (Agent(x, SL, empty_open()) for x in "abc")
+    lossy = dict(reliable=False)
+
+    def scans(agent, lo, hi):
+        insert_scans(team_scans[agent.name][lo:hi], [agent.scan_targets()] * (hi - lo), 1)
+
+    scans(a, 0, 2)
+    m1 = a.compose("b", **lossy)
+    scans(a, 2, 4)
+    m2 = a.compose("b", **lossy)  # m1 not acknowledged: whole again, a newer version
+    assert not m1.delta and not m2.delta
+    scans(b, 0, len(team_scans["b"]))
+    # reordered and repeated, through the frame: the older is dropped, repeats change nothing
+    assert b.deliver(MapMessage.decode(m2.encode("lab")))
+    assert not b.deliver(m1) and not b.deliver(m2)
+    for m in (m1, m2, m2):  # and harmless even without sequence numbers: layers are values
+        b.apply_layers("a", m.payload)
+    assert_values(b.map, total([pb[-1], pa[4]]), "b after repeats")
+
+    # b acknowledges: a's next message is a delta, applied thrice; naive Bayes counts it thrice
+    assert a.deliver(b.compose("a", **lossy))
+    assert_values(a.map, total([pa[4], pb[-1]]), "a")
+    scans(a, 4, 5)
+    m3 = a.compose("b", **lossy)
+    assert m3.delta and [p.source for p in m3.payload.parts if p.map is not None] == ["a"]
+    nb = unclamped_copy(b.map)
+    for _ in range(3):
+        b.apply_layers("a", m3.payload)
+        fuse_into(nb, m3.payload.parts[0].map, rule="naive-bayes")
+    exact = total([pb[-1], pa[5]])
+    assert_values(b.map, exact, "b after a delta thrice")
+    _, v_nb = voxel_keys(nb)
+    _, v_ex = voxel_keys(exact)
+    assert np.abs(v_nb).sum() > 1.2 * np.abs(v_ex).sum()
+
+    # relayed over a loop: c hears a through b and directly; each source counts once
+    scans(c, 0, 3)
+    assert c.deliver(b.compose("c"))
+    assert c.deliver(a.compose("c"))
+    assert b.deliver(c.compose("b"))
+    assert a.deliver(b.compose("a"))  # b relays c's layer to a; a's own comes back not at all
+    for x in (a, b, c):
+        assert_values(x.map, total([pa[5], pb[-1], pc[3]]), f"{x.name} after the loop")
+    # nothing new: messages carry versions only
+    assert b.compose("c").payload.num_nodes == 0
+
+
+def test_a_delta_applies_to_a_version_newer_than_its_base(team_scans, prefixes):
+    """On a loop a receiver may hold a newer version than the sender knew: the delta still
+    gives the newest version exactly."""
+    a, b, c = (Agent(x, SL, empty_open()) for x in "abc")
+    insert_scans(team_scans["a"][:1], [a.scan_targets()], 1)
+    b.deliver(a.compose("b"))  # b holds a@1, a knows it
+    insert_scans(team_scans["a"][1:3], [a.scan_targets()] * 2, 1)
+    c.deliver(a.compose("c"))  # a@2
+    b.deliver(c.compose("b"))  # b holds a@2 from c; a does not know
+    insert_scans(team_scans["a"][3:5], [a.scan_targets()] * 2, 1)
+    m = a.compose("b")
+    assert m.delta and m.payload.parts[0].base == 1
+    b.deliver(m)
+    assert b.layers.layers["a"].version == 3
+    assert_values(b.map, prefixes["a"][5], "b")
+
+
+# -- the memory budget -------------------------------------------------------------------------
+
+
+def test_a_budget_folds_the_oldest_layers_conservatively(finished):
+    layer = max(unclamped_copy(m).memory_bytes for m in finished.values())
+    last = Last()
+    res = fuse_finished(finished, finished["r0"], FuseConfig(
+        topology="complete", schedule="rounds:3", rules=[SL], layers_max_bytes=3 * layer),
+        threads=1, observer=last)
+    for a in res.agents:
+        n = last.net.nodes[SL][a].layers
+        assert res.memory[SL][a]["folded"] == len(n.folded) > 0
+        assert res.memory[SL][a]["layers"] + len(n.folded) == 6 and a in n.layers
+        # the map: the exact layers' sum and the remainder
+        assert_values(n.fused, total([*(x.map for x in n.layers.values()), n.remainder]), a)
+        # the remainder lies between the folded maps' values (a WEP rule: never more certain)
+        kr, vr = voxel_keys(n.remainder)
+        lo, hi = np.full(len(kr), np.inf), np.full(len(kr), -np.inf)
+        for s in n.folded:
+            k, v = voxel_keys(unclamped_copy(finished[s]))
+            assert np.isin(k, kr).all()
+            at = np.searchsorted(kr, k)
+            lo[at], hi[at] = np.minimum(lo[at], v), np.maximum(hi[at], v)
+        assert (vr >= lo - 1e-4).all() and (vr <= hi + 1e-4).all()
+
+
+def test_config_takes_the_mode_beside_the_rules():
+    f = FuseConfig(rules=["all", SL, "channel-filter"])
+    f.validate("fuse")
+    assert f.rules[-2:] == [SL, "channel-filter"]
+    f = FuseConfig(rules="all")
+    f.validate("fuse")
+    assert SL not in f.rules
+    with pytest.raises(ValueError, match="layers_max_bytes"):
+        FuseConfig(rules=[SL], layers_max_bytes=-1).validate("fuse")
