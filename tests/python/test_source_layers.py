@@ -27,6 +27,8 @@ from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import insert_scans, make_build_config  # noqa: E402
+from octofuse.outputs.report import (exact_summary, findings, mean_scores,  # noqa: E402
+                                     memory_per_agent, memory_table)
 
 
 def total(maps) -> "object":
@@ -209,6 +211,24 @@ def test_a_budget_folds_the_oldest_layers_conservatively(finished):
             at = np.searchsorted(kr, k)
             lo[at], hi[at] = np.minimum(lo[at], v), np.maximum(hi[at], v)
         assert (vr >= lo - 1e-4).all() and (vr <= hi + 1e-4).all()
+
+
+def test_the_report_sets_the_layers_beside_the_other_rules(finished):
+    central = clamped(total(finished.values()))
+    res = fuse_finished(finished, central, FuseConfig(
+        topology="ring", schedule="rounds:4", rules=["naive-bayes", "chernoff", SL]), threads=1)
+    means = mean_scores(res.scores)
+    assert means[SL]["kl_mean"] < means["chernoff"]["kl_mean"]
+    memory = memory_per_agent(res)
+    assert memory[SL] > memory["chernoff"]  # the price: every source's layer
+    text = findings(means, exact_summary(res, 0.1), memory)[-1]
+    assert text.startswith("Exact fusion on every link (source-layers): KL ")
+    assert "closer to the centralized map than every other rule" in text
+    assert "A robot sends" in text and "of map and layers (others" in text
+    rows = memory_table(res)
+    assert rows[0].endswith("layers held (folded) |")
+    assert rows[-1].startswith(f"| `{SL}` |") and rows[-1].endswith(" 6.0 (0.0) |")
+    assert rows[-2].endswith(" – |")
 
 
 def test_config_takes_the_mode_beside_the_rules():
