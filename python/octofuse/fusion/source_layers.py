@@ -172,7 +172,12 @@ class Layers:
                 continue
             if p.base:
                 new = unclamped_copy(cur.map)  # held maps are values: a base may be the old
-                self.fused.assign_delta(new, p.map)
+                # new - old on the delta's voxels, then added: work in the delta's size, not
+                # in the fused map's (assigning into the fused map prunes all of it)
+                diff = open_map(OccupancyMap(new.resolution, new.prob_hit, new.prob_miss,
+                                             cur.map.clamping))
+                diff.assign_delta(new, p.map)
+                add_into(self.fused, diff)
             else:
                 new = p.map if is_open(p.map) else unclamped_copy(p.map)
                 add_into(self.fused, new)
