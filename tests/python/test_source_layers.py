@@ -190,6 +190,38 @@ def test_a_delta_applies_to_a_version_newer_than_its_base(team_scans, prefixes):
 # -- the memory budget -------------------------------------------------------------------------
 
 
+def test_a_budget_lets_go_of_delta_bases_before_exactness(team_bag, prefixes):
+    """A budget above the layers but below the layers and the delta bases kept for the
+    neighbours: bases go (more traffic, less memory), no layer is folded, every map exact."""
+    cfg = make_build_config(team_bag, resolution=RES)
+    agents = list(prefixes)
+    graph = make_graph("complete", len(agents), names=agents)
+
+    def run(budget):
+        check = Knowledge(agents, graph.edges, prefixes, rule=SL)
+        nets = []
+
+        def observe(t, group, net, inserted):
+            check(t, group, net, inserted)
+            nets[:] = [net]
+
+        res = simulate(cfg, FuseConfig(topology="complete", schedule=PERIOD, rules=[SL],
+                                       layers_max_bytes=budget), samples=0, observer=observe)
+        nodes = nets[0].nodes[SL].values()
+        return res, max(n.layers.bytes_held() for n in nodes)
+
+    free, layers = run(0)
+    links = {a: free.memory[SL][a]["links"] for a in agents}
+    budget = int(1.05 * layers)
+    assert max(links.values()) > budget  # the bases kept are over it
+    bound, _ = run(budget)
+    for a in agents:
+        assert bound.memory[SL][a]["folded"] == 0
+        assert bound.memory[SL][a]["links"] <= budget
+    assert sum(bound.memory[SL][a]["links"] for a in agents) < sum(links.values())
+    assert sum(bound.traffic[SL].sent.values()) > sum(free.traffic[SL].sent.values())
+
+
 def test_a_budget_folds_the_oldest_layers_conservatively(finished):
     layer = max(unclamped_copy(m).memory_bytes for m in finished.values())
     last = Last()

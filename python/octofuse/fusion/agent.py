@@ -119,13 +119,15 @@ class Agent:
                 state: Optional[OccupancyMap] = None) -> MapMessage:
         """The message for neighbour ``to`` now: the map (``state`` if given: the map as it was
         at an earlier moment), or the channel filter's contribution; with ``delta``, only what
-        changed since the snapshot the neighbour is known to hold."""
+        changed since the snapshot the neighbour is known to hold. Source layers send the
+        layers ``to`` lacks, whole on first contact and as deltas after, whatever ``delta``."""
         link = self.link(to)
         if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
             parts = self.layers.parts_for(link.known)
             held = self.layers.layers
             seq = link.sent_layers([(p.source, p.version, held[p.source].map) for p in parts
                                     if p.map is not None], reliable=reliable)
+            self.fit_budget()  # the own layer's earlier copy may be a delta base no more
             return MapMessage(self.name, to, self.rule, seq, link.applied,
                               LayeredPayload(parts, self.map.resolution),
                               any(p.base for p in parts))
@@ -190,6 +192,19 @@ class Agent:
                            mine.map if mine is not None and mine.version == p.version else None)
         for source, version, m in self.layers.merge(payload.parts):
             link.learn(source, version, m)
+        self.fit_budget()
+
+    def fit_budget(self) -> None:
+        """Source layers over their memory budget (the layers and the delta bases the links
+        hold) let go of the bases that are not layers held any more (their sources go whole
+        to those neighbours next: still exact), then fold layers (exact no more,
+        :meth:`~.source_layers.Layers.fold_to_budget`)."""
+        budget = self.layers.max_bytes
+        if budget and sum(m.memory_bytes for m in self.held_maps()) > budget:
+            held = {id(x.map) for x in self.layers.layers.values()}
+            for link in self.links.values():
+                link.forget_bases(held)
+            self.layers.fold_to_budget()
 
     def exchange_with(self, other: "Agent", *, unknown: str = "copy") -> tuple[int, int]:
         """A two-way exchange of whole maps, both fused in one walk (a per-voxel rule, both

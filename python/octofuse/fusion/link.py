@@ -42,7 +42,8 @@ class Link:
     #: this agent holds it (the base of the next delta)
     known: dict[str, tuple[int, Optional[OccupancyMap]]] = field(default_factory=dict)
     #: source layers on a lossy link: the layers sent and not acknowledged yet (seq -> them)
-    pending_layers: dict[int, list[tuple[str, int, OccupancyMap]]] = field(default_factory=dict)
+    pending_layers: dict[int, list[tuple[str, int, Optional[OccupancyMap]]]] = field(
+        default_factory=dict)
 
     def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
                  reliable: bool) -> tuple[int, OccupancyMap]:
@@ -98,6 +99,15 @@ class Link:
             return False
         self.applied = seq
         return True
+
+    def forget_bases(self, keep: set[int]) -> None:
+        """Let go of the layers held as delta bases but those in ``keep`` (ids): the layers
+        they were replaced by go whole on the next message (traffic for memory, still exact)."""
+        for source, (version, m) in self.known.items():
+            if m is not None and id(m) not in keep:
+                self.known[source] = (version, None)
+        for k, sent in self.pending_layers.items():
+            self.pending_layers[k] = [(s, v, m if id(m) in keep else None) for s, v, m in sent]
 
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""

@@ -11,9 +11,13 @@ applying one twice changes nothing, and an older one than held is ignored.
 
 What an agent does:
 
-* its own scans go into its own layer (and into its fused map: with open clamping a scan's
-  update is an addition, so the two stay equal); the own layer gets a new version each time
-  it is sent after it changed (a copy of it then: what the neighbours hold of it);
+* its own scans go into its own layer and into its fused map (with open clamping a scan's
+  update is an addition, so the map stays the sum). That is cheaper than summing the layers
+  where the map is read: on lab8 at every 4th scan, inserting every robot's scans into one
+  more map takes 0.57 s over the whole run (rays traced again; a run traces them once for
+  every map), while summing the layers once for every agent takes 0.42 s, and the demo scores
+  its maps 9 times. The own layer gets a new version each time it is sent after it changed (a
+  copy of it then: what the neighbours hold of it);
 * a message to a neighbour carries, per source, what the neighbour is not known to hold: the
   whole layer on first contact, afterwards the voxels changed since the version the neighbour
   is known to hold (its acknowledged one on a lossy link, as :class:`~.link.Link` does for
@@ -34,8 +38,10 @@ The price is memory and traffic: an agent holds every source's layer (sparse: a 
 holds only what it saw) besides the fused map, and keeps, per link and source, the layer value
 its neighbour is known to hold (a reference to a layer, which stays alive only while a newer
 one has not been acknowledged). A budget, :attr:`~octofuse.config.FuseConfig.layers_max_bytes`,
-bounds the bytes of layers an agent holds: beyond it the layer heard of least recently (never
-the agent's own) is folded into one *remainder* map by the Chernoff rule (a weighted
+bounds the bytes of layers an agent holds, delta bases included. Beyond it the agent first lets
+go of the bases that are no layer it holds any more (a neighbour then gets those sources' next
+layers whole: traffic for memory, still exact); if the layers alone are over it, the layer
+heard of least recently (never the agent's own) is folded into one *remainder* map by the Chernoff rule (a weighted
 exponential product ``w l_a + (1 - w) l_b`` in log-odds, its weight chosen by the C++ core's
 Chernoff criterion). Chernoff is chosen because a WEP rule is conservative whatever the inputs
 share: its value lies between theirs, so a later version of a folded source, which contains
@@ -185,7 +191,6 @@ class Layers:
                     subtract_into(self.fused, cur.map)
             self.layers[p.source] = Layer(p.version, new, self.heard)
             taken.append((p.source, p.version, new))
-        self.fold_to_budget()
         return taken
 
     # -- the memory budget -------------------------------------------------------------------
