@@ -25,7 +25,7 @@ from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import exchange_maps, fuse_into, subtract_into
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .link import Link
-from .source_layers import LayeredPayload, Layers
+from .source_layers import Change, LayeredPayload, Layers
 from .wire import DEFAULT_MAX_PAYLOAD, Encoding, Kind, Message, decode
 
 
@@ -123,11 +123,12 @@ class Agent:
         layers ``to`` lacks, whole on first contact and as deltas after, whatever ``delta``."""
         link = self.link(to)
         if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
+            self._advanced([c for c in [self.layers.publish()] if c is not None])
             parts = self.layers.parts_for(link.known)
-            held = self.layers.layers
-            seq = link.sent_layers([(p.source, p.version, held[p.source].map) for p in parts
-                                    if p.map is not None], reliable=reliable)
-            self.fit_budget()  # the own layer's earlier copy may be a delta base no more
+            seq = link.sent_layers([(p.source, p.version) for p in parts if p.map is not None],
+                                   reliable=reliable)
+            self._forget_caught_up()
+            self.fit_budget()
             return MapMessage(self.name, to, self.rule, seq, link.applied,
                               LayeredPayload(parts, self.map.resolution),
                               any(p.base for p in parts))
@@ -184,26 +185,39 @@ class Agent:
     def apply_layers(self, sender: str, payload: LayeredPayload) -> None:
         """Source layers' merge, without sequence numbers: per source the newer version; what
         ``sender`` holds is learnt (no layer it holds is sent back to it)."""
-        link, held = self.link(sender), self.layers.layers
+        link = self.link(sender)
         for p in payload.parts:
-            if p.map is None:  # a version the sender holds: the base of deltas if held here too
-                mine = held.get(p.source)
-                link.learn(p.source, p.version,
-                           mine.map if mine is not None and mine.version == p.version else None)
-        for source, version, m in self.layers.merge(payload.parts):
-            link.learn(source, version, m)
+            if p.map is None:  # a version the sender holds
+                link.learn(p.source, p.version)
+        changes = self.layers.merge(payload.parts)
+        for c in changes:
+            link.learn(c.source, c.new)
+        self._advanced(changes)
+        self._forget_caught_up()
         self.fit_budget()
 
+    def _advanced(self, changes: list[Change]) -> None:
+        """Layers replaced: every link keeps what its neighbour now lacks."""
+        for c in changes:
+            for link in self.links.values():
+                link.advanced(c.source, c.old, c.new, c.diff)
+
+    def _forget_caught_up(self) -> None:
+        """No changes kept for neighbours that hold a layer's version held here."""
+        held = self.layers.versions()
+        for link in self.links.values():
+            for s, (v, changes) in list(link.known.items()):
+                if changes is not None and v >= held.get(s, 0):
+                    link.caught_up(s)
+
     def fit_budget(self) -> None:
-        """Source layers over their memory budget (the layers and the delta bases the links
-        hold) let go of the bases that are not layers held any more (their sources go whole
-        to those neighbours next: still exact), then fold layers (exact no more,
-        :meth:`~.source_layers.Layers.fold_to_budget`)."""
+        """Source layers over their memory budget (the layers and the changes the links keep
+        for deltas) let go of the changes (those layers go whole next: still exact), then
+        fold layers (exact no more, :meth:`~.source_layers.Layers.fold_to_budget`)."""
         budget = self.layers.max_bytes
         if budget and sum(m.memory_bytes for m in self.held_maps()) > budget:
-            held = {id(x.map) for x in self.layers.layers.values()}
             for link in self.links.values():
-                link.forget_bases(held)
+                link.forget_changes()
             self.layers.fold_to_budget()
 
     def exchange_with(self, other: "Agent", *, unknown: str = "copy") -> tuple[int, int]:

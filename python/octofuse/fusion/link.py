@@ -38,12 +38,11 @@ class Link:
     #: the channel filter's common information: the neighbour's last applied contribution
     received: Optional[OccupancyMap] = None
     #: source layers: per source, the newest version the neighbour is known to hold (sent on
-    #: a lossless link, acknowledged, or named by the neighbour) and that version's layer if
-    #: this agent holds it (the base of the next delta)
+    #: a lossless link, acknowledged, or named by the neighbour) and the voxels changed since
+    #: that version up to the one this agent holds (None: not known; the next goes whole)
     known: dict[str, tuple[int, Optional[OccupancyMap]]] = field(default_factory=dict)
-    #: source layers on a lossy link: the layers sent and not acknowledged yet (seq -> them)
-    pending_layers: dict[int, list[tuple[str, int, Optional[OccupancyMap]]]] = field(
-        default_factory=dict)
+    #: source layers on a lossy link: the versions sent and not acknowledged yet (seq -> them)
+    pending_layers: dict[int, list[tuple[str, int]]] = field(default_factory=dict)
 
     def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
                  reliable: bool) -> tuple[int, OccupancyMap]:
@@ -70,27 +69,51 @@ class Link:
             for k in [k for k in self.pending if k <= ack]:
                 del self.pending[k]
         for k in [k for k in self.pending_layers if k <= ack]:
-            for source, version, m in self.pending_layers.pop(k):
-                self.learn(source, version, m)
+            for source, version in self.pending_layers.pop(k):
+                self.learn(source, version)
 
-    def sent_layers(self, layers: list[tuple[str, int, OccupancyMap]], *,
-                    reliable: bool) -> int:
-        """The next message's sequence number, for one carrying ``layers`` (source, version,
-        the layer as held): known to be held at once (``reliable``) or once acknowledged."""
+    def sent_layers(self, layers: list[tuple[str, int]], *, reliable: bool) -> int:
+        """The next message's sequence number, for one carrying ``layers`` (source, version):
+        known to be held at once (``reliable``) or once acknowledged."""
         self.seq += 1
         if reliable:
-            for source, version, m in layers:
-                self.learn(source, version, m)
+            for source, version in layers:
+                self.learn(source, version)
         elif layers:
             self.pending_layers[self.seq] = layers
         return self.seq
 
-    def learn(self, source: str, version: int, m: Optional[OccupancyMap] = None) -> None:
-        """The neighbour holds ``version`` of ``source``'s layer (``m``: that layer, if this
-        agent holds the same)."""
-        held, base = self.known.get(source, (0, None))
-        if version > held or (version == held and base is None and m is not None):
-            self.known[source] = (version, m)
+    def learn(self, source: str, version: int) -> None:
+        """The neighbour holds ``version`` of ``source``'s layer (or a newer one). The changes
+        kept since an older version still hold every change since this one."""
+        held, changes = self.known.get(source, (0, None))
+        if version > held:
+            self.known[source] = (version, changes)
+
+    def advanced(self, source: str, old: int, new: int, delta) -> None:
+        """This agent's layer of ``source`` went from version ``old`` to ``new``; ``delta()``
+        gives the voxels that changed (called only if needed). A neighbour that held ``old``
+        or newer lacks those; one further behind, those and its earlier changes; one whose
+        changes are not known, the whole layer."""
+        from .source_layers import overwritten
+
+        held, changes = self.known.get(source, (0, None))
+        if held >= new or held == 0:
+            return
+        if old and held >= old:
+            self.known[source] = (held, delta())
+        elif changes is not None:
+            self.known[source] = (held, overwritten(changes, delta()))
+
+    def caught_up(self, source: str) -> None:
+        """The neighbour holds this agent's layer of ``source``: no changes to keep."""
+        held, _ = self.known.get(source, (0, None))
+        self.known[source] = (held, None)
+
+    def forget_changes(self) -> None:
+        """Let go of the changes kept for deltas: the layers go whole next (traffic for
+        memory, still exact)."""
+        self.known = {s: (v, None) for s, (v, _) in self.known.items()}
 
     def accept(self, seq: int) -> bool:
         """Whether a message numbered ``seq`` from the neighbour is newer than every one
@@ -100,18 +123,8 @@ class Link:
         self.applied = seq
         return True
 
-    def forget_bases(self, keep: set[int]) -> None:
-        """Let go of the layers held as delta bases but those in ``keep`` (ids): the layers
-        they were replaced by go whole on the next message (traffic for memory, still exact)."""
-        for source, (version, m) in self.known.items():
-            if m is not None and id(m) not in keep:
-                self.known[source] = (version, None)
-        for k, sent in self.pending_layers.items():
-            self.pending_layers[k] = [(s, v, m if id(m) in keep else None) for s, v, m in sent]
-
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""
         held = [self.baseline, self.received, *self.pending.values(),
-                *(m for _, m in self.known.values()),
-                *(m for sent in self.pending_layers.values() for _, _, m in sent)]
+                *(m for _, m in self.known.values())]
         return [m for m in held if m is not None]

@@ -22,25 +22,27 @@ What an agent does:
   whole layer on first contact, afterwards the voxels changed since the version the neighbour
   is known to hold (its acknowledged one on a lossy link, as :class:`~.link.Link` does for
   whole maps), and the versions of every layer the sender holds (so that neither side sends
-  the other what it has, also for layers that reached both over other paths);
+  the other what it has, also for layers that reached both over other paths). The changes are
+  kept per link and source as a map of the changed voxels' newest values, updated at every
+  replacement of the layer (the delta received, or the difference of the two versions), not
+  as a copy of the version the neighbour holds: they are smaller;
 * on receiving a newer version of a source it replaces the layer and keeps the fused map equal
   to the sum of the layers incrementally: ``l += new - old`` (a whole layer is added and the
-  one it replaces subtracted; a delta is applied voxel by voxel on a copy of the old layer).
-  A delta carries the new values of the voxels changed since its base version; it applies to
-  any version held from the base on, since a source's versions are prefixes of one sequence
-  of scans: a voxel a later scan changed differs from the base too (its hits and misses do not
-  sum back to exactly nothing). On a loopy graph a receiver often holds a newer version than
-  the sender knew, from another path;
+  one it replaces subtracted; a delta is applied voxel by voxel, on the old layer in place or
+  on a copy of it where another agent may hold the same map, in process).
+  A delta carries the new values of the voxels changed since its base version, gathered step
+  by step (every replacement of the layer adds its changed voxels), so it holds every voxel
+  changed since any later version too: it applies to any version held from the base on. On a
+  loopy graph a receiver often holds a newer version than the sender knew, from another path;
 * the fused map, like the layers, is kept unclamped and clamped for scoring and writing only
   (as the channel filter's, :mod:`.channel_filter`).
 
 The price is memory and traffic: an agent holds every source's layer (sparse: a source's layer
-holds only what it saw) besides the fused map, and keeps, per link and source, the layer value
-its neighbour is known to hold (a reference to a layer, which stays alive only while a newer
-one has not been acknowledged). A budget, :attr:`~octofuse.config.FuseConfig.layers_max_bytes`,
-bounds the bytes of layers an agent holds, delta bases included. Beyond it the agent first lets
-go of the bases that are no layer it holds any more (a neighbour then gets those sources' next
-layers whole: traffic for memory, still exact); if the layers alone are over it, the layer
+holds only what it saw) besides the fused map, and keeps, per link and source, the voxels
+changed since the version its neighbour is known to hold. A budget, :attr:`~octofuse.config.FuseConfig.layers_max_bytes`,
+bounds the bytes of layers an agent holds, the changes kept for deltas included. Beyond it the
+agent first lets go of the changes (a neighbour then gets those sources' next layers whole:
+traffic for memory, still exact); if the layers alone are over it, the layer
 heard of least recently (never the agent's own) is folded into one *remainder* map by the Chernoff rule (a weighted
 exponential product ``w l_a + (1 - w) l_b`` in log-odds, its weight chosen by the C++ core's
 Chernoff criterion). Chernoff is chosen because a WEP rule is conservative whatever the inputs
@@ -109,12 +111,47 @@ class LayeredPayload:
 
 @dataclass
 class Layer:
-    """One source's layer as held: its version, its unclamped map (never changed once held:
-    a newer version is a new map) and when it was last replaced (the agent's message count)."""
+    """One source's layer as held: its version, its unclamped map and when it was last replaced
+    (the agent's message count). ``shared``: the map went into a message or came in one whole,
+    so that others may hold it too (a delta then goes into a copy, otherwise in place)."""
 
     version: int
     map: OccupancyMap
     heard: int = 0
+    shared: bool = False
+
+
+@dataclass
+class Change:
+    """A layer replaced: ``source``'s version ``old`` (0: none) by ``new``; ``delta``: the new
+    values of the voxels that changed, or None (then :meth:`diff` takes them from the maps)."""
+
+    source: str
+    old: int
+    new: int
+    old_map: Optional[OccupancyMap]
+    new_map: OccupancyMap
+    delta: Optional[OccupancyMap] = None
+
+    def diff(self) -> OccupancyMap:
+        """The voxels that changed, with their new values (computed once)."""
+        if self.delta is None:
+            self.delta = (self.new_map if self.old_map is None
+                          else open_map(self.new_map.changed_since(self.old_map)))
+        return self.delta
+
+
+def empty_like(m: OccupancyMap) -> OccupancyMap:
+    """An empty unclamped map with ``m``'s resolution and sensor model."""
+    return open_map(OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping))
+
+
+def overwritten(changes: OccupancyMap, delta: OccupancyMap) -> OccupancyMap:
+    """A copy of ``changes`` with ``delta``'s voxels set to its values: the changes of two
+    steps in one."""
+    out = unclamped_copy(changes)
+    empty_like(out).assign_delta(out, delta)
+    return out
 
 
 @dataclass
@@ -132,34 +169,38 @@ class Layers:
     own_changed: bool = True
     heard: int = 0
 
-    def publish(self) -> None:
+    def publish(self) -> Optional[Change]:
         """A new version of the own layer if it changed since the last one (a copy)."""
-        if self.own_changed:
-            self.own_version += 1
-            self.layers[self.name] = Layer(self.own_version, unclamped_copy(self.own), self.heard)
-            self.own_changed = False
+        if not self.own_changed:
+            return None
+        old = self.layers.get(self.name)
+        self.own_version += 1
+        self.layers[self.name] = Layer(self.own_version, unclamped_copy(self.own), self.heard)
+        self.own_changed = False
+        return Change(self.name, old.version if old else 0, self.own_version,
+                      old.map if old else None, self.layers[self.name].map)
 
     def versions(self) -> dict[str, int]:
         return {s: x.version for s, x in self.layers.items()}
 
     def parts_for(self, known: dict[str, tuple[int, Optional[OccupancyMap]]]) -> list[LayerPart]:
-        """What a neighbour that holds ``known`` (source -> version, and that version's map if
-        this agent has it) lacks: newer layers, whole or as deltas; then every version held."""
-        self.publish()
+        """What a neighbour lacks that holds ``known`` (source -> version, and the voxels
+        changed since that version up to the one held here, if known): newer layers, as
+        those changes or whole; then every version held."""
         parts = []
         for s, x in self.layers.items():
-            v, base = known.get(s, (0, None))
+            v, changes = known.get(s, (0, None))
             if x.version <= v:
                 continue
-            if base is not None and v > 0:
-                delta = open_map(x.map.changed_since(base))
-                parts.append(LayerPart(s, x.version, v, delta))
+            if changes is not None and v > 0:
+                parts.append(LayerPart(s, x.version, v, changes))
             else:
+                x.shared = True
                 parts.append(LayerPart(s, x.version, 0, x.map))
         return parts + [LayerPart(s, v) for s, v in self.versions().items()]
 
-    def merge(self, parts: list[LayerPart]) -> list[tuple[str, int, OccupancyMap]]:
-        """Take, per source, the newer version (the CRDT merge); returns the layers taken. A
+    def merge(self, parts: list[LayerPart]) -> list[Change]:
+        """Take, per source, the newer version (the CRDT merge); returns the layers replaced. A
         delta applies to a held version from its base on (see the module's docstring); one
         against a newer version than held is ignored (its sender learns the version held from
         this agent's next message and sends the whole layer)."""
@@ -177,20 +218,25 @@ class Layers:
             if p.version <= held or p.base > held:  # older, or a delta of voxels it lacks
                 continue
             if p.base:
-                new = unclamped_copy(cur.map)  # held maps are values: a base may be the old
+                # what changed from the version held (the delta may hold more: changes since
+                # an older one), kept for the neighbours
+                changed = open_map(p.map.changed_since(cur.map))
+                # in place unless others may hold the map (then into a copy, kept unshared)
+                new = unclamped_copy(cur.map) if cur.shared else cur.map
                 # new - old on the delta's voxels, then added: work in the delta's size, not
                 # in the fused map's (assigning into the fused map prunes all of it)
-                diff = open_map(OccupancyMap(new.resolution, new.prob_hit, new.prob_miss,
-                                             cur.map.clamping))
+                diff = empty_like(new)
                 diff.assign_delta(new, p.map)
                 add_into(self.fused, diff)
-            else:
-                new = p.map if is_open(p.map) else unclamped_copy(p.map)
-                add_into(self.fused, new)
-                if cur is not None:
-                    subtract_into(self.fused, cur.map)
-            self.layers[p.source] = Layer(p.version, new, self.heard)
-            taken.append((p.source, p.version, new))
+                self.layers[p.source] = Layer(p.version, new, self.heard)
+                taken.append(Change(p.source, held, p.version, None, new, changed))
+                continue
+            new = p.map if is_open(p.map) else unclamped_copy(p.map)
+            add_into(self.fused, new)
+            if cur is not None:
+                subtract_into(self.fused, cur.map)
+            self.layers[p.source] = Layer(p.version, new, self.heard, shared=True)
+            taken.append(Change(p.source, held, p.version, cur.map if cur else None, new))
         return taken
 
     # -- the memory budget -------------------------------------------------------------------
