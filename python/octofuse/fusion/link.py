@@ -38,9 +38,11 @@ class Link:
     #: the channel filter's common information: the neighbour's last applied contribution
     received: Optional[OccupancyMap] = None
     #: source layers: per source, the newest version the neighbour is known to hold (sent on
-    #: a lossless link, acknowledged, or named by the neighbour) and the voxels changed since
-    #: that version up to the one this agent holds (None: not known; the next goes whole)
-    known: dict[str, tuple[int, Optional[OccupancyMap]]] = field(default_factory=dict)
+    #: a lossless link, acknowledged, or named by the neighbour) and the steps of this agent's
+    #: layer since (from version, to version, the voxels that changed; None: not known, the
+    #: next goes whole). A step's map is shared by every link that needs it
+    known: dict[str, tuple[int, Optional[list[tuple[int, int, OccupancyMap]]]]] = field(
+        default_factory=dict)
     #: source layers on a lossy link: the versions sent and not acknowledged yet (seq -> them)
     pending_layers: dict[int, list[tuple[str, int]]] = field(default_factory=dict)
 
@@ -84,29 +86,28 @@ class Link:
         return self.seq
 
     def learn(self, source: str, version: int) -> None:
-        """The neighbour holds ``version`` of ``source``'s layer (or a newer one). The changes
-        kept since an older version still hold every change since this one."""
-        held, changes = self.known.get(source, (0, None))
+        """The neighbour holds ``version`` of ``source``'s layer (or a newer one): the steps
+        that end by it are not needed."""
+        held, steps = self.known.get(source, (0, None))
         if version > held:
-            self.known[source] = (version, changes)
+            self.known[source] = (version, None if steps is None
+                                  else [x for x in steps if x[1] > version])
 
     def advanced(self, source: str, old: int, new: int, delta) -> None:
         """This agent's layer of ``source`` went from version ``old`` to ``new``; ``delta()``
         gives the voxels that changed (called only if needed). A neighbour that held ``old``
-        or newer lacks those; one further behind, those and its earlier changes; one whose
-        changes are not known, the whole layer."""
-        from .source_layers import overwritten
-
-        held, changes = self.known.get(source, (0, None))
+        or newer lacks that step; one further behind, its earlier steps too; one whose steps
+        are not known, the whole layer."""
+        held, steps = self.known.get(source, (0, None))
         if held >= new or held == 0:
             return
         if old and held >= old:
-            self.known[source] = (held, delta())
-        elif changes is not None:
-            self.known[source] = (held, overwritten(changes, delta()))
+            self.known[source] = (held, [(old, new, delta())])
+        elif steps is not None:
+            self.known[source] = (held, [*steps, (old, new, delta())])
 
     def caught_up(self, source: str) -> None:
-        """The neighbour holds this agent's layer of ``source``: no changes to keep."""
+        """The neighbour holds this agent's layer of ``source``: no steps to keep."""
         held, _ = self.known.get(source, (0, None))
         self.known[source] = (held, None)
 
@@ -126,5 +127,5 @@ class Link:
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""
         held = [self.baseline, self.received, *self.pending.values(),
-                *(m for _, m in self.known.values())]
+                *(m for _, steps in self.known.values() for _, _, m in steps or ())]
         return [m for m in held if m is not None]

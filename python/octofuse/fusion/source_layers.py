@@ -23,16 +23,16 @@ What an agent does:
   is known to hold (its acknowledged one on a lossy link, as :class:`~.link.Link` does for
   whole maps), and the versions of every layer the sender holds (so that neither side sends
   the other what it has, also for layers that reached both over other paths). The changes are
-  kept per link and source as a map of the changed voxels' newest values, updated at every
-  replacement of the layer (the delta received, or the difference of the two versions), not
-  as a copy of the version the neighbour holds: they are smaller;
+  kept as the steps of the layer since the neighbour's version (every replacement of the
+  layer: the voxels it changed, from the delta received or the difference of the two
+  versions), each step's map shared by the links that need it, not as a copy of the version
+  the neighbour holds: they are smaller; a message merges them into one map;
 * on receiving a newer version of a source it replaces the layer and keeps the fused map equal
   to the sum of the layers incrementally: ``l += new - old`` (a whole layer is added and the
   one it replaces subtracted; a delta is applied voxel by voxel, on the old layer in place or
   on a copy of it where another agent may hold the same map, in process).
   A delta carries the new values of the voxels changed since its base version, gathered step
-  by step (every replacement of the layer adds its changed voxels), so it holds every voxel
-  changed since any later version too: it applies to any version held from the base on. On a
+  by step, so it holds every voxel changed since any later version too: it applies to any version held from the base on. On a
   loopy graph a receiver often holds a newer version than the sender knew, from another path;
 * the fused map, like the layers, is kept unclamped and clamped for scoring and writing only
   (as the channel filter's, :mod:`.channel_filter`).
@@ -183,16 +183,19 @@ class Layers:
     def versions(self) -> dict[str, int]:
         return {s: x.version for s, x in self.layers.items()}
 
-    def parts_for(self, known: dict[str, tuple[int, Optional[OccupancyMap]]]) -> list[LayerPart]:
-        """What a neighbour lacks that holds ``known`` (source -> version, and the voxels
-        changed since that version up to the one held here, if known): newer layers, as
-        those changes or whole; then every version held."""
+    def parts_for(self, known: dict[str, tuple[int, Optional[list]]]) -> list[LayerPart]:
+        """What a neighbour lacks that holds ``known`` (source -> version, and the steps of
+        the layer held here since, if known: :attr:`~.link.Link.known`): newer layers, as the
+        voxels those steps changed or whole; then every version held."""
         parts = []
         for s, x in self.layers.items():
-            v, changes = known.get(s, (0, None))
+            v, steps = known.get(s, (0, None))
             if x.version <= v:
                 continue
-            if changes is not None and v > 0:
+            if steps and v > 0:
+                changes = steps[0][2]
+                for _, _, later in steps[1:]:
+                    changes = overwritten(changes, later)
                 parts.append(LayerPart(s, x.version, v, changes))
             else:
                 x.shared = True
