@@ -207,6 +207,20 @@ def test_any_order_of_messages_gives_the_sum_of_the_newest_layers(team_scans, pr
         assert_values(agent.map, total(want), x)
 
 
+def test_scans_inserted_after_a_message_go_into_the_next(team_scans, prefixes):
+    """A run takes the maps a scan goes into before the agent's lane inserts it, maybe while
+    the agent still sends: the own layer is published when its contents changed."""
+    a, b = Agent("a", SL, empty_open()), Agent("b", SL, empty_open())
+    targets = a.scan_targets()
+    b.deliver(a.compose("b"))
+    insert_scans(team_scans["a"][:2], [targets] * 2, 1)
+    b.deliver(a.compose("b"))
+    assert_values(b.map, prefixes["a"][2], "b")
+    assert a.layers.own_version == 2
+    assert a.compose("b").payload.num_nodes == 0  # nothing new: no new version
+    assert a.layers.own_version == 2
+
+
 def test_a_delta_applies_to_a_version_newer_than_its_base(team_scans, prefixes):
     """On a loop a receiver may hold a newer version than the sender knew: the delta still
     gives the newest version exactly."""

@@ -109,10 +109,7 @@ class Agent:
     def scan_targets(self) -> list[OccupancyMap]:
         """The maps this agent's next scans go into: its map, and with source layers its own
         layer too (with open clamping a scan adds to both alike: the map stays the sum)."""
-        if self.layers is None:
-            return [self.map]
-        self.layers.own_changed = True
-        return [self.map, self.layers.own]
+        return [self.map] if self.layers is None else [self.map, self.layers.own]
 
     # -- sending -----------------------------------------------------------------------------
     def compose(self, to: str, *, delta: bool = False, reliable: bool = True,

@@ -166,19 +166,23 @@ class Layers:
     remainder: Optional[OccupancyMap] = None
     folded: dict[str, int] = field(default_factory=dict)  #: source -> newest version folded
     own_version: int = 0
-    own_changed: bool = True
     heard: int = 0
 
     def publish(self) -> Optional[Change]:
-        """A new version of the own layer if it changed since the last one (a copy)."""
-        if not self.own_changed:
-            return None
+        """A new version of the own layer if it changed since the last one (a copy). Whether
+        it did is read from the maps (what changed is needed anyway), not told by whoever
+        inserts the scans: inserting may be under way on another thread until the agent's
+        next step."""
         old = self.layers.get(self.name)
+        delta = None
+        if old is not None:
+            delta = open_map(self.own.changed_since(old.map))
+            if delta.num_leaves == 0:
+                return None
         self.own_version += 1
         self.layers[self.name] = Layer(self.own_version, unclamped_copy(self.own), self.heard)
-        self.own_changed = False
         return Change(self.name, old.version if old else 0, self.own_version,
-                      old.map if old else None, self.layers[self.name].map)
+                      old.map if old else None, self.layers[self.name].map, delta)
 
     def versions(self) -> dict[str, int]:
         return {s: x.version for s, x in self.layers.items()}
