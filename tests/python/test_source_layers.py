@@ -18,13 +18,14 @@ from hypothesis import strategies as st
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bagfactory import voxel_keys  # noqa: E402
 from conftest import random_map  # noqa: E402
-from test_channel_filter import (PERIOD, RES, Knowledge, assert_values, empty_open,  # noqa: E402,F401
-                                 prefixes, team_bag, team_scans)
+# the fixtures (prefixes, team_bag, team_scans) are used by name
+from test_channel_filter import (PERIOD, RES, Knowledge, assert_values,  # noqa: E402,F401
+                                 empty_open, prefixes, team_bag, team_scans)
 
 from octofuse import fuse_into  # noqa: E402
 from octofuse.config import SOURCE_LAYERS as SL, FuseConfig  # noqa: E402
 from octofuse.fusion.agent import Agent, MapMessage  # noqa: E402
-from octofuse.fusion.channel_filter import add_into, clamped, open_map, unclamped_copy  # noqa: E402
+from octofuse.fusion.channel_filter import add_into, clamped, unclamped_copy  # noqa: E402
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
@@ -33,9 +34,10 @@ from octofuse.outputs.report import (exact_summary, findings, mean_scores,  # no
                                      memory_per_agent, memory_table)
 
 
-def total(maps) -> "object":
+def total(maps):
     """The unclamped sum of ``maps``."""
-    want = open_map(type(next(iter(maps)))(next(iter(maps)).resolution))
+    maps = list(maps)
+    want = empty_open(maps[0].resolution)
     for m in maps:
         add_into(want, unclamped_copy(m))
     return want

@@ -16,41 +16,42 @@ What an agent does:
   where the map is read: on lab8 at every 4th scan, inserting every robot's scans into one
   more map takes 0.57 s over the whole run (rays traced again; a run traces them once for
   every map), while summing the layers once for every agent takes 0.42 s, and the demo scores
-  its maps 9 times. The own layer gets a new version each time it is sent after it changed (a
-  copy of it then: what the neighbours hold of it);
+  its maps 9 times. The own layer gets a new version when it is sent after it changed (a copy
+  of it then: what the neighbours hold of it);
 * a message to a neighbour carries, per source, what the neighbour is not known to hold: the
   whole layer on first contact, afterwards the voxels changed since the version the neighbour
   is known to hold (its acknowledged one on a lossy link, as :class:`~.link.Link` does for
   whole maps), and the versions of every layer the sender holds (so that neither side sends
-  the other what it has, also for layers that reached both over other paths). The changes are
-  kept as the steps of the layer since the neighbour's version (every replacement of the
+  the other what it has, also for layers that reached both over other paths). The changes
+  are kept as the steps of the layer since the neighbour's version (each replacement of the
   layer: the voxels it changed, from the delta received or the difference of the two
-  versions), each step's map shared by the links that need it, not as a copy of the version
-  the neighbour holds: they are smaller; a message merges them into one map;
+  versions), each step's map shared by the links that need it: smaller than a copy of the
+  version the neighbour holds. A message merges them into one map;
 * on receiving a newer version of a source it replaces the layer and keeps the fused map equal
   to the sum of the layers incrementally: ``l += new - old`` (a whole layer is added and the
   one it replaces subtracted; a delta is applied voxel by voxel, on the old layer in place or
-  on a copy of it where another agent may hold the same map, in process).
-  A delta carries the new values of the voxels changed since its base version, gathered step
-  by step, so it holds every voxel changed since any later version too: it applies to any version held from the base on. On a
-  loopy graph a receiver often holds a newer version than the sender knew, from another path;
+  on a copy of it where another agent may hold the same map, in process). A delta holds the
+  new values of every voxel changed since its base version, gathered step by step, hence of
+  every voxel changed since any later version too: it applies to any version held from the
+  base on (on a loopy graph a receiver often holds a newer version than the sender knew);
 * the fused map, like the layers, is kept unclamped and clamped for scoring and writing only
   (as the channel filter's, :mod:`.channel_filter`).
 
 The price is memory and traffic: an agent holds every source's layer (sparse: a source's layer
 holds only what it saw) besides the fused map, and keeps, per link and source, the voxels
-changed since the version its neighbour is known to hold. A budget, :attr:`~octofuse.config.FuseConfig.layers_max_bytes`,
-bounds the bytes of layers an agent holds, the changes kept for deltas included. Beyond it the
-agent first lets go of the changes (a neighbour then gets those sources' next layers whole:
-traffic for memory, still exact); if the layers alone are over it, the layer
-heard of least recently (never the agent's own) is folded into one *remainder* map by the Chernoff rule (a weighted
-exponential product ``w l_a + (1 - w) l_b`` in log-odds, its weight chosen by the C++ core's
-Chernoff criterion). Chernoff is chosen because a WEP rule is conservative whatever the inputs
-share: its value lies between theirs, so a later version of a folded source, which contains
-what the remainder already holds of it, is folded in again without being counted twice, and
-Chernoff is the least over-confident of the WEP rules on the demo. Exactness ends there: a
-folded source's information is no longer summed (the remainder is not sent on either; only the
-exact layers are), and :attr:`Layers.folded` counts the folded sources in the scores.
+changed since the version its neighbour is known to hold. A budget,
+:attr:`~octofuse.config.FuseConfig.layers_max_bytes`, bounds the bytes of layers an agent
+holds, the changes kept for deltas included. Beyond it the agent first lets go of the changes
+(a neighbour then gets those sources' next layers whole: traffic for memory, still exact); if
+the layers alone are over it, the layer heard of least recently (never the agent's own) is
+folded into one *remainder* map by the Chernoff rule (a weighted exponential product
+``w l_a + (1 - w) l_b`` in log-odds, its weight chosen by the C++ core's Chernoff criterion).
+Chernoff is chosen because a WEP rule is conservative whatever the inputs share: its value
+lies between theirs, so a later version of a folded source, which contains what the remainder
+already holds of it, is folded in again without being counted twice; and Chernoff is the
+least over-confident of the WEP rules on the demo. Exactness ends there: a folded source's
+information is no longer summed (and the remainder is not sent on: only exact layers are), and
+:attr:`Layers.folded` counts the folded sources in the scores.
 """
 
 from __future__ import annotations
