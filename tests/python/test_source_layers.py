@@ -30,8 +30,8 @@ from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import insert_scans, make_build_config  # noqa: E402
-from octofuse.outputs.report import (exact_summary, findings, mean_scores,  # noqa: E402
-                                     memory_per_agent, memory_table)
+from octofuse.outputs.report import (exact_summary, findings, layers_folded,  # noqa: E402
+                                     mean_scores, memory_per_agent, memory_table)
 
 
 def total(maps):
@@ -297,6 +297,9 @@ def test_a_budget_folds_the_oldest_layers_conservatively(finished):
             at = np.searchsorted(kr, k)
             lo[at], hi[at] = np.minimum(lo[at], v), np.maximum(hi[at], v)
         assert (vr >= lo - 1e-4).all() and (vr <= hi + 1e-4).all()
+    means = mean_scores(res.scores)
+    text = findings(means, None, memory_per_agent(res), layers_folded(res))[-1]
+    assert "Over the memory budget 6 of 6 agents folded layers" in text and "not exact" in text
 
 
 def test_the_report_sets_the_layers_beside_the_other_rules(finished):

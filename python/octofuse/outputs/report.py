@@ -65,11 +65,13 @@ def markdown_table(rows: dict[str, dict], first: str = "rule") -> str:
 
 
 def findings(means: dict[str, dict], exact: Optional[dict] = None,
-             memory: Optional[dict[str, float]] = None) -> list[str]:
+             memory: Optional[dict[str, float]] = None,
+             folded: Optional[dict[str, int]] = None) -> list[str]:
     """What the numbers say about the paper's three claims (computed, not assumed), how close
     each WEP rule comes to the exact channel filter when it ran (``exact``: its links and the
     floor it can reach, from :func:`exact_summary`), and what source layers cost beside the
-    others (``memory``: bytes per agent by rule, from :func:`memory_per_agent`)."""
+    others (``memory``: bytes per agent by rule, from :func:`memory_per_agent`; ``folded``:
+    the layers each agent folded)."""
     out = []
     wep = [r for r in means if r not in (LOCAL, "naive-bayes", *EXACT_MODES)]
     nb = means.get("naive-bayes")
@@ -126,12 +128,14 @@ def findings(means: dict[str, dict], exact: Optional[dict] = None,
                         else "") + ".")
         out.append(text)
     if means.get(SOURCE_LAYERS, {}).get("kl_mean") is not None:
-        out.append(layers_finding(means, memory or {}))
+        out.append(layers_finding(means, memory or {}, folded or {}))
     return out
 
 
-def layers_finding(means: dict[str, dict], memory: dict[str, float]) -> str:
-    """Source layers against every other row: KL, over-confidence, bytes sent and memory."""
+def layers_finding(means: dict[str, dict], memory: dict[str, float],
+                   folded: Optional[dict[str, int]] = None) -> str:
+    """Source layers against every other row: KL, over-confidence, bytes sent and memory; and
+    where exactness ended (layers folded under the memory budget)."""
     sl = means[SOURCE_LAYERS]
     others = {r: m for r, m in means.items() if r not in (LOCAL, SOURCE_LAYERS)
               and m.get("kl_mean") is not None}
@@ -154,7 +158,17 @@ def layers_finding(means: dict[str, dict], memory: dict[str, float]) -> str:
         text += (f" and holds {mb(memory[SOURCE_LAYERS])} of map and layers"
                  + (f" (others {mb(min(rest.values()))} to {mb(max(rest.values()))} of map and "
                     "per-link state)" if rest else ""))
-    return text + "."
+    text += "."
+    if folded and any(folded.values()):
+        text += (f" Over the memory budget {sum(v > 0 for v in folded.values())} of "
+                 f"{len(folded)} agents folded layers ({np.mean(list(folded.values())):.1f} "
+                 "per agent on average) into a conservative remainder: not exact.")
+    return text
+
+
+def layers_folded(res: SimResult) -> dict[str, int]:
+    """Per agent, the source layers it folded under the memory budget (none without them)."""
+    return {a: v["folded"] for a, v in res.memory.get(SOURCE_LAYERS, {}).items()}
 
 
 def memory_per_agent(res: SimResult) -> dict[str, float]:
@@ -297,7 +311,8 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "scores": {r: {a: s.to_dict() for a, s in per.items()} for r, per in res.scores.items()},
         "timeline": res.timeline,
         "timings_s": timings,
-        "findings": findings(means, exact, memory_per_agent(res)) if means else [],
+        "findings": findings(means, exact, memory_per_agent(res), layers_folded(res))
+        if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
         "exports": exported,
@@ -312,8 +327,7 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
     if res.memory:
         summary["memory_bytes"] = res.memory
         if SOURCE_LAYERS in res.memory:  # where exactness ends: layers folded per agent
-            summary["layers_folded"] = {a: v["folded"]
-                                        for a, v in res.memory[SOURCE_LAYERS].items()}
+            summary["layers_folded"] = layers_folded(res)
         summary["lost_messages"] = {r: res.traffic[r].lost for r in res.rules}
     if res.frames or res.alignment:
         summary["agent_frames"] = {a: matrix_pose(T) for a, T in res.frames.items()}
