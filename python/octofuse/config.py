@@ -24,6 +24,11 @@ MAX_THREADS = 256
 #: exact fusion by channel filters on a tree of the graph (:mod:`octofuse.fusion.channel_filter`):
 #: a fusion mode accepted in ``FuseConfig.rules`` beside the per-voxel rules (not part of "all")
 CHANNEL_FILTER = "channel-filter"
+#: exact fusion on any graph by per-source map layers (:mod:`octofuse.fusion.source_layers`):
+#: a fusion mode beside the channel filter (not part of "all")
+SOURCE_LAYERS = "source-layers"
+#: the fusion modes that keep unclamped maps, lose no information and need one frame
+EXACT_MODES = (CHANNEL_FILTER, SOURCE_LAYERS)
 #: how the channel filter's tree is chosen on a graph with loops: a breadth-first tree from a
 #: centre of the graph, or the topology itself (which must then be a tree); or a graph file
 SPANNING_TREES = ("bfs", "given")
@@ -212,6 +217,9 @@ class FuseConfig:
     #: ``run``: the rules whose maps are held at once; more rules map the scans once per
     #: group of this many (memory for time). 0: all in one
     rules_per_pass: int = 0
+    #: ``source-layers``: bytes of layers an agent holds before it folds the oldest into one
+    #: conservative remainder (exact no more); 0: unlimited
+    layers_max_bytes: int = 0
 
     def validate(self, where: str) -> None:
         from .rules import RULES, UNKNOWN_POLICIES
@@ -223,10 +231,10 @@ class FuseConfig:
             for x in str(r).split(","):
                 x = x.strip()
                 names.extend(RULES if x == "all" else [x] if x else [])
-        bad = [r for r in names if r not in RULES and r != CHANNEL_FILTER]
+        bad = [r for r in names if r not in RULES and r not in EXACT_MODES]
         if bad:
             raise ValueError(f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
-                             f"{', '.join(RULES)} (or all), and {CHANNEL_FILTER}")
+                             f"{', '.join(RULES)} (or all), and {' and '.join(EXACT_MODES)}")
         if not names:
             raise ValueError(f"{where}.rules: give at least one fusion rule")
         self.rules = list(dict.fromkeys(names))
@@ -242,6 +250,9 @@ class FuseConfig:
         if self.rules_per_pass < 0:
             raise ValueError(f"{where}.rules_per_pass = {self.rules_per_pass}: expected 0 or more "
                              "rules (0: every rule in one pass)")
+        if self.layers_max_bytes < 0:
+            raise ValueError(f"{where}.layers_max_bytes = {self.layers_max_bytes}: expected 0 "
+                             "(unlimited) or more bytes")
         if not (math.isfinite(self.loss) and 0.0 <= self.loss < 1.0):
             raise ValueError(f"{where}.loss = {self.loss}: expected a probability from 0 to "
                              "below 1")
@@ -272,9 +283,10 @@ class FuseConfig:
             return
         why = (f"agent '{moved[0]}' has a frame of its own" if moved
                else f"align = {self.align}")
-        if CHANNEL_FILTER in self.rules:
-            raise ValueError(f"{where}: the {CHANNEL_FILTER} rule needs every agent in one frame "
-                             f"(its arithmetic on resampled maps is not exact), but {why}")
+        for exact in EXACT_MODES:
+            if exact in self.rules:
+                raise ValueError(f"{where}: the {exact} rule needs every agent in one frame "
+                                 f"(its arithmetic on resampled maps is not exact), but {why}")
         if self.robust.enabled and self.align != "off":
             raise ValueError(f"{where}: robust fusion measures the maps' offsets itself (in "
                              f"the common frame, each map moved by its agent's frame), but "

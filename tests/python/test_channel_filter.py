@@ -67,16 +67,22 @@ def team_bag(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def prefixes(team_bag):
-    """agent -> [unclamped map of its first n scans for n = 0, 1, ...] (as the run inserts them)."""
+def team_scans(team_bag):
+    """agent -> its scans, in order (as the run reads them)."""
     cfg = make_build_config(team_bag, resolution=RES)
     with ScanSource(cfg) as src:
         agents = [a.name for a in src.agents]
         scans = {a: [] for a in agents}
         for s in src.scans():
             scans[agents[s.agent]].append(s)
-    out = {}
-    for a in agents:
+    return scans
+
+
+@pytest.fixture(scope="module")
+def prefixes(team_scans):
+    """agent -> [unclamped map of its first n scans for n = 0, 1, ...] (as the run inserts them)."""
+    scans, out = team_scans, {}
+    for a in scans:
         m, maps = empty_open(), [empty_open()]
         for s in scans[a]:
             insert_scans([s], [[m]], 1)
@@ -87,10 +93,11 @@ def prefixes(team_bag):
 
 class Knowledge:
     """Which scans each agent's map holds (a prefix of every agent's scans), updated by the
-    delivered channel-filter messages of each group; and the check against the run."""
+    delivered messages of each group on the links ``tree`` (both directions) under the exact
+    ``rule``; and the check against the run."""
 
-    def __init__(self, agents, tree, prefixes):
-        self.agents, self.prefixes = list(agents), prefixes
+    def __init__(self, agents, tree, prefixes, rule=CF):
+        self.agents, self.prefixes, self.rule = list(agents), prefixes, rule
         self.tree = {(a, b) for a, b in tree} | {(b, a) for a, b in tree}
         self.know = {a: {b: 0 for b in agents} for a in agents}
         self.checked = 0
@@ -109,7 +116,7 @@ class Knowledge:
             for b, n in self.know[a].items():
                 if n:
                     add_into(want, self.prefixes[b][n])
-            assert_values(net.fused[CF][a], want, f"t={t:.2f} agent {a}")
+            assert_values(net.fused[self.rule][a], want, f"t={t:.2f} agent {a}")
         self.checked += 1
 
 

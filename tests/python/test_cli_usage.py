@@ -93,7 +93,7 @@ HELP_DEFAULTS = {
     "run": ["min-info-loss", "max-robust:3", "aperiodic:10", "both", "copy", "12"],
     "bench": ["ring,max-robust:3", "aperiodic:10", "0.05"],
     "fuse": ["3", "both", "copy", "max-robust:3"],
-    "demo": ["octofuse-demo", "all,channel-filter"],
+    "demo": ["octofuse-demo", "all,channel-filter,source-layers"],
     "search": ["3-robots", "0", "65"],
     "track": ["10.0", "0", "expoly,gaussian,mixture"],
     "export": ["viridis for maps, inferno for heat maps"],
@@ -525,4 +525,4 @@ def test_rule_help_lists_the_rules():
     from click.testing import CliRunner
 
     text = CliRunner().invoke(cli, ["run", "--help"], terminal_width=200).output
-    assert "one or more of: naive-bayes, bhattacharyya" in text and "channel-filter]" in text
+    assert "one or more of: naive-bayes, bhattacharyya" in text and "channel-filter, source-layers]" in text

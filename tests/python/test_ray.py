@@ -90,6 +90,7 @@ def test_the_executor_reports_a_crashed_worker():
     (False, 2, False, "off", {}), (True, 4, False, "off", {}), (False, 2, True, "off", {}),
     (True, 1, True, "off", {}), (False, 2, True, "planar", {}), (True, 2, True, "planar", {}),
     (True, 2, False, "off", {"rules": [*RULES, "channel-filter"], "loss": 0.3}),
+    (False, 2, False, "off", {"rules": [*RULES, "source-layers"], "loss": 0.3}),
     (False, 2, True, "off", {"robust": RobustConfig(enabled=True, time=1.0)})])
 def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed, align, extra):
     """Also with two agents mapping in frames of their own (their scans are taken as given in
@@ -98,7 +99,8 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     registers (or fails to, and tries again) on the same maps and at the same times; with
     deltas, a link sends whole maps until it aligns. The KL timeline is the simulation's. The
     channel filter with deltas on links that lose messages, and robust fusion's vote with
-    agent frames, run as in the simulation too."""
+    agent frames, run as in the simulation too; and source layers (their frames of several
+    layers) on links that lose messages."""
     cfg = config(bag)
     frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
               AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []

@@ -96,11 +96,11 @@ class ListOption(click.Option):
 
 
 def map_rule_names() -> tuple[str, ...]:
-    """What ``--rule`` of the map commands takes: every rule, 'all', the channel filter."""
-    from ..config import CHANNEL_FILTER
+    """What ``--rule`` of the map commands takes: every rule, 'all', the exact modes."""
+    from ..config import EXACT_MODES
     from ..rules import RULES
 
-    return (*RULES, "all", CHANNEL_FILTER)
+    return (*RULES, "all", *EXACT_MODES)
 
 
 def flat(lists) -> list:

@@ -10,7 +10,8 @@ Both directions of a link run the same protocol, whatever the rule:
   to hold: on a lossless link the last one sent, otherwise the last one acknowledged (what was
   not acknowledged is sent again until it is).
 
-The channel filter also keeps, per link, the neighbour's last contribution (:attr:`received`).
+The channel filter also keeps, per link, the neighbour's last contribution (:attr:`received`);
+source layers keep, per source, the version the neighbour is known to hold (:attr:`known`).
 """
 
 from __future__ import annotations
@@ -41,6 +42,14 @@ class Link:
     resync: int = 0
     #: after this agent's restart: apply no delta of the neighbour before a whole map
     needs_whole: bool = False
+    #: source layers: per source, the newest version the neighbour is known to hold (sent on
+    #: a lossless link, acknowledged, or named by the neighbour) and the steps of this agent's
+    #: layer since (from version, to version, the voxels that changed; None: not known, the
+    #: next goes whole). A step's map is shared by every link that needs it
+    known: dict[str, tuple[int, Optional[list[tuple[int, int, OccupancyMap]]]]] = field(
+        default_factory=dict)
+    #: source layers on a lossy link: the versions sent and not acknowledged yet (seq -> them)
+    pending_layers: dict[int, list[tuple[str, int]]] = field(default_factory=dict)
 
     def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
                  reliable: bool) -> tuple[int, OccupancyMap]:
@@ -70,6 +79,51 @@ class Link:
             self.baseline = self.pending[ack]
             for k in [k for k in self.pending if k <= ack]:
                 del self.pending[k]
+        for k in [k for k in self.pending_layers if k <= ack]:
+            for source, version in self.pending_layers.pop(k):
+                self.learn(source, version)
+
+    def sent_layers(self, layers: list[tuple[str, int]], *, reliable: bool) -> int:
+        """The next message's sequence number, for one carrying ``layers`` (source, version):
+        known to be held at once (``reliable``) or once acknowledged."""
+        self.seq += 1
+        if reliable:
+            for source, version in layers:
+                self.learn(source, version)
+        elif layers:
+            self.pending_layers[self.seq] = layers
+        return self.seq
+
+    def learn(self, source: str, version: int) -> None:
+        """The neighbour holds ``version`` of ``source``'s layer (or a newer one): the steps
+        that end by it are not needed."""
+        held, steps = self.known.get(source, (0, None))
+        if version > held:
+            self.known[source] = (version, None if steps is None
+                                  else [x for x in steps if x[1] > version])
+
+    def advanced(self, source: str, old: int, new: int, delta) -> None:
+        """This agent's layer of ``source`` went from version ``old`` to ``new``; ``delta()``
+        gives the voxels that changed (called only if needed). A neighbour that held ``old``
+        or newer lacks that step; one further behind, its earlier steps too; one whose steps
+        are not known, the whole layer."""
+        held, steps = self.known.get(source, (0, None))
+        if held >= new or held == 0:
+            return
+        if old and held >= old:
+            self.known[source] = (held, [(old, new, delta())])
+        elif steps is not None:
+            self.known[source] = (held, [*steps, (old, new, delta())])
+
+    def caught_up(self, source: str) -> None:
+        """The neighbour holds this agent's layer of ``source``: no steps to keep."""
+        held, _ = self.known.get(source, (0, None))
+        self.known[source] = (held, None)
+
+    def forget_changes(self) -> None:
+        """Let go of the changes kept for deltas: the layers go whole next (traffic for
+        memory, still exact)."""
+        self.known = {s: (v, None) for s, (v, _) in self.known.items()}
 
     def restart(self) -> None:
         """What either side held of the other may be gone: deltas start again from whole maps."""
@@ -90,5 +144,6 @@ class Link:
 
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""
-        held = [self.baseline, self.received, *self.pending.values()]
+        held = [self.baseline, self.received, *self.pending.values(),
+                *(m for _, steps in self.known.values() for _, _, m in steps or ())]
         return [m for m in held if m is not None]

@@ -8,7 +8,7 @@ from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Optional, Sequence
 
-from ..config import CHANNEL_FILTER, FuseConfig
+from ..config import CHANNEL_FILTER, EXACT_MODES, FuseConfig
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
 from ..threads import thread_map
@@ -51,7 +51,8 @@ class Network:
 
     def _start(self, maps: dict[str, dict[str, OccupancyMap]]) -> None:
         """Every rule's agents on ``maps`` (rule -> agent -> map, fused in place)."""
-        self.nodes = {r: {a: Agent(a, r, m) for a, m in per.items()} for r, per in maps.items()}
+        self.nodes = {r: {a: Agent(a, r, m, self.cfg.layers_max_bytes) for a, m in per.items()}
+                      for r, per in maps.items()}
         #: rule -> agent -> the agent's map (the channel filter's unclamped)
         self.fused = {r: {a: n.map for a, n in per.items()} for r, per in self.nodes.items()}
 
@@ -70,24 +71,30 @@ class Network:
 
     def scored_maps(self, rule: str, threads: int = 1) -> dict[str, OccupancyMap]:
         """The agents' maps of ``rule`` as scored and written: the maps themselves, or the
-        channel filter's clamped copies (made on ``threads`` threads)."""
-        if rule != CHANNEL_FILTER:
+        exact modes' clamped copies (made on ``threads`` threads)."""
+        if rule not in EXACT_MODES:
             return self.fused[rule]
         from .channel_filter import clamped
 
-        exact = self.fused[CHANNEL_FILTER]
+        exact = self.fused[rule]
         return dict(zip(exact, thread_map(clamped, exact.values(), threads)))
 
     def memory(self) -> dict[str, dict[str, dict[str, int]]]:
         """Per rule and agent: bytes of the map and of the per-link state (each map measured
-        once, on the network's threads)."""
+        once, on the network's threads); with source layers, the per-link state holds the
+        layers, and ``layers`` and ``folded`` count the layers held and folded."""
         held = {(r, a): (n.map, n.held_maps()) for r, per in self.nodes.items()
                 for a, n in per.items()}
         maps = list({id(m): m for own, links in held.values() for m in (own, *links)}.values())
         size = dict(zip(map(id, maps), thread_map(lambda m: m.memory_bytes, maps, self.threads)))
-        return {r: {a: {"map": size[id(held[r, a][0])],
-                        "links": sum(size[id(m)] for m in held[r, a][1])}
-                    for a in self.agents} for r in self.rules}
+        out = {r: {a: {"map": size[id(held[r, a][0])],
+                       "links": sum(size[id(m)] for m in held[r, a][1])}
+                   for a in self.agents} for r in self.rules}
+        for r, per in self.nodes.items():
+            for a, n in per.items():
+                if n.layers is not None:
+                    out[r][a].update(layers=len(n.layers.layers), folded=len(n.layers.folded))
+        return out
 
     def exchange(self, group: Sequence[Exchange]) -> None:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
@@ -157,14 +164,14 @@ class Network:
     def _exchange_composed(self, r: str, group: Sequence[Exchange]) -> None:
         """Every message of the group composed from its sender's state at the start of the
         group (its map and its links alike), then delivered in order; lost ones are counted
-        as sent and dropped. The channel filter's messages (on its tree's links only), and
-        deltas."""
-        nodes, cfg, exact = self.nodes[r], self.cfg, r == CHANNEL_FILTER
+        as sent and dropped. The exact modes' messages (the channel filter's on its tree's
+        links only), and deltas."""
+        nodes, cfg, exact = self.nodes[r], self.cfg, r in EXACT_MODES
         t0 = time.perf_counter()
         msgs = []
         for e in group:
             s, d = self.agents[e.sender], self.agents[e.receiver]
-            if exact and (e.sender, e.receiver) not in self._tree_links:
+            if r == CHANNEL_FILTER and (e.sender, e.receiver) not in self._tree_links:
                 continue
             if not self.frames.aligned(s, d):  # sent whole, no transform to fuse it with yet
                 self._count(r, s, d, self.fused[r][s], lost=e.lost)
@@ -189,7 +196,7 @@ class Network:
         that still has to send after it received is copied first, and a two-way exchange of
         agents not yet touched in the group is one walk (:meth:`Agent.exchange_with`),
         without copies. Otherwise :meth:`_exchange_composed`."""
-        if r == CHANNEL_FILTER or self.cfg.delta:
+        if r in EXACT_MODES or self.cfg.delta:
             self._exchange_composed(r, group)
             return
         nodes, maps, cfg = self.nodes[r], self.fused[r], self.cfg

@@ -7,7 +7,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from typing import Optional, Sequence
 
-from ..config import CHANNEL_FILTER, FuseConfig
+from ..config import EXACT_MODES, FuseConfig
 from ..maps.compare import Score, compare_many, score
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
@@ -137,7 +137,7 @@ def score_result(res: SimResult, tol: float, truth=None, threads: int = 1,
     def one(job):
         r, a = job
         return score_agent(agent_map(r, a), res.central, tol, frame=res.frames.get(a),
-                           loss=None if r in (LOCAL, CHANNEL_FILTER) else res.loss_leaves_of(r, a),
+                           loss=None if r in (LOCAL, *EXACT_MODES) else res.loss_leaves_of(r, a),
                            truth=truth, compared=compared.get(job))
 
     out: dict[str, dict[str, Score]] = {}

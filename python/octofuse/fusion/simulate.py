@@ -7,7 +7,7 @@ import time
 from dataclasses import replace
 from typing import Callable, Iterator, Optional
 
-from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
+from ..config import CHANNEL_FILTER, EXACT_MODES, BuildConfig, FuseConfig
 from ..lanes import Lanes
 from ..maps.build import trace_scans
 from ..maps.compare import compare, compare_many
@@ -87,9 +87,12 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
         tree = exact = None
         if CHANNEL_FILTER in rules:
-            from .channel_filter import open_map, spanning_tree
+            from .channel_filter import spanning_tree
 
             tree = spanning_tree(graph, fuse_cfg.spanning_tree)
+        if any(r in EXACT_MODES for r in rules):
+            from .channel_filter import open_map
+
             exact = open_map(mk())  # the centralized map without clamping
         frames = AgentFrames.from_config(agents, fuse_cfg)
         net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
@@ -104,7 +107,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # and so are the maps of the common frame with the agents' own maps: the lanes meet
         # only where a score needs the centralized map as it was at that time (a snapshot the
         # common lane reads, and goes on inserting).
-        lane_maps = {r: {id(m) for m in net.fused[r].values()} for r in rules}
+        lane_maps = {r: {id(m) for n in net.nodes[r].values() for m in n.scan_targets()}
+                     for r in rules}
         lane_maps[COMMON] = {id(m) for m in [*common, *own.values()]}
         sampled: dict = {}  # lane -> its last scores, while its maps are unchanged since
         taken: list = []  # (time, the scores of every lane)
@@ -125,12 +129,12 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         def scores_of(r: str, maps: dict, ref: ReferenceMap) -> list:
             """The agents' maps ``maps`` of rule ``r`` scored against the centralized map
             ``ref``."""
-            as_is = [a for a in agents if r != CHANNEL_FILTER and frames.frames.get(a) is None]
+            as_is = [a for a in agents if r not in EXACT_MODES and frames.frames.get(a) is None]
             scores = dict(zip(as_is, compare_many(ref, [maps[a] for a in as_is], tol)))
             for a in agents:
                 if a not in scores:  # a copy scored: moved into the common frame, or clamped
                     m = frames.to_common(a, maps[a])
-                    if r == CHANNEL_FILTER:
+                    if r in EXACT_MODES:
                         from .channel_filter import clamped
 
                         m = clamped(m)
@@ -144,7 +148,7 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             r = _scored_as(lane)
             maps = own if lane == COMMON else net.scored_maps(lane)
             compared = dict(zip(agents, last.result())) if last is not None else {}
-            has_loss = r not in (LOCAL, CHANNEL_FILTER)
+            has_loss = r not in (LOCAL, *EXACT_MODES)
 
             def read(a):  # the values and depths of a's loss map's leaves
                 return net.loss_map(r, a).values_depths()
@@ -185,10 +189,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             if not batch:
                 return
             t0 = time.perf_counter()
-            # every map a scan goes into, its rays traced once (the channel filter's with
-            # open clamping); the centralized maps in the common frame: scans of agents with
-            # a frame moved there
-            targets = [[net.fused[r][agents[s.agent]] for r in rules]
+            # every map a scan goes into, its rays traced once (the exact modes' with open
+            # clamping); the centralized maps in the common frame: scans of agents with a
+            # frame moved there
+            targets = [[m for r in rules for m in net.nodes[r][agents[s.agent]].scan_targets()]
                        + ([own[agents[s.agent]]] if local else []) for s in batch]
             scans, per_scan = frames.scan_targets(batch, targets, common)
             # its grid only, not its nodes

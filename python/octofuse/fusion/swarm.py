@@ -151,7 +151,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         t0 = time.perf_counter()
         workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
                                  threads, memory_per_worker, frames=frames, tree=tree,
-                                 reliable=fuse_cfg.loss == 0, insert_mode=build_cfg.insert_mode)
+                                 reliable=fuse_cfg.loss == 0, insert_mode=build_cfg.insert_mode,
+                                 layers_max_bytes=fuse_cfg.layers_max_bytes)
                    for w, names in enumerate(groups)]
         central = ray.remote(SwarmWorker).options(**opts).remote(
             n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True,

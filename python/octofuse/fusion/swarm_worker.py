@@ -13,7 +13,7 @@ import time
 from collections import defaultdict
 from typing import Iterable, Optional
 
-from ..config import CHANNEL_FILTER, MapConfig
+from ..config import CHANNEL_FILTER, EXACT_MODES, MapConfig
 from ..memory import resident_memory, return_freed_memory
 from .agent import Agent, MapMessage
 from .agent_frames import AgentFrames
@@ -31,13 +31,14 @@ class SwarmWorker:
     last message sent, not the last acknowledged). ``memory_cap`` (bytes, optional): after
     every call the worker checks its private resident memory (not counting the shared object
     store) and raises ``MemoryError`` naming itself once it is over the cap. ``frames``: the
-    run's agent frames (default: every agent in the common frame)."""
+    run's agent frames (default: every agent in the common frame). ``layers_max_bytes``: source
+    layers' memory budget per agent (0: unlimited)."""
 
     def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
                  unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
                  central: bool = False, frames: Optional[AgentFrames] = None,
                  tree: Iterable[tuple[str, str]] = (), reliable: bool = True,
-                 insert_mode: str = "exact"):
+                 insert_mode: str = "exact", layers_max_bytes: int = 0):
         from ..maps.occupancy import OccupancyMap
 
         self.index, self.names, self.rules = index, list(names), list(rules)
@@ -47,7 +48,8 @@ class SwarmWorker:
         mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
         self.resolution = map_cfg.resolution
         self.central = mk() if central else None
-        self.nodes = {a: {r: Agent(a, r, mk()) for r in rules} for a in self.names}
+        self.nodes = {a: {r: Agent(a, r, mk(), layers_max_bytes) for r in rules}
+                      for a in self.names}
         self.local = {a: mk() for a in self.names}
         # with alignment and deltas: the links of this worker's senders known to have aligned,
         # and the whole maps last sent on the others ((rule, sender, receiver) -> map)
@@ -72,8 +74,8 @@ class SwarmWorker:
             insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads,
                          self.insert_mode)
         else:
-            targets = [[n.map for n in self.nodes[a].values()] + [self.local[a]]
-                       for a, _ in scans]
+            targets = [[m for n in self.nodes[a].values() for m in n.scan_targets()]
+                       + [self.local[a]] for a, _ in scans]
             insert_scans([s for _, s in scans], targets, self.threads, self.insert_mode)
         self.seconds["insertion"] += time.perf_counter() - t0
         self._check_memory()
@@ -180,7 +182,7 @@ class SwarmWorker:
             if r == LOCAL:
                 out[r][a] = score(m, c, tol=tol, truth=truth, compared=s)
                 continue
-            loss = None if r == CHANNEL_FILTER else self.nodes[a][r].loss_map()
+            loss = None if r in EXACT_MODES else self.nodes[a][r].loss_map()
             out[r][a] = score(m, c, tol=tol, loss=loss, truth=truth, compared=s,
                               bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
                               bytes_sent_32b=self.sent_32b[r][a])
@@ -194,7 +196,7 @@ class SwarmWorker:
 
     def maps(self) -> dict:
         """Every map of this worker as scored, as ``.ot`` streams: agent -> rule|local-only ->
-        bytes (the channel filter's clamped)."""
+        bytes (the exact modes' clamped)."""
         return {a: {**{r: self._scored(r, a).to_bytes() for r in self.rules},
                     LOCAL: self.local[a].to_bytes()} for a in self.names}
 
@@ -222,11 +224,11 @@ class SwarmWorker:
         return jobs, maps, compare_many(central, maps, tol, self.threads)
 
     def _scored(self, rule: str, agent: str):
-        """``agent``'s map under ``rule`` as scored and written (the channel filter's clamped)."""
+        """``agent``'s map under ``rule`` as scored and written (the exact modes' clamped)."""
         if rule == LOCAL:
             return self.local[agent]
         m = self.nodes[agent][rule].map
-        return clamped(m) if rule == CHANNEL_FILTER else m
+        return clamped(m) if rule in EXACT_MODES else m
 
     def _read(self, frame: Optional[bytes], sender: str, receiver: str, rule: str):
         """The message of a frame, or None (counted as dropped) if it is not a well-formed

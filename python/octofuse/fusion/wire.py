@@ -5,7 +5,8 @@ Every link carries the same frame, in process (a swarm's actors) or over a netwo
     offset  size  field
     0       4     magic b"OFM" + version (1)
     4       1     kind: whole map, delta, acknowledgement (:class:`Kind`)
-    5       1     encoding of the payload: OctoMap's binary ``.ot`` stream (:class:`Encoding`)
+    5       1     encoding of the payload: OctoMap's binary ``.ot`` stream, or several of
+                  them as source layers (:class:`Encoding`)
     6       2     reserved, zero
     8       8     sequence number of this message on its link and direction (1, 2, ...)
     16      8     acknowledgement: the newest sequence number the sender has applied from the
@@ -14,6 +15,11 @@ Every link carries the same frame, in process (a swarm's actors) or over a netwo
     28      4     CRC-32 of every byte of the frame but these four
     32      ...   fleet, rule, sender, receiver: each a length byte and UTF-8 text
     ...     ...   payload
+
+A payload of source layers (``LAYERS``, :func:`encode_layers`) is a count (4 bytes), then per
+layer: its source (a length byte and UTF-8 text), version (8 bytes), base version (8 bytes; 0:
+the whole layer, otherwise a delta against that version), flags (1 byte: 1 = the version only,
+no map) and the length (4 bytes) and bytes of its ``.ot`` stream.
 
 All integers are little-endian. :func:`decode` refuses, with :class:`WireError` (a
 ``ValueError``) naming what is wrong, a frame that is truncated, has trailing bytes, another
@@ -56,6 +62,7 @@ class Encoding(enum.IntEnum):
 
     NONE = 0  #: no payload (an acknowledgement)
     OCTOMAP_OT = 1  #: OctoMap's binary ``.ot`` stream of an ``OcTree`` (log-odds per node)
+    LAYERS = 2  #: per source: its version and its ``.ot`` stream, whole or a delta
 
 
 @dataclass(frozen=True)
@@ -128,6 +135,8 @@ def decode(frame: bytes | bytearray | memoryview,
     if want != crc:
         raise WireError(f"checksum {crc:#010x} does not match the frame's {want:#010x}")
     payload = bytes(view[at:])
+    if encoding == Encoding.LAYERS:
+        decode_layers(payload)  # refused here, before anything reads it
     if (kind == Kind.ACK) != (encoding == Encoding.NONE) or (kind == Kind.ACK and payload):
         raise WireError("an acknowledgement carries no payload, and only it")
     return Message(*names, seq, ack, Kind(kind), payload, Encoding(encoding))
@@ -138,3 +147,64 @@ def _name(value: str, field: str) -> bytes:
     if len(data) > _MAX_NAME:
         raise ValueError(f"message {field} {value!r}: over {_MAX_NAME} bytes of UTF-8")
     return bytes([len(data)]) + data
+
+
+@dataclass(frozen=True)
+class LayerBlob:
+    """One source's layer in a ``LAYERS`` payload: ``data`` its ``.ot`` stream (whole if
+    ``base`` is 0, else a delta against version ``base``), or with ``held`` no data: the
+    sender holds that version."""
+
+    source: str
+    version: int
+    base: int = 0
+    data: bytes = b""
+    held: bool = False
+
+
+_LAYER = struct.Struct("<QQBI")
+
+
+def encode_layers(layers: list[LayerBlob]) -> bytes:
+    """A ``LAYERS`` payload of ``layers``."""
+    out = [struct.pack("<I", len(layers))]
+    for x in layers:
+        for field, v in (("version", x.version), ("base", x.base)):
+            if not 0 <= v < 2**64:
+                raise ValueError(f"layer {field} = {v}: expected 0 to 2**64 - 1")
+        if x.held and x.data:
+            raise ValueError(f"layer {x.source!r}: a version without a map carries no data")
+        out += [_name(x.source, "layer source"),
+                _LAYER.pack(x.version, x.base, int(x.held), len(x.data)), x.data]
+    return b"".join(out)
+
+
+def decode_layers(payload: bytes | bytearray | memoryview) -> list[LayerBlob]:
+    """The layers of a ``LAYERS`` payload; :class:`WireError` if it is not one."""
+    view = memoryview(payload)
+    if len(view) < 4:
+        raise WireError(f"layers payload of {len(view)} bytes: shorter than its count")
+    (n,), at, out = struct.unpack_from("<I", view), 4, []
+    for k in range(n):
+        if at >= len(view):
+            raise WireError(f"layers payload truncated at layer {k} of {n}")
+        size = view[at]
+        text = bytes(view[at + 1:at + 1 + size])
+        at += 1 + size
+        if len(text) != size or at + _LAYER.size > len(view):
+            raise WireError(f"layers payload truncated at layer {k} of {n}")
+        try:
+            source = text.decode("utf-8")
+        except UnicodeDecodeError:
+            raise WireError(f"layer {k}'s source is not UTF-8 text") from None
+        version, base, flags, length = _LAYER.unpack_from(view, at)
+        at += _LAYER.size
+        if flags not in (0, 1) or (flags and length):
+            raise WireError(f"layer {k}: flags {flags} with {length} bytes of map")
+        if at + length > len(view):
+            raise WireError(f"layers payload truncated in layer {k}'s map")
+        out.append(LayerBlob(source, version, base, bytes(view[at:at + length]), bool(flags)))
+        at += length
+    if at != len(view):
+        raise WireError(f"layers payload has {len(view) - at} bytes after its {n} layers")
+    return out

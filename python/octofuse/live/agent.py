@@ -235,7 +235,7 @@ class LiveAgent:
 
     def _insert(self, batch: list, progress: dict) -> None:
         if batch:
-            insert_scans(batch, [[self.agent.map, self.local]] * len(batch), 1,
+            insert_scans(batch, [[*self.agent.scan_targets(), self.local]] * len(batch), 1,
                          self.insert_mode)
             self.counts.scans += len(batch)
             progress["scans"] += len(batch)

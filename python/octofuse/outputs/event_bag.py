@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
-from ..config import CHANNEL_FILTER
+from ..config import EXACT_MODES
 from .rosbag_export import MapBagWriter, MapEvent
 
 TOPIC = "/octofuse/{name}/octomap"
@@ -53,7 +53,7 @@ class FusionEventBag:
             self._seen[rule] = len(records)
             for agent in dict.fromkeys(e.receiver for e in new if e.receiver in self._agents):
                 m = net.fused[rule][agent]
-                if rule == CHANNEL_FILTER:  # kept unclamped while fusing; written clamped
+                if rule in EXACT_MODES:  # kept unclamped while fusing; written clamped
                     from ..fusion.channel_filter import clamped
 
                     m = clamped(m)

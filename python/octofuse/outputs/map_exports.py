@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..config import CHANNEL_FILTER, RunConfig
+from ..config import EXACT_MODES, RunConfig
 from ..fusion.results import SimResult
 from ..threads import thread_map
 
@@ -73,7 +73,7 @@ class MapExports:
                 self.voxels[(r, a)] = v
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
-            if r not in ("naive-bayes", CHANNEL_FILTER):
+            if r not in ("naive-bayes", *EXACT_MODES):
                 self.histogram[r] = thread_map(lambda a: res.loss_leaves_of(r, a), res.agents,
                                                self.threads)
         self.seconds += time.perf_counter() - t0

@@ -12,7 +12,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..config import CHANNEL_FILTER, RunConfig, to_dict
+from ..config import CHANNEL_FILTER, EXACT_MODES, SOURCE_LAYERS, RunConfig, to_dict
 from ..fusion.agent_frames import frames_section
 from ..fusion.results import LOCAL, SimResult, ordered_timings
 from ..maps.frames import matrix_pose
@@ -64,12 +64,16 @@ def markdown_table(rows: dict[str, dict], first: str = "rule") -> str:
     return "\n".join(lines)
 
 
-def findings(means: dict[str, dict], exact: Optional[dict] = None) -> list[str]:
-    """What the numbers say about the paper's three claims (computed, not assumed), and how
-    close each WEP rule comes to the exact channel filter when it ran (``exact``: its links
-    and the floor it can reach, from :func:`exact_summary`)."""
+def findings(means: dict[str, dict], exact: Optional[dict] = None,
+             memory: Optional[dict[str, float]] = None,
+             folded: Optional[dict[str, int]] = None) -> list[str]:
+    """What the numbers say about the paper's three claims (computed, not assumed), how close
+    each WEP rule comes to the exact channel filter when it ran (``exact``: its links and the
+    floor it can reach, from :func:`exact_summary`), and what source layers cost beside the
+    others (``memory``: bytes per agent by rule, from :func:`memory_per_agent`; ``folded``:
+    the layers each agent folded)."""
     out = []
-    wep = [r for r in means if r not in (LOCAL, "naive-bayes", CHANNEL_FILTER)]
+    wep = [r for r in means if r not in (LOCAL, "naive-bayes", *EXACT_MODES)]
     nb = means.get("naive-bayes")
     if nb and wep:
         worst_oc = max(means[r]["overconfidence"] for r in wep)
@@ -123,13 +127,61 @@ def findings(means: dict[str, dict], exact: Optional[dict] = None) -> list[str]:
                         "information the tree does not)" if means[best]["kl_mean"] < cf["kl_mean"]
                         else "") + ".")
         out.append(text)
+    if means.get(SOURCE_LAYERS, {}).get("kl_mean") is not None:
+        out.append(layers_finding(means, memory or {}, folded or {}))
     return out
 
 
+def layers_finding(means: dict[str, dict], memory: dict[str, float],
+                   folded: Optional[dict[str, int]] = None) -> str:
+    """Source layers against every other row: KL, over-confidence, bytes sent and memory; and
+    where exactness ended (layers folded under the memory budget)."""
+    sl = means[SOURCE_LAYERS]
+    others = {r: m for r, m in means.items() if r not in (LOCAL, SOURCE_LAYERS)
+              and m.get("kl_mean") is not None}
+    text = (f"Exact fusion on every link (source-layers): KL {sl['kl_mean']:.4f}, over-confident "
+            f"on {sl['overconfidence']:.1%}")
+    if others:
+        best = min(others, key=lambda r: others[r]["kl_mean"])
+        kl = others[best]["kl_mean"]
+        closest = ("closer to the centralized map than every other rule"
+                   if sl["kl_mean"] < kl else "not the closest")
+        ratio = f", {kl / sl['kl_mean']:.2f}x" if sl["kl_mean"] > 0 else ""
+        text += f"; {closest} (next: `{best}` KL {kl:.4f}{ratio})"
+    mb = lambda v: f"{v / 1e6:.1f} MB"  # noqa: E731
+    if sl.get("bytes_sent") is not None:
+        sent = {r: m["bytes_sent"] for r, m in others.items() if m.get("bytes_sent") is not None}
+        text += (f". A robot sends {mb(sl['bytes_sent'])}"
+                 + (f" (others {mb(min(sent.values()))} to {mb(max(sent.values()))})" if sent else ""))
+    if SOURCE_LAYERS in memory:
+        rest = {r: v for r, v in memory.items() if r != SOURCE_LAYERS}
+        text += (f" and holds {mb(memory[SOURCE_LAYERS])} of map and layers"
+                 + (f" (others {mb(min(rest.values()))} to {mb(max(rest.values()))} of map and "
+                    "per-link state)" if rest else ""))
+    text += "."
+    if folded and any(folded.values()):
+        text += (f" Over the memory budget {sum(v > 0 for v in folded.values())} of "
+                 f"{len(folded)} agents folded layers ({np.mean(list(folded.values())):.1f} "
+                 "per agent on average) into a conservative remainder: not exact.")
+    return text
+
+
+def layers_folded(res: SimResult) -> dict[str, int]:
+    """Per agent, the source layers it folded under the memory budget (none without them)."""
+    return {a: v["folded"] for a, v in res.memory.get(SOURCE_LAYERS, {}).items()}
+
+
+def memory_per_agent(res: SimResult) -> dict[str, float]:
+    """Per rule, the mean over agents of the bytes of the map and the per-link state (source
+    layers: the layers)."""
+    return {r: float(np.mean([v["map"] + v["links"] for v in per.values()]))
+            for r, per in res.memory.items() if per}
+
+
 def exact_summary(res: SimResult, tol: float) -> Optional[dict]:
-    """The channel filter's links and the floor it can reach (the centralized map without
-    clamping, clamped once, against the centralized map); None without the filter."""
-    if CHANNEL_FILTER not in res.rules:
+    """The channel filter's links and the floor the exact modes can reach (the centralized map
+    without clamping, clamped once, against the centralized map); None without them."""
+    if not any(r in EXACT_MODES for r in res.rules):
         return None
     out: dict = {"tree_links": len(res.tree) if res.tree is not None else None,
                  "graph_links": len(res.graph.edges),
@@ -149,8 +201,10 @@ def memory_table(res: SimResult) -> list[str]:
     memory, and of the bytes sent; messages and lost messages."""
     if not res.memory:
         return []
-    lines = ["| rule | map MB | per-link state MB | MB sent | messages | lost |",
-             "|---|---|---|---|---|---|"]
+    layered = any("folded" in v for per in res.memory.values() for v in per.values())
+    lines = ["| rule | map MB | per-link state MB | MB sent | messages | lost |"
+             + (" layers held (folded) |" if layered else ""),
+             "|---|---|---|---|---|---|" + ("---|" if layered else "")]
     for r in res.rules:
         per = res.memory.get(r, {})
         if not per:
@@ -159,8 +213,17 @@ def memory_table(res: SimResult) -> list[str]:
         mb = lambda xs: float(np.mean(xs)) / 1e6  # noqa: E731
         lines.append(f"| `{r}` | {mb([v['map'] for v in per.values()]):.2f} | "
                      f"{mb([v['links'] for v in per.values()]):.2f} | "
-                     f"{mb([tr.sent[a] for a in res.agents]):.2f} | {tr.messages} | {tr.lost} |")
+                     f"{mb([tr.sent[a] for a in res.agents]):.2f} | {tr.messages} | {tr.lost} |"
+                     + (_layers_cell(per) if layered else ""))
     return lines
+
+
+def _layers_cell(per: dict) -> str:
+    """Mean layers held per agent and the folded ones (source layers), or a dash."""
+    if not all("folded" in v for v in per.values()):
+        return " – |"
+    held = np.mean([v["layers"] for v in per.values()])
+    return f" {held:.1f} ({np.mean([v['folded'] for v in per.values()]):.1f}) |"
 
 
 def plot_timeline(res: SimResult, path: Path) -> Optional[Path]:
@@ -248,7 +311,8 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         "scores": {r: {a: s.to_dict() for a, s in per.items()} for r, per in res.scores.items()},
         "timeline": res.timeline,
         "timings_s": timings,
-        "findings": findings(means, exact) if means else [],
+        "findings": findings(means, exact, memory_per_agent(res), layers_folded(res))
+        if means else [],
         "machine": f"{os.cpu_count()} cores",
         "robust": res.robust.to_dict() if res.robust is not None else None,
         "exports": exported,
@@ -262,6 +326,8 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
         summary["exact"] = exact
     if res.memory:
         summary["memory_bytes"] = res.memory
+        if SOURCE_LAYERS in res.memory:  # where exactness ends: layers folded per agent
+            summary["layers_folded"] = layers_folded(res)
         summary["lost_messages"] = {r: res.traffic[r].lost for r in res.rules}
     if res.frames or res.alignment:
         summary["agent_frames"] = {a: matrix_pose(T) for a, T in res.frames.items()}
@@ -290,8 +356,11 @@ def write_outputs(res: SimResult, out: str | Path, cfg: RunConfig, *,
                   "Mean over agents. Per-link state: the channel filter's copies of its "
                   "neighbours' contributions (one map per link end) and, with delta messages, "
                   "the maps deltas are taken against; the WEP rules keep per-link state only for "
-                  "deltas. The channel filter's maps are unclamped (less pruning than clamped "
-                  f"maps); message loss {cfg.fuse.loss:g}.", ""]
+                  "deltas; source layers' per-link state is their layers (every source's, its own "
+                  "and the values neighbours are known to hold, each map once; folded: layers "
+                  "merged into one conservative remainder under `fuse.layers_max_bytes`, exact no "
+                  "more). The exact modes' maps are unclamped (less pruning than clamped maps); "
+                  f"message loss {cfg.fuse.loss:g}.", ""]
     if res.robust is not None:
         from ..fusion.robust import markdown_section
 
