@@ -313,7 +313,7 @@ def test_agents_map_what_a_ros2_bridge_publishes_as_the_bag_would_give_it(bag, t
     names = [a.name for a in cfg.build.agents]
     procs = {n: subprocess.Popen(
         [sys.executable, "-m", "octofuse", "agent", n, "--fleet", str(path), "--out", str(out),
-         "--from-zenoh", "pointcloud2", "--insert-mode", "exact", "--duration", "8"],
+         "--from-zenoh", "pointcloud2", "--insert-mode", "exact", "--duration", "5"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for n in names}
     bridge = ZenohTransport(cfg.live, "chernoff", "bridge", endpoint(cfg.live, 9),
                             [endpoint(cfg.live, k) for k in range(len(names))])

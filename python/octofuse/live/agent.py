@@ -182,9 +182,10 @@ class LiveAgent:
         _, events = mission_events(spec, self.graph, cfg.fuse, 0, int(duration * 1e9))
         timed = [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
         progress = {"t": -1.0, "scans": 0}
-        transport = self._open()
+        transport = self._open(announce=False)
         feed = BridgedScans(transport.session, cfg.build.agents[self.index].topic, scan_type,
                             cfg.build)
+        transport.announce()  # listening for scans too: a bridge may start
         try:
             transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
             t0 = time.monotonic()
@@ -222,12 +223,12 @@ class LiveAgent:
         self._drain(transport, until=None, done=[n for n in self.neighbours if self.uses(n)])
         self._finish(transport)
 
-    def _open(self) -> ZenohTransport:
+    def _open(self, announce: bool = True) -> ZenohTransport:
         """This agent's Zenoh session, listening on its endpoint, connected to its neighbours'."""
         live = self.live
         connect = [endpoint(live, self._port_index(n)) for n in self.neighbours]
         return ZenohTransport(live, self.rule, self.name,
-                              endpoint(live, self._port_index(self.name)), connect)
+                              endpoint(live, self._port_index(self.name)), connect, announce)
 
     def _port_index(self, name: str) -> int:
         """Agent ``name``'s port offset: one port per agent and rule."""

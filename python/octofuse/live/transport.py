@@ -59,7 +59,7 @@ class ZenohTransport:
     once every neighbour has declared it listens."""
 
     def __init__(self, live: LiveConfig, rule: str, name: str, listen: str,
-                 connect: list[str]):
+                 connect: list[str], announce: bool = True):
         import zenoh
 
         self.live, self.rule, self.name = live, rule, name
@@ -75,7 +75,9 @@ class ZenohTransport:
         prefix = keys.alive(live.fleet, rule, "")
         self._watch = self.session.liveliness().declare_subscriber(
             prefix + "*", self._on_alive, history=True)
-        self._token = self.session.liveliness().declare_token(keys.alive(live.fleet, rule, name))
+        self._token = None
+        if announce:
+            self.announce()
         self._done: set[str] = set()
         self._done_token = None
         self._watch_done = self.session.liveliness().declare_subscriber(
@@ -127,6 +129,11 @@ class ZenohTransport:
                                        f"within {timeout:g} s (are they running, on the "
                                        "fleet's endpoints?)")
                 self._alive_changed.wait(left)
+
+    def announce(self) -> None:
+        """Say that this agent listens (once every subscriber of its is declared)."""
+        self._token = self.session.liveliness().declare_token(
+            keys.alive(self.live.fleet, self.rule, self.name))
 
     def _on_done(self, sample) -> None:
         import zenoh
