@@ -104,7 +104,9 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     cfg = config(bag)
     frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
               AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []
-    fuse = FuseConfig(**{"rules": list(RULES), "topology": "ring", "schedule": "periodic:0.33",
+    # with alignment, messages often enough for a link's second registration to confirm it
+    schedule = "periodic:0.2" if align != "off" else "periodic:0.33"
+    fuse = FuseConfig(**{"rules": list(RULES), "topology": "ring", "schedule": schedule,
                          "delta": delta, "agent_frames": frames, "align": align, **extra})
     fuse.validate("fuse")
     rules = fuse.rules

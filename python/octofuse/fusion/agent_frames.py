@@ -11,9 +11,9 @@ With ``align`` (``planar`` or ``full``) a link's transform is estimated instead:
 message on a link the receiver registers the message map against its own map
 (:func:`octofuse.maps.registration.register`). A registration alone is not trusted (in
 repetitive rooms one matches a similar place metres away): it must be confirmed by a second,
-independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the link's own with
-a new RANSAC seed, at once for its first estimate, then at later messages on grown maps. Only
-the receiver's own estimates count
+independent one that agrees within :data:`AGREE_M` and :data:`AGREE_DEG`: the link's own at a
+later message, on grown maps, with a new RANSAC seed (two seeds on the same maps agree on a
+wrong match of repetitive rooms too). Only the receiver's own estimates count
 (what a robot knows without further messages), so agents in different processes align alike.
 Until then, or when registration refuses (too little overlap yet), the message is not fused
 (it still counts as sent) and the link tries again later (at its 2nd, 4th, 8th, ... message);
@@ -181,24 +181,18 @@ class AgentFrames:
             link.messages += 1
             if link.messages & (link.messages - 1):  # not a power of two: wait
                 continue
-            # a link's first estimate is checked at once by a second registration
-            for _ in range(1 if link.candidates else 2):
-                if link.exhausted:
-                    break
-                link.attempts += 1
-                t0 = time.perf_counter()
-                try:
-                    # a new RANSAC seed each time: a repeat is a second, independent estimate
-                    reg = register(maps[d], maps[s], planar=self.align == "planar",
-                                   seed=link.attempts - 1)
-                except ValueError as e:
-                    link.refusal = str(e)
-                    break
-                finally:
-                    link.seconds += time.perf_counter() - t0
-                self._confirm(link, (reg.matrix, reg.fitness, reg.conflict, t))
-                if link.matrix is not None:
-                    break
+            link.attempts += 1
+            t0 = time.perf_counter()
+            try:
+                # a new RANSAC seed at each attempt, on grown maps: a second estimate
+                reg = register(maps[d], maps[s], planar=self.align == "planar",
+                               seed=link.attempts - 1)
+            except ValueError as e:
+                link.refusal = str(e)
+                continue
+            finally:
+                link.seconds += time.perf_counter() - t0
+            self._confirm(link, (reg.matrix, reg.fitness, reg.conflict, t))
 
     def _link(self, s: str, d: str) -> LinkAlignment:
         link = self.links.get((s, d))
