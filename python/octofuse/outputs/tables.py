@@ -6,6 +6,7 @@ from pathlib import Path
 import re
 from typing import Optional, Sequence
 
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -114,7 +115,7 @@ def search_table(res) -> Table:
     """Per scheme of a target search (:class:`~octofuse.targets.search.TargetSearchResult`),
     at its end: the KL divergence of the robots' beliefs to the centralized one and robot 1's
     information gain over the prior."""
-    t = Table("scheme", "KL(central‖robot) mean", "max", "robot 1 gain [nats]",
+    t = Table("scheme", "KL(central‖robot) mean", "max", escape("robot 1 gain [nats]"),
               title="octofuse search: at the end")
     for s in res.schemes:
         kl, gain = res.kl_to_central[s][-1], res.info_gain[s][-1]
@@ -125,7 +126,7 @@ def search_table(res) -> Table:
 def tracking_table(summary: dict) -> Table:
     """Per belief type of a tracking run (``run_tracking``'s summary): the RMS error after the
     burn-in, the fusions and the bytes per message, and the centralized grid's error."""
-    t = Table("belief", "RMS error [m]", "fusions", "bytes/message", title="octofuse track")
+    t = Table("belief", escape("RMS error [m]"), "fusions", "bytes/message", title="octofuse track")
     num = lambda v, f: "–" if v is None else format(v, f)  # noqa: E731
     for name, fam in summary["families"].items():
         t.add_row(name, num(fam["rms_error"], ".3f"), str(fam["fusions"]),
