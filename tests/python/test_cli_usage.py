@@ -100,6 +100,7 @@ HELP_DEFAULTS = {
     "fuse-maps": ["min-info-loss", "copy", "the coarsest input's"],
     "align": ["0.5"],
     "info": [],
+    "view": ["127.0.0.1", "8080", "300000"],
 }
 
 
