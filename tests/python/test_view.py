@@ -58,16 +58,27 @@ def test_larger_voxels_are_kept_as_they_are():
     assert sorted(merged.sizes.tolist()) == pytest.approx([2 * RES, 1.6])
 
 
-@pytest.mark.parametrize("budget", [50, 400, 5000])
-def test_a_budget_bounds_the_voxels_drawn(budget):
+@pytest.mark.parametrize("budget", [50, 400, 3000, 5000])
+def test_a_budget_bounds_the_voxels_drawn_and_spends_it_near_the_focus(budget):
     keys = np.stack(np.meshgrid(*[np.arange(16)] * 3, indexing="ij"), -1).reshape(-1, 3)
     v = grid_voxels(keys, np.arange(len(keys)))  # 4096 voxels
-    d = within_budget(v, budget, RES)
-    assert len(d.voxels) <= budget
+    d = within_budget(v, budget, RES, focus=(0.0, 0.0, 0.0))  # a corner of the map
     assert d.merged == (budget < len(v))
     assert d.voxels.values.max() == v.values.max()  # the largest value is never averaged away
-    if d.merged:  # one level coarser would have fit too: only as coarse as needed
-        assert len(merged_into_cells(v, d.cell / 2)) > budget
+    assert np.sum(d.voxels.sizes ** 3) == pytest.approx(
+        len(v) * RES ** 3)  # the voxels drawn fill the map's volume, no more, no less
+    if not d.merged:
+        assert len(d.voxels) == len(v)
+        return
+    assert budget - 8 < len(d.voxels) <= budget  # one more cell split would not fit
+    away = np.linalg.norm(d.voxels.centers, axis=1)  # the map spans 0 .. 1.6 m
+    assert d.voxels.sizes[away < 0.5].max() < d.voxels.sizes[away > 2.0].max()
+
+
+def test_merged_cells_take_the_smallest_value_when_asked():
+    v = grid_voxels([[0, 0, 0], [1, 1, 1], [2, 0, 0]], [2.0, 0.0, 1.0])
+    m = merged_into_cells(v, 2 * RES, np.minimum)
+    assert sorted(m.values.tolist()) == [0.0, 1.0]
 
 
 # -- difference to the centralized map ------------------------------------------------------

@@ -43,7 +43,8 @@ class RunPage:
         self.agent = gui.add_dropdown("agent", self._agents(self.map.value) or ["–"])
         self.colour = gui.add_dropdown("colour by", (OCCUPANCY, LOSS, DIFFERENCE),
                                        initial_value=LOSS)
-        self.budget = gui.add_slider("voxel budget", min=10_000, max=2_000_000, step=10_000,
+        self.budget = gui.add_slider("voxel budget", min=min(10_000, budget),
+                                     max=max(2_000_000, budget), step=10_000,
                                      initial_value=budget)
         self.legend = gui.add_html("")
         self.detail = gui.add_html("")
@@ -199,7 +200,8 @@ def detail_note(note: str, total: int, d: Detail) -> str:
     """What the map shows and at which level of detail."""
     drawn = f"{len(d.voxels):,} voxels drawn"
     if d.merged:
-        drawn += f" of {total:,} (merged into cells of up to {d.cell:g} m to fit the budget)"
+        drawn += (f" of {total:,}: to fit the budget, merged into cells of up to {d.cell:g} m, "
+                  "finer near the middle of the map")
     return f"<div style='font-size:0.8em'>{html.escape(note)}<br>{drawn}</div>"
 
 

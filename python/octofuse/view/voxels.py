@@ -1,9 +1,11 @@
 """Voxels as arrays, and their level of detail: a map of millions of leaves drawn within a
-voxel budget by merging its finest voxels into coarser octree cells."""
+voxel budget by merging its finest voxels into coarser octree cells, finer near the middle
+of the map than far from it."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -51,7 +53,7 @@ def occupied_voxels(leaves) -> Voxels:
 
 @dataclass(frozen=True)
 class Detail:
-    """Voxels within a budget and the cell size they were merged into (the finest voxel
+    """Voxels within a budget and the largest cell they were merged into (the finest voxel
     size when nothing was merged)."""
 
     voxels: Voxels
@@ -59,37 +61,67 @@ class Detail:
     merged: bool
 
 
-def within_budget(v: Voxels, budget: int, resolution: float,
-                  combine=np.maximum) -> Detail:
-    """``v`` with at most ``budget`` voxels where it can: voxels finer than a cell of the
-    octree level above are merged into that cell, level by level, until they fit (or
-    :data:`MAX_COARSENING` levels up). A merged cell takes the ``combine`` of its voxels'
-    values (the largest by default: a wall's occupancy, a region's worst loss)."""
-    cell, merged = resolution, False
+def within_budget(v: Voxels, budget: int, resolution: float, combine=np.maximum,
+                  focus: Optional[np.ndarray] = None) -> Detail:
+    """``v`` with at most ``budget`` voxels where it can: finer voxels merged into the cells
+    of the octree level above, level by level (at most :data:`MAX_COARSENING`), until they
+    fit; then the cells nearest ``focus`` (default: the middle of ``v``) split again into
+    the voxels of the level below while the budget allows: fine near, coarse far. A merged
+    cell takes the ``combine`` of its voxels' values (the largest by default: a wall's
+    occupancy, a region's worst loss)."""
+    if len(v) <= budget:
+        return Detail(v, resolution, False)
+    lo, hi = v.bounds
+    focus = (lo + hi) / 2 if focus is None else np.asarray(focus, dtype=np.float64)
+    fine, cell = v, resolution
     for _ in range(MAX_COARSENING):
-        if len(v) <= budget:
-            break
-        cell *= 2
-        v = merged_into_cells(v, cell, combine)
-        merged = True
-    return Detail(v, cell, merged)
+        coarse, parent = merged_with_parents(fine, cell * 2, combine)
+        if len(coarse) <= budget:
+            return Detail(refined_near(fine, coarse, parent, budget, focus), cell * 2, True)
+        fine, cell = coarse, cell * 2
+    return Detail(fine, cell, True)
+
+
+def refined_near(fine: Voxels, coarse: Voxels, parent: np.ndarray, budget: int,
+                 focus: np.ndarray) -> Voxels:
+    """``coarse`` with its cells nearest ``focus`` replaced by their voxels of ``fine``
+    (``parent``: the cell of each), as many as ``budget`` allows."""
+    children = np.bincount(parent, minlength=len(coarse))
+    order = np.argsort(np.linalg.norm(coarse.centers - focus, axis=1), kind="stable")
+    fits = np.cumsum(children[order] - 1) <= budget - len(coarse)
+    split = np.zeros(len(coarse), dtype=bool)
+    split[order[fits]] = True
+    kept, finer = coarse.subset(~split), fine.subset(split[parent])
+    return Voxels(np.concatenate([kept.centers, finer.centers]),
+                  np.concatenate([kept.sizes, finer.sizes]),
+                  np.concatenate([kept.values, finer.values]))
 
 
 def merged_into_cells(v: Voxels, cell: float, combine=np.maximum) -> Voxels:
     """The voxels smaller than ``cell`` merged into the cells of that size that hold their
     centres; larger voxels as they are."""
+    return merged_with_parents(v, cell, combine)[0]
+
+
+def merged_with_parents(v: Voxels, cell: float, combine=np.maximum
+                        ) -> tuple[Voxels, np.ndarray]:
+    """:func:`merged_into_cells`, and for each voxel of ``v`` the index of the merged voxel
+    that holds it."""
     small = v.sizes < cell * (1 - 1e-9)
+    parent = np.empty(len(v), dtype=np.int64)
+    big = v.subset(~small)
+    parent[~small] = np.arange(len(big))
     if not small.any():
-        return v
+        return v.subset(~small), parent
     keys = np.floor(v.centers[small] / cell).astype(np.int64)
     _, first, index = np.unique(packed_keys(keys), return_index=True, return_inverse=True)
     cells, index = keys[first], index.reshape(-1)
-    values = np.full(len(cells), -np.inf, dtype=np.float32)
+    values = v.values[small][first]  # then every voxel of the cell combined into it
     combine.at(values, index, v.values[small])
-    big = v.subset(~small)
+    parent[small] = len(big) + index
     return Voxels(np.concatenate([big.centers, (cells + 0.5) * cell]),
                   np.concatenate([big.sizes, np.full(len(cells), cell)]),
-                  np.concatenate([big.values, values]))
+                  np.concatenate([big.values, values])), parent
 
 
 def packed_keys(keys: np.ndarray) -> np.ndarray:
