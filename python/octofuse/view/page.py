@@ -146,7 +146,7 @@ class RunPage:
         centre, extent = (lo + hi) / 2, float(np.max(hi - lo))
         cam = self.server.initial_camera
         cam.look_at = tuple(centre)
-        cam.position = tuple(centre + np.array([-0.6, -0.9, 0.9]) * extent)
+        cam.position = tuple(centre + np.array([-0.4, -0.75, 0.65]) * extent)
 
     # -- the events and the graph ----------------------------------------------------
     def draw_events(self) -> None:
@@ -165,7 +165,7 @@ class RunPage:
         scene = self.server.scene
         with self.server.atomic():
             scene.add_point_cloud("/graph/agents", np.array([where[a] for a in src.agents]),
-                                  NODE_COLOR, point_size=float(np.max(hi - lo)) / 60,
+                                  NODE_COLOR, point_size=float(np.max(hi - lo)) / 100,
                                   point_shape="circle", precision="float32")
             for a in src.agents:
                 scene.add_label(f"/graph/agent_{a}", a, position=tuple(where[a]),
