@@ -395,3 +395,22 @@ def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
     # a rule with other values draws another image
     data["chernoff"] = [(v * 2, d) for v, d in data["chernoff"]]
     assert plot(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()
+
+
+def test_every_rule_of_the_loss_histogram_shows_beside_its_legend():
+    from octofuse.outputs.libraries import pyplot
+    from octofuse.outputs.loss_histogram import LossHistograms, loss_histogram_figure
+
+    same = np.geomspace(1e-3, 0.1, 10)  # Bhattacharyya and Chernoff are often this close
+    hist = LossHistograms(np.linspace(0, 2, 11), {"chernoff": same, "bhattacharyya": same.copy(),
+                                                  "min-info-loss": same[::-1].copy()})
+    fig = loss_histogram_figure(hist)
+    try:
+        fig.canvas.draw()
+        ax = fig.axes[0]
+        lines = ax.patches
+        assert len({(p.get_linestyle(), p.get_linewidth()) for p in lines}) == len(lines) == 3
+        legend, plot = fig.legends[0].get_window_extent(), ax.get_window_extent()
+        assert not legend.overlaps(plot)
+    finally:
+        pyplot().close(fig)

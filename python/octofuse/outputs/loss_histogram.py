@@ -54,8 +54,15 @@ def plot_loss_histograms(hist: Optional[LossHistograms], path: Path) -> Optional
     for None."""
     if hist is None:
         return None
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4), layout="constrained")
+    fig = loss_histogram_figure(hist)
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)
+    return path
+
+
+def loss_histogram_figure(hist: LossHistograms):
+    """The Matplotlib figure of :func:`plot_loss_histograms`."""
+    fig, ax = pyplot().subplots(figsize=(8, 4), layout="constrained")
     # rules with equal histograms draw on top of each other: each its own dash, the later
     # ones thinner, so that every line shows
     for i, (r, h) in enumerate(hist.fractions.items()):
@@ -68,6 +75,4 @@ def plot_loss_histograms(hist: Optional[LossHistograms], path: Path) -> Optional
         fig.legend(fontsize=8, loc="outside right upper")  # beside the curves, not over them
     ax.grid(alpha=0.3)
     ax.set_title("Information loss over all fusions, all agents")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
