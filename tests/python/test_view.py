@@ -277,3 +277,20 @@ def test_the_page_draws_the_run_in_a_browser_and_follows_the_rule_chosen(page, t
     assert drawn(first) > 0.05 and len(np.unique(first.reshape(-1, 3), axis=0)) > 20
     changed = np.mean(np.any(np.abs(first.astype(int) - second) > 8, axis=-1))
     assert changed > 0.005, changed  # the same voxels, coloured by another rule's losses
+
+
+def test_the_command_prints_the_pages_address(run_folder):
+    import os
+    import subprocess
+
+    pytest.importorskip("viser")
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    with subprocess.Popen([sys.executable, "-m", "octofuse", "view", str(run_folder),
+                           "--port", str(port)], stdout=subprocess.PIPE, text=True,
+                          env=env) as proc:
+        try:
+            line = proc.stdout.readline()
+        finally:
+            proc.terminate()
+    assert line.strip() == f"viewer: http://localhost:{port}/ (Ctrl-C to stop)"

@@ -4,7 +4,8 @@
 - :mod:`.difference`: an agent's map against the centralized map, voxel by voxel;
 - :mod:`.events`: the fusion events up to an instant: traffic per link, loss per agent;
 - :mod:`.palette`: colours and legends;
-- :mod:`.run_folder`: a run's output folder as the viewer's source of maps and events;
-- :mod:`.page`: the page itself, drawn from any source with the interface of
-  :class:`.run_folder.RunFolder` (a finished run now; a live fleet can provide the same).
+- :mod:`.source`: what the page reads (maps, events, scores), whoever provides it;
+- :mod:`.run_folder`: a run's output folder as such a source;
+- :mod:`.page`: the page itself, drawn from any source (a finished run now; a live fleet
+  can provide the same).
 """

@@ -2,9 +2,9 @@
 its difference to the centralized map, with rule and agent chosen in the side panel; the
 fusion events up to a chosen instant (links and their traffic, loss per agent); the scores.
 
-The page reads everything from a *source* (:class:`.run_folder.RunFolder`: its ``agents``,
-``rules``, ``links``, ``events``, ``means``, ``loss_range``, ``resolution`` and its maps by
-rule and agent); :meth:`RunPage.refresh` redraws from it, so a live source can feed it.
+The page reads everything from a source (:class:`.source.MapSource`; a run's folder is
+:class:`.run_folder.RunFolder`); :meth:`RunPage.refresh` redraws from it, so a live source
+can feed it.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from . import palette
 from .difference import class_counts
 from .events import events_of, until
 from .run_folder import CENTRALIZED
+from .source import MapSource
 from .voxels import Detail, Voxels, by_size, within_budget
 
 OCCUPANCY, LOSS, DIFFERENCE = "occupancy", "information loss", "difference to centralized"
@@ -30,7 +31,7 @@ NODE_COLOR, LINK_COLOR, LAST_LINK_COLOR = (30, 30, 30), (90, 140, 200), (255, 14
 class RunPage:
     """The page of ``source`` on ``server`` (a ``viser.ViserServer``)."""
 
-    def __init__(self, source, server, budget: int = DEFAULT_BUDGET):
+    def __init__(self, source: MapSource, server, budget: int = DEFAULT_BUDGET):
         self.source, self.server = source, server
         self._lock = threading.Lock()  # one redraw at a time
         self._drawn: list = []  # the scene nodes of the map

@@ -2,9 +2,7 @@
 its agents, rules, links, fusion events and scores from ``summary.json``, its maps from
 ``centralized.ot`` and ``RULE/AGENT.ot``, its losses from the heat maps
 ``RULE/AGENT_info_loss.ply`` (or ``.pcd``). Maps are read when first shown, then kept.
-
-A source of the viewer (:mod:`.page`) has these attributes and methods; a live fleet can
-provide the same and call the page's ``refresh()`` when its maps change.
+A :class:`.source.MapSource`.
 """
 
 from __future__ import annotations
