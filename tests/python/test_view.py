@@ -187,27 +187,24 @@ def test_the_page_shows_the_choice_of_map_agent_and_colouring(page):
     from octofuse.view.page import DIFFERENCE, LOSS, OCCUPANCY
 
     assert page.map.value == "naive-bayes" and page.colour.value == LOSS
-    page.map.value = "chernoff"
-    page.draw_map()
+    page.map.value = "chernoff"  # each choice redraws the map
     assert page.status.endswith("chernoff: accumulated information loss")
     assert "information loss" in page.legend.content
+    page.agent.value = page.source.agents[1]
+    assert page.status == f"{page.source.agents[1]}, chernoff: accumulated information loss"
     page.colour.value = DIFFERENCE
-    page.draw_map()
     assert "over-confident" in page.legend.content and "against the centralized map" in page.status
     page.colour.value = OCCUPANCY
     page.map.value = CENTRALIZED
-    page.draw_map()
     assert page.status == "centralized map" and "occupancy probability" in page.legend.content
 
 
 def test_the_event_slider_sums_the_events_so_far(page):
     page.map.value = "chernoff"
-    page._events_of_rule()
     n = len(events_of(page.source.events, "chernoff"))
     assert page.event.value == n > 0
     assert f"{n} of {n} fusions" in page.event_text.content
     page.event.value = 1
-    page.draw_events()
     assert f"1 of {n} fusions" in page.event_text.content
 
 

@@ -66,9 +66,10 @@ class RunPage:
 
     def _map_chosen(self) -> None:
         agents = self._agents(self.map.value) or ["–"]
+        before = self.agent.value
         if tuple(self.agent.options) != tuple(agents):
-            self.agent.options = agents  # sets the value too, which redraws
-        else:
+            self.agent.options = agents  # a new value redraws through its callback
+        if self.agent.value == before:
             self.draw_map()
         self._events_of_rule()
 
