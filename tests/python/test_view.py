@@ -291,3 +291,24 @@ def test_the_command_prints_the_pages_address(run_folder):
         finally:
             proc.terminate()
     assert line.strip() == f"viewer: http://localhost:{port}/ (Ctrl-C to stop)"
+
+
+def test_a_run_written_without_agent_maps_shows_the_centralized_map_only(tmp_path, run_folder):
+    import shutil
+
+    viser = pytest.importorskip("viser")
+    from octofuse.view.page import DIFFERENCE, RunPage
+
+    folder = tmp_path / "run"
+    shutil.copytree(run_folder, folder)
+    for rule in RULES:
+        shutil.rmtree(folder / rule)  # as --export none leaves it, with the centralized map
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        page = RunPage(RunFolder(folder), server, budget=50_000)
+        page.colour.value = DIFFERENCE
+        assert page.status == "naive-bayes: no agent's map in the run's folder"
+        page.map.value = CENTRALIZED
+        assert page.status.startswith("centralized map: occupancy")
+    finally:
+        server.stop()

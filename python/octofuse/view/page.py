@@ -95,6 +95,8 @@ class RunPage:
         rule, agent, colour = self.map.value, self.agent.value, self.colour.value
         src = self.source
         name = "centralized map" if rule == CENTRALIZED else f"{agent}, {rule}"
+        if rule != CENTRALIZED and agent not in self._agents(rule):
+            return None, OCCUPANCY, f"{rule}: no agent's map in the run's folder"
         if colour == LOSS and rule != CENTRALIZED:
             v = src.loss(rule, agent)
             if v is not None:
@@ -102,10 +104,12 @@ class RunPage:
             note = f"{name}: no loss recorded ({rule} loses nothing or no heat map was written)"
         elif colour == DIFFERENCE and rule != CENTRALIZED and src.has_central():
             return src.difference(rule, agent), DIFFERENCE, f"{name} against the centralized map"
+        elif colour == OCCUPANCY:
+            note = name
+        elif rule == CENTRALIZED:
+            note = f"{name}: occupancy (it fuses nothing: no loss, nothing to compare)"
         else:
-            note = name if colour == OCCUPANCY else f"{name}: occupancy (nothing to compare)"
-        if rule != CENTRALIZED and agent not in self._agents(rule):
-            return None, OCCUPANCY, f"{rule}: no agent map in the run's folder"
+            note = f"{name}: occupancy (no centralized map to compare with)"
         return src.occupancy(rule, agent), OCCUPANCY, note
 
     def draw_map(self) -> None:
