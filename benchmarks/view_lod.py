@@ -125,6 +125,7 @@ def measure(source, budget: int, frames: int) -> dict:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=SOFTWARE_WEBGL)
             tab = browser.new_page(viewport={"width": 1100, "height": 700})
+            tab.set_default_timeout(600_000)  # a frame of millions of voxels takes seconds
             t1 = time.perf_counter()
             tab.goto(f"http://127.0.0.1:{server.get_port()}/")
             wait_for_map(tab)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import sys
 import time
 from pathlib import Path
 
@@ -36,7 +37,9 @@ def view(folder, host, port, budget):
         RunPage(source, server, budget=budget)
         shown = "localhost" if host in ("0.0.0.0", "127.0.0.1") else host
         say(f"viewer: http://{shown}:{server.get_port()}/ (Ctrl-C to stop)")
+        sys.stdout.flush()  # the address now, also into a pipe, not when the server stops
         while True:
             time.sleep(3600)
     finally:
-        server.stop()
+        with contextlib.redirect_stdout(io.StringIO()):  # and its farewell
+            server.stop()

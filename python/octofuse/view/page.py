@@ -23,7 +23,7 @@ from .source import MapSource
 from .voxels import Detail, Voxels, by_size, within_budget
 
 OCCUPANCY, LOSS, DIFFERENCE = "occupancy", "information loss", "difference to centralized"
-#: voxels drawn at most by default: a few hundred thousand keep a laptop's frame rate
+#: voxels drawn at most by default (frame times by budget: benchmarks/README.md)
 DEFAULT_BUDGET = 300_000
 NODE_COLOR, LINK_COLOR, LAST_LINK_COLOR = (30, 30, 30), (90, 140, 200), (255, 140, 0)
 
@@ -75,9 +75,11 @@ class RunPage:
 
     def _events_of_rule(self) -> None:
         events = self._rule_events()
+        before = self.event.value
         self.event.max = max(1, len(events))
-        self.event.value = len(events)
-        self.draw_events()
+        self.event.value = len(events)  # a new value redraws through its callback
+        if self.event.value == before:
+            self.draw_events()
 
     def _rule_events(self) -> list[dict]:
         rule = self.map.value if self.map.value != CENTRALIZED else (self.source.rules or [""])[0]
