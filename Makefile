@@ -8,7 +8,8 @@ PY := $(VENV)/bin/python
 JOBS ?= 2
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := build-essential cmake git python3-venv python3-dev \
-                liboctomap-dev libeigen3-dev libgtest-dev octomap-tools libusb-1.0-0 openssl
+                liboctomap-dev libeigen3-dev libgtest-dev octomap-tools libusb-1.0-0 openssl \
+                chromium
 
 .PHONY: all deps venv install test test-cpp test-python demo bench fuzz clean
 
@@ -28,9 +29,9 @@ $(PY):
 
 venv: deps $(PY)
 
-install: venv ## build the C++ core (Release) and install octofuse with its test tools
+install: venv ## build the C++ core (Release) and install octofuse with its test tools and viewer
 	$(PY) -m pip install "scikit-build-core>=0.10" "pybind11>=2.12"
-	$(PY) -m pip install --no-build-isolation ".[test,ray,fleet]"
+	$(PY) -m pip install --no-build-isolation ".[test,ray,fleet,view]"
 
 test-cpp: deps ## C++ unit tests (GoogleTest via ctest)
 	cmake -S . -B build/cpp-tests -DOCTOFUSE_BUILD_TESTS=ON -DCMAKE_BUILD_TYPE=Release

@@ -102,6 +102,7 @@ HELP_DEFAULTS = {
     "info": [],
     "fleet": ["min-info-loss", "aperiodic:10", "1", "7447", "all"],
     "agent": ["60.0"],
+    "view": ["127.0.0.1", "8080", "300000"],
 }
 
 

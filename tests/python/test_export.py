@@ -184,11 +184,11 @@ def test_map_cloud_has_the_occupied_voxels_coloured_by_height(maps, tmp_path, su
     occ = lv.values > 0
     assert 0 < occ.sum() < a.num_leaves
     c = read_cloud(write_map_cloud(a, tmp_path / f"m{suffix}"))
-    assert set(c) == {"positions", "colors", "log_odds", "probability", "voxel_size"}
+    assert set(c) == {"positions", "colors", "log_odds", "occupancy", "voxel_size"}
     np.testing.assert_array_equal(c["positions"], lv.centers[occ].astype(np.float32))
     np.testing.assert_array_equal(c["log_odds"], lv.values[occ])
-    assert np.all(c["log_odds"] > 0) and np.all(c["probability"] > 0.5)
-    np.testing.assert_allclose(c["probability"], 1 / (1 + np.exp(-lv.values[occ].astype(float))),
+    assert np.all(c["log_odds"] > 0) and np.all(c["occupancy"] > 0.5)
+    np.testing.assert_allclose(c["occupancy"], 1 / (1 + np.exp(-lv.values[occ].astype(float))),
                                rtol=1e-6)
     np.testing.assert_array_equal(c["voxel_size"], lv.sizes[occ].astype(np.float32))
     z = lv.centers[occ, 2]

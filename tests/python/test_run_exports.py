@@ -25,7 +25,9 @@ from octofuse.outputs.event_loss import (MIN_EXPLAINED, counts_messages,  # noqa
 from octofuse.outputs.clouds import read_cloud  # noqa: E402
 from octofuse.outputs.export import MapVoxelLoss, colorize  # noqa: E402
 from octofuse.outputs.rosbag_export import read_map_bag  # noqa: E402
-from octofuse.outputs.topview import above_floor, topview_grid  # noqa: E402
+from octofuse.outputs.topview import (MARGIN_PX, MAX_SIDE_PX, MIN_CELL_PX,  # noqa: E402
+                                      MIN_SIDE_PX, above_floor, frame_for, pooled_max,
+                                      topview_grid)
 
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]
@@ -137,7 +139,8 @@ def test_report_embeds_three_top_views_of_the_first_agent(run_all):
     views = s["exports"]["topviews"]
     assert [v["rule"] for v in views] == ["chernoff", "kld-weighted-chernoff", "min-info-loss"]
     for v in views:
-        assert v["agent"] == "a" and png_size(out / v["file"]) == (900, 560)
+        width, height = png_size(out / v["file"])  # sized to the map: a small one here
+        assert v["agent"] == "a" and width == MIN_SIDE_PX + MARGIN_PX[0]
         assert f"![{v['rule']}]({v['file']})" in md
     assert not (out / "topview_naive-bayes.png").exists()
     lo, hi = s["exports"]["range"]
@@ -167,6 +170,33 @@ def test_topview_grid_against_brute_force():
     for (i, j), w in want.items():
         assert grid[j + 20, i + 20] == pytest.approx(w)
     assert np.isnan(grid).sum() == grid.size - len(want)
+
+
+def test_pooled_max_keeps_the_largest_value_of_each_block():
+    rng = np.random.default_rng(5)
+    grid = rng.uniform(0, 1, (7, 11))
+    grid[rng.uniform(size=grid.shape) < 0.5] = np.nan
+    grid[:3, :3] = np.nan  # a block with no voxel
+    pooled = pooled_max(grid, 3)
+    assert pooled.shape == (3, 4)
+    for i in range(3):
+        for j in range(4):
+            block = grid[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+            if np.isnan(block).all():
+                assert np.isnan(pooled[i, j])
+            else:
+                assert pooled[i, j] == np.nanmax(block)
+
+
+@pytest.mark.parametrize("cells", [(10, 12), (300, 200), (400, 5000), (6000, 90)])
+def test_top_views_draw_every_cell_on_a_few_pixels(cells):
+    pool, (width, height) = frame_for(cells)
+    rows, cols = -(-cells[0] // pool), -(-cells[1] // pool)
+    axes = (width - MARGIN_PX[0], height - MARGIN_PX[1])
+    assert min(axes) >= MIN_SIDE_PX / 2 and max(axes) <= MAX_SIDE_PX
+    px = min(axes[0] / cols, axes[1] / rows)  # pixels a drawn cell, at the least
+    assert px >= MIN_CELL_PX
+    assert pool == 1 or px < MIN_CELL_PX * 2  # cells are pooled only when they must be
 
 
 def test_floor_is_left_out_of_top_views():
@@ -365,3 +395,22 @@ def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
     # a rule with other values draws another image
     data["chernoff"] = [(v * 2, d) for v, d in data["chernoff"]]
     assert plot(data, tmp_path / "other.png", 2).read_bytes() != one.read_bytes()
+
+
+def test_every_rule_of_the_loss_histogram_shows_beside_its_legend():
+    from octofuse.outputs.libraries import pyplot
+    from octofuse.outputs.loss_histogram import LossHistograms, loss_histogram_figure
+
+    same = np.geomspace(1e-3, 0.1, 10)  # Bhattacharyya and Chernoff are often this close
+    hist = LossHistograms(np.linspace(0, 2, 11), {"chernoff": same, "bhattacharyya": same.copy(),
+                                                  "min-info-loss": same[::-1].copy()})
+    fig = loss_histogram_figure(hist)
+    try:
+        fig.canvas.draw()
+        ax = fig.axes[0]
+        lines = ax.patches
+        assert len({(p.get_linestyle(), p.get_linewidth()) for p in lines}) == len(lines) == 3
+        legend, plot = fig.legends[0].get_window_extent(), ax.get_window_extent()
+        assert not legend.overlaps(plot)
+    finally:
+        pyplot().close(fig)

@@ -44,3 +44,16 @@ def test_short_run_writes_its_report(tmp_path):
 def test_unknown_family_is_rejected(tmp_path):
     with pytest.raises(ValueError, match="unknown belief family 'particles'"):
         run_tracking(tmp_path / "x", duration=0.4, families=("particles",))
+
+
+def test_track_prints_its_key_figures(tmp_path, capsys):
+    from bagfactory import run_cli
+
+    code, out, err = run_cli(capsys, "track", "--duration", "1.5", "--families", "gaussian",
+                             "--out", tmp_path / "t")
+    assert code == 0, err
+    fam = json.loads((tmp_path / "t" / "summary.json").read_text())["families"]["gaussian"]
+    row = next(line for line in out.splitlines() if line.startswith("│ gaussian"))
+    assert [c.strip() for c in row.split("│")[1:-1]] == [
+        "gaussian", f"{fam['rms_error']:.3f}", str(fam["fusions"]), "40"]
+    assert out.rstrip().endswith(f"report: {tmp_path / 't' / 'report.md'}")

@@ -4,7 +4,8 @@
 - :mod:`.map_commands`: build, fuse-maps, align, export, info;
 - :mod:`.network_commands`: run, demo, fuse, bench;
 - :mod:`.belief_commands`: search, track;
-- :mod:`.fleet_commands`: agent, fleet (live fleets over Zenoh).
+- :mod:`.fleet_commands`: agent, fleet (live fleets over Zenoh);
+- :mod:`.view_commands`: view.
 
 :func:`main` runs it: usage errors exit 2, bad input 1 with one line, an interruption 130.
 """
@@ -21,7 +22,8 @@ from typing import Optional
 import click
 
 from ..interrupts import begin_command, cut_short, exit_code, interruption, raise_if_interrupted
-from . import belief_commands, fleet_commands, map_commands, network_commands  # noqa: F401
+from . import (belief_commands, fleet_commands, map_commands,  # noqa: F401  (register commands)
+               network_commands, view_commands)
 from .options import CliError, cli, run_config
 
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]

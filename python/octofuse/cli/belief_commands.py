@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .options import ListOption, NameList, cli, flat, say
+from .options import ListOption, NameList, cli, console, flat, say
 
 #: the belief types ``track`` compares
 FAMILIES = ("expoly", "gaussian", "mixture")
@@ -33,10 +33,13 @@ def _mixture_rules() -> tuple[str, ...]:
 def search(setting, rule, seed, duration, out):
     """Multi-robot target search with Gaussian-mixture beliefs (paper 000): report and figures."""
     from ..targets.search import DEFAULT_RULES
+    from ..outputs.tables import search_table
     from ..targets.search_report import run_target_search
 
     rules = flat(rule) or list(DEFAULT_RULES)
-    run_target_search(out, setting=setting, rules=rules, seed=seed, duration=duration, progress=say)
+    res = run_target_search(out, setting=setting, rules=rules, seed=seed, duration=duration,
+                            progress=say)
+    console().print(search_table(res))
     say(f"report: {out / 'report.md'}")
 
 
@@ -49,7 +52,9 @@ def search(setting, rule, seed, duration, out):
               help="output folder")
 def track(duration, seed, families, out):
     """Range-only tracking over a directed ring of four nodes (paper 004): report and figures."""
+    from ..outputs.tables import tracking_table
     from ..targets.tracking_report import run_tracking
 
-    run_tracking(out, duration=duration, seed=seed, families=families)
+    result = run_tracking(out, duration=duration, seed=seed, families=families)
+    console().print(tracking_table(result.summary))
     say(f"report: {out / 'report.md'}")

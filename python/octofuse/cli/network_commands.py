@@ -60,7 +60,8 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
             res, written = write_rule_groups(
                 passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
-    console().print(scores_table(res, title))
+    screen = console()
+    screen.print(scores_table(res, title, width=screen.width))
     _say_alignment(res)
     if bag is not None:
         say(f"bag: {bag.path} ({bag.messages} map messages)")

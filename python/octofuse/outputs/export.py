@@ -100,8 +100,7 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     if given or map is not None:
         mv = loss if given else map_voxel_loss(lv, map, kind)
         centers, sizes, logodds, values = mv.centers, mv.sizes, mv.log_odds, mv.loss
-        extra = {"log_odds": logodds,
-                 "occupancy": (1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))).astype(np.float32)}
+        extra = {"log_odds": logodds, "occupancy": occupancy_of(logodds)}
     else:
         if kind != "all":
             raise ValueError(f"voxels={kind!r} needs the fused map (map=...) to tell occupied "
@@ -235,7 +234,8 @@ def write_map_cloud(m: OccupancyMap, path: str | os.PathLike, *, occupied_only: 
 
     One point per leaf with log-odds > ``threshold`` (``occupied_only=False``: every known
     leaf, free ones too), coloured by its z over the [min, max] z of the points written,
-    with float32 fields ``log_odds``, ``probability`` (of occupancy) and ``voxel_size``.
+    with float32 fields ``log_odds``, ``occupancy`` (probability) and ``voxel_size``, named
+    as in the heat maps.
     ``.ply`` or ``.pcd`` as for :func:`write_heatmap`; ``ValueError`` when there is
     nothing to write.
     """
@@ -257,12 +257,16 @@ def _write_map_cloud(m, path, occupied_only, threshold, cmap) -> tuple[Path, int
         why = ("the map is empty" if m.num_leaves == 0 or not occupied_only
                else f"no voxel has log-odds > {threshold:g}")
         raise ValueError(f"cannot write '{p}': no points to write ({why})")
-    prob = 1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))
     z = centers[:, 2]
     colors = colorize(z, cmap, float(z.min()), float(z.max()))
     path = write_cloud(p, centers, colors,
-                       {"log_odds": logodds, "probability": prob, "voxel_size": sizes})
+                       {"log_odds": logodds, "occupancy": occupancy_of(logodds), "voxel_size": sizes})
     return path, len(logodds)
+
+
+def occupancy_of(log_odds) -> np.ndarray:
+    """The probability of occupancy (float32) of log-odds values: the clouds' ``occupancy``."""
+    return (1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=np.float64)))).astype(np.float32)
 
 
 def colorize(values, cmap, vmin: float, vmax: float) -> np.ndarray:

@@ -16,6 +16,7 @@ from .libraries import pyplot
 
 #: bins over [0, the largest 99.5th percentile of the rules]
 NBINS = 59
+LINE_STYLES = ("-", "--", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
 
 
 @dataclass(frozen=True)
@@ -53,18 +54,25 @@ def plot_loss_histograms(hist: Optional[LossHistograms], path: Path) -> Optional
     for None."""
     if hist is None:
         return None
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for r, h in hist.fractions.items():
-        ax.stairs(h, hist.bins, lw=1.3, label=r)
+    fig = loss_histogram_figure(hist)
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)
+    return path
+
+
+def loss_histogram_figure(hist: LossHistograms):
+    """The Matplotlib figure of :func:`plot_loss_histograms`."""
+    fig, ax = pyplot().subplots(figsize=(8, 4), layout="constrained")
+    # rules with equal histograms draw on top of each other: each its own dash, the later
+    # ones thinner, so that every line shows
+    for i, (r, h) in enumerate(hist.fractions.items()):
+        ax.stairs(h, hist.bins, lw=2.4 - 1.2 * i / max(1, len(hist.fractions) - 1),
+                  ls=LINE_STYLES[i % len(LINE_STYLES)], label=r)
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
+        fig.legend(fontsize=8, loc="outside right upper")  # beside the curves, not over them
     ax.grid(alpha=0.3)
     ax.set_title("Information loss over all fusions, all agents")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+import re
+from typing import Optional, Sequence
 
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -40,19 +42,58 @@ def deskew_note(s) -> str:
     return f"{s.name}: LaserScans not de-skewed (time_increment 0, or de-skew off)"
 
 
-def scores_table(res, title: str) -> Table:
-    """Mean scores per rule of a :class:`~octofuse.fusion.results.SimResult`."""
+#: the scores table's columns: (key, header, header on two lines for a narrow terminal, format)
+SCORE_COLUMNS = (("kl_mean", "KL(central‖agent)", "KL(central\n‖agent)", "{:.4f}"),
+                 ("overconfidence", "over-confident", "over-\nconfident", "{:.1%}"),
+                 ("agreement", "agreement", "agree-\nment", "{:.1%}"),
+                 ("coverage", "coverage", "cover-\nage", "{:.1%}"),
+                 ("loss_mean", "loss mean", "loss\nmean", "{:.3f}"),
+                 ("loss_p95", "loss p95", "loss\np95", "{:.3f}"))
+
+
+def scores_table(res, title: str, width: Optional[int] = None) -> Table:
+    """Mean scores per rule of a :class:`~octofuse.fusion.results.SimResult`; headers on two
+    lines and rule names broken at their hyphens when the table would not fit ``width``
+    columns otherwise."""
     from .report import mean_scores
 
-    t = Table("rule", "KL(central‖agent)", "over-confident", "agreement", "coverage",
-              "loss mean", "loss p95", title=title)
-    for rule, row in mean_scores(res.scores).items():
-        def cell(key, fmt):
-            return "–" if row.get(key) is None else fmt.format(row[key])
-        t.add_row(rule, cell("kl_mean", "{:.4f}"), cell("overconfidence", "{:.1%}"),
-                  cell("agreement", "{:.1%}"), cell("coverage", "{:.1%}"),
-                  cell("loss_mean", "{:.3f}"), cell("loss_p95", "{:.3f}"))
+    rows = mean_scores(res.scores)
+    t = _scores_table(rows, title, narrow=False)
+    if width is not None and _width(t) > width:
+        t = _scores_table(rows, title, narrow=True)
     return t
+
+
+def _scores_table(rows: dict, title: str, narrow: bool) -> Table:
+    names = {rule: broken_at_hyphens(rule) if narrow else rule for rule in rows}
+    t = Table(title=title)
+    t.add_column("rule", no_wrap=True,
+              min_width=max((len(line) for n in names.values() for line in n.split("\n")),
+                            default=4))
+    for _, header, two_lines, _ in SCORE_COLUMNS:
+        t.add_column(two_lines if narrow else header, no_wrap=True)
+    for rule, row in rows.items():
+        t.add_row(names[rule], *("–" if row.get(key) is None else fmt.format(row[key])
+                                 for key, _, _, fmt in SCORE_COLUMNS))
+    return t
+
+
+def broken_at_hyphens(name: str, width: int = 13) -> str:
+    """``name`` on lines of at most ``width`` characters (or one part), broken after hyphens:
+    ``kld-weighted-chernoff`` -> ``kld-weighted-`` / ``chernoff``."""
+    lines = [""]
+    for part in re.findall(r"[^-]+-?|-", name):
+        if lines[-1] and len(lines[-1]) + len(part) > width:
+            lines.append("")
+        lines[-1] += part
+    return "\n".join(lines)
+
+
+def _width(table: Table) -> int:
+    """The columns ``table`` takes when nothing is wrapped."""
+    from rich.console import Console
+
+    return Console(width=10_000).measure(table).maximum
 
 
 def map_info_table(paths: Sequence[Path]) -> Table:
@@ -67,4 +108,28 @@ def map_info_table(paths: Sequence[Path]) -> Table:
         v = m.leaves().values
         t.add_row(str(p), f"{m.resolution:g}", f"{m.num_leaves}", f"{int(np.sum(v > 0))}",
                   f"{int(np.sum(v <= 0))}", f"{m.memory_bytes / 1e6:.1f}")
+    return t
+
+
+def search_table(res) -> Table:
+    """Per scheme of a target search (:class:`~octofuse.targets.search.TargetSearchResult`),
+    at its end: the KL divergence of the robots' beliefs to the centralized one and robot 1's
+    information gain over the prior."""
+    t = Table("scheme", "KL(central‖robot) mean", "max", escape("robot 1 gain [nats]"),
+              title="octofuse search: at the end")
+    for s in res.schemes:
+        kl, gain = res.kl_to_central[s][-1], res.info_gain[s][-1]
+        t.add_row(s, f"{kl.mean():.3f}", f"{kl.max():.3f}", f"{gain[0]:.3f}")
+    return t
+
+
+def tracking_table(summary: dict) -> Table:
+    """Per belief type of a tracking run (``run_tracking``'s summary): the RMS error after the
+    burn-in, the fusions and the bytes per message, and the centralized grid's error."""
+    t = Table("belief", escape("RMS error [m]"), "fusions", "bytes/message", title="octofuse track")
+    num = lambda v, f: "–" if v is None else format(v, f)  # noqa: E731
+    for name, fam in summary["families"].items():
+        t.add_row(name, num(fam["rms_error"], ".3f"), str(fam["fusions"]),
+                  num(fam["bytes_per_message"]["mean"], ".0f"))
+    t.add_row("centralized grid", num(summary["central"]["rms_error"], ".3f"), "", "")
     return t

@@ -8,6 +8,7 @@ that walls and objects stand out.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Optional
@@ -17,6 +18,12 @@ import numpy as np
 from .export import MapVoxelLoss, _colormap
 from .staging import written_then_renamed
 from .libraries import pyplot
+
+#: a drawn cell takes at least MIN_CELL_PX and at most MAX_CELL_PX pixels a side; the axes at
+#: most MAX_SIDE_PX and at least MIN_SIDE_PX wide; the margins hold the labels and colour bar
+MIN_CELL_PX, MAX_CELL_PX = 3, 12
+MAX_SIDE_PX, MIN_SIDE_PX = 1800, 480
+MARGIN_PX = (240, 110)
 
 
 def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
@@ -69,13 +76,39 @@ def above_floor(v: MapVoxelLoss, resolution: float, ratio: float = 3.0,
     return None if cut is None else (cut * resolution, np.inf)
 
 
+def pooled_max(grid: np.ndarray, factor: int) -> np.ndarray:
+    """``grid`` with every ``factor`` x ``factor`` block of cells as one: the largest value
+    of the block (NaN where the whole block is)."""
+    if factor <= 1:
+        return grid
+    ny, nx = -(-grid.shape[0] // factor) * factor, -(-grid.shape[1] // factor) * factor
+    padded = np.full((ny, nx), np.nan)
+    padded[:grid.shape[0], :grid.shape[1]] = grid
+    blocks = padded.reshape(ny // factor, factor, nx // factor, factor)
+    return np.fmax.reduce(np.fmax.reduce(blocks, axis=3), axis=1)
+
+
+def frame_for(cells: tuple[int, int]) -> tuple[int, tuple[int, int]]:
+    """For a grid of ``cells`` (rows, columns): the block of cells one drawn cell shows (1
+    unless the map is too large for :data:`MIN_CELL_PX` pixels a cell within
+    :data:`MAX_SIDE_PX`) and the image size in pixels, its axes sized to the map's shape."""
+    rows, cols = cells
+    pool = max(1, math.ceil(max(rows, cols) * MIN_CELL_PX / MAX_SIDE_PX))
+    rows, cols = math.ceil(rows / pool), math.ceil(cols / pool)
+    px = min(MAX_CELL_PX, MAX_SIDE_PX / max(rows, cols))  # pixels a drawn cell
+    width, height = max(cols * px, MIN_SIDE_PX), max(rows * px, MIN_SIDE_PX / 2)
+    return pool, (int(width) + MARGIN_PX[0], int(height) + MARGIN_PX[1])
+
+
 def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *,
                   vmin: float, vmax: float, cmap="inferno", title: str = "",
-                  size_px: tuple[int, int] = (900, 560), dpi: int = 100,
+                  size_px: Optional[tuple[int, int]] = None, dpi: int = 100,
                   label: str = "information loss [nats]") -> Path:
-    """A PNG of exactly ``size_px`` pixels: the top view of ``v`` (:func:`topview_grid`, the
-    floor left out by :func:`above_floor`) over the colour range [vmin, vmax], axes in metres
-    and a colour bar. Pass the same range for every rule so that the images compare."""
+    """A PNG: the top view of ``v`` (:func:`topview_grid`, the floor left out by
+    :func:`above_floor`) over the colour range [vmin, vmax], axes in metres and a colour bar.
+    The image is sized to the map (:func:`frame_for`: every drawn cell at least a few pixels,
+    blocks of cells as one in a map too large for that) unless ``size_px`` is given. Pass the
+    same range for every rule so that the images compare."""
     plt = pyplot()
     from matplotlib.colors import Normalize
 
@@ -83,6 +116,10 @@ def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *
     if p.suffix.lower() != ".png":
         raise ValueError(f"cannot write top view '{p}': expected a .png file name")
     grid, extent = topview_grid(v, resolution, above_floor(v, resolution))
+    pool, fitted = frame_for(grid.shape)
+    grid, size_px = pooled_max(grid, pool), size_px or fitted
+    x0, _, y0, _ = extent  # a pooled grid's last blocks reach past the map
+    extent = (x0, x0 + grid.shape[1] * pool * resolution, y0, y0 + grid.shape[0] * pool * resolution)
     cm = _colormap(cmap).with_extremes(bad="white")
     norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
     fig, ax = plt.subplots(figsize=(size_px[0] / dpi, size_px[1] / dpi), dpi=dpi,

@@ -148,18 +148,23 @@ def _plot(res: TargetSearchResult, out: Path) -> list[str]:
     panels = [("common prior", res.prior)] + [(s, res.final[s][0]) for s in res.schemes]
     cols = 3
     rows = math.ceil(len(panels) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 2.8 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 2.8 * rows + 0.6), squeeze=False,
+                             layout="constrained")
     for ax, (name, mix) in zip(axes.ravel(), panels):
-        ax.imshow(mix.pdf(pts).reshape(len(ys), len(xs)), origin="lower", extent=ext, cmap="viridis")
+        im = ax.imshow(mix.pdf(pts).reshape(len(ys), len(xs)), origin="lower", extent=ext,
+                       cmap="viridis")
+        fig.colorbar(im, ax=ax, shrink=0.9, label="density [1/m²]")
         for i, path in enumerate(res.poses):
-            ax.plot(path[:, 0], path[:, 1], "w-", lw=0.8)
-            ax.plot(*path[-1, :2], "o", color="red" if i == 0 else "white", ms=3)
-        ax.plot(*res.target, "*", color="orange", ms=9)
+            ax.plot(path[:, 0], path[:, 1], "w-", lw=0.8, label="robot paths" if i == 0 else None)
+            ax.plot(*path[-1, :2], "o", color="red" if i == 0 else "white", ms=3,
+                    label={0: "robot 1", 1: "other robots"}.get(i))
+        ax.plot(*res.target, "*", color="orange", ms=9, label="target")
         ax.set_title(name if name == "common prior" else f"robot 1, {name}", fontsize=9)
         ax.set_xlim(0, 15), ax.set_ylim(0, 8)
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
-    fig.tight_layout()
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4,
+               fontsize=8, facecolor="lightgrey")
     names = ["final_beliefs_robot1.png"]
     fig.savefig(out / names[-1], dpi=110)
     plt.close(fig)

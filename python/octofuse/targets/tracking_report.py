@@ -133,15 +133,25 @@ def _plots(result: TrackingResult, out: Path) -> None:
         xs = np.linspace(target[0] - 4, target[0] + 4, 160)
         ys = np.linspace(target[1] - 4, target[1] + 4, 160)
         X, Y = np.meshgrid(xs, ys, indexing="ij")
-        fig, axes = plt.subplots(1, len(beliefs), figsize=(4 * len(beliefs), 4), squeeze=False)
-        for k, (ax, b) in enumerate(zip(axes[0], beliefs)):
-            ax.contourf(X, Y, b.pdf(np.stack([X, Y], axis=-1)), levels=20, cmap="viridis")
-            ax.plot(*SENSORS.T, "w^", ms=6)
-            ax.plot(*SENSORS[k], "r^", ms=8)
-            ax.plot(*target, "rs", mfc="none", ms=9)
-            ax.set(title=f"node {k + 1} (ExPoly) at {result.times[-1]:.2f} s", aspect="equal",
-                   xlim=(xs[0], xs[-1]), ylim=(ys[0], ys[-1]))
-        fig.tight_layout()
+        fig, axes = plt.subplots(1, len(beliefs), figsize=(4 * len(beliefs), 4.6), squeeze=False,
+                                 layout="constrained")
+        pdfs = [b.pdf(np.stack([X, Y], axis=-1)) for b in beliefs]
+        from matplotlib.ticker import MaxNLocator
+
+        top = max(float(p.max()) for p in pdfs) or 1.0
+        levels = MaxNLocator(20).tick_values(0, top)  # one scale for every node, one colour bar
+        for k, (ax, pdf) in enumerate(zip(axes[0], pdfs)):
+            filled = ax.contourf(X, Y, pdf, levels=levels, cmap="viridis")
+            ax.plot(*SENSORS.T, "w^", ms=6, mec="k", label="sensors")
+            ax.plot(*SENSORS[k], "r^", ms=8, label="this node's sensor")
+            ax.plot(*target, "rs", mfc="none", ms=9, label="target")
+            ax.set(title=f"node {k + 1}", aspect="equal", xlim=(xs[0], xs[-1]),
+                   ylim=(ys[0], ys[-1]), xlabel="x [m]")
+        axes[0][0].set_ylabel("y [m]")
+        fig.colorbar(filled, ax=axes[0].tolist(), shrink=0.8, label="density [1/m²]")
+        fig.suptitle(f"ExPoly beliefs at {result.times[-1]:.2f} s")
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncol=3,
+                   fontsize=8)
         fig.savefig(out / "beliefs.png", dpi=110)
         plt.close(fig)
 

@@ -1,0 +1,45 @@
+"""``octofuse view``: a run's output folder in a local web page."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from .options import CliError, cli, say
+
+
+@cli.command()
+@click.argument("folder", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="address to listen on (0.0.0.0: every network interface)")
+@click.option("--port", type=click.IntRange(1, 65535), default=8080, show_default=True,
+              help="port (the next free one if taken)")
+@click.option("--budget", type=click.IntRange(1000), default=300_000, show_default=True,
+              help="voxels drawn at most: finer voxels merge into coarser octree cells")
+def view(folder, host, port, budget):
+    """Show the maps, events and scores of a run's output folder in a web page."""
+    from ..view.page import RunPage
+    from ..view.run_folder import RunFolder
+
+    source = RunFolder(folder)  # checked before the server starts
+    try:
+        import viser
+    except ImportError:
+        raise CliError("octofuse view needs viser: pip install 'octofuse[view]'") from None
+    with contextlib.redirect_stdout(io.StringIO()):  # viser's own banner: the line below says it
+        server = viser.ViserServer(host=host, port=port, verbose=False)
+    try:
+        RunPage(source, server, budget=budget)
+        shown = "localhost" if host in ("0.0.0.0", "127.0.0.1") else host
+        say(f"viewer: http://{shown}:{server.get_port()}/ (Ctrl-C to stop)")
+        sys.stdout.flush()  # the address now, also into a pipe, not when the server stops
+        while True:
+            time.sleep(3600)
+    finally:
+        with contextlib.redirect_stdout(io.StringIO()):  # and its farewell
+            server.stop()
