@@ -44,7 +44,8 @@ def bag(tmp_path_factory):
 
 
 def test_a_lockstep_fleet_equals_run(bag, tmp_path, capsys):
-    options = [*SCHEDULE, "--rule", "chernoff,channel-filter", "--delta", "--loss", "0.25"]
+    options = [*SCHEDULE, "--rule", "chernoff,channel-filter,source-layers", "--delta",
+               "--loss", "0.25"]
     code, _, err = run_cli(capsys, "run", bag, *options, "--samples", "0", "--out",
                            tmp_path / "run")
     assert code == 0, err
@@ -53,7 +54,7 @@ def test_a_lockstep_fleet_equals_run(bag, tmp_path, capsys):
     assert code == 0, err
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     fleet = json.loads((tmp_path / "fleet" / "summary.json").read_text())
-    for rule in ("chernoff", "channel-filter"):
+    for rule in ("chernoff", "channel-filter", "source-layers"):
         for a in ("a", "b", "c"):
             got = (tmp_path / "fleet" / rule / f"{a}.ot").read_bytes()
             assert got == (tmp_path / "run" / rule / f"{a}.ot").read_bytes(), (rule, a)
