@@ -133,12 +133,15 @@ def test_through_loss_duplicates_reordering_and_delay_the_channel_filter_stays_e
 
 
 @pytest.mark.slow
-def test_an_agent_killed_and_started_again_resumes_and_the_fleet_ends_exact(bag, tmp_path):
+@pytest.mark.parametrize("rule", ["channel-filter", "source-layers"])
+def test_an_agent_killed_and_started_again_resumes_and_the_fleet_ends_exact(bag, tmp_path, rule):
     cfg, path = fleet_config(bag, tmp_path, speed=1.0)
+    cfg = replace(cfg, fuse=replace(cfg.fuse, rules=[rule]))
+    path.write_text(dump_yaml(cfg))
     out = tmp_path / "agents"
     procs = {a.name: start_agent(path, a.name, out) for a in cfg.build.agents}
     victim = cfg.build.agents[1].name  # the middle of the line
-    ckpt = out / "channel-filter" / victim / "checkpoint.pkl"
+    ckpt = out / rule / victim / "checkpoint.pkl"
     deadline = time.monotonic() + 60
     while not ckpt.is_file() and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -148,12 +151,11 @@ def test_an_agent_killed_and_started_again_resumes_and_the_fleet_ends_exact(bag,
     procs[victim].communicate()
     procs[victim] = start_agent(path, victim, out, fresh=False)
     finish(procs)
-    counts = json.loads((out / "channel-filter" / victim / "counts.json").read_text())
+    counts = json.loads((out / rule / victim / "counts.json").read_text())
     assert counts["restarts"] == 1
     want = exact_sum(bag)
     for a in cfg.build.agents:
-        assert_same_values(OccupancyMap.load(out / "channel-filter" / a.name / "fused.ot"), want,
-                           a.name)
+        assert_same_values(OccupancyMap.load(out / rule / a.name / "fused.ot"), want, a.name)
 
 
 # -- what an agent lets in ------------------------------------------------------------------

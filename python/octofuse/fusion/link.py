@@ -130,6 +130,8 @@ class Link:
         self.baseline = None
         self.pending.clear()
         self.resync = -1  # set to the first whole map's number when it is sent
+        self.known.clear()  # source layers: what the neighbour holds is not known any more
+        self.pending_layers.clear()
 
     def sends_whole(self) -> bool:
         return self.resync != 0

@@ -131,7 +131,9 @@ class LiveAgent:
             self.counts.refused["not for this link"] += 1
             return False
         self.counts.bytes_received += message_bytes(msg.payload)
-        moved = self.frames.to_receiver(sender, self.name, msg.payload, self.agent.map.resolution)
+        moved = (self.frames.to_receiver(sender, self.name, msg.payload,
+                                         self.agent.map.resolution)
+                 if self.frames.active else None)  # a fleet's maps share one frame for now
         if not self.agent.deliver(msg, unknown=self.cfg.fuse.unknown, moved=moved):
             self.counts.refused["old or repeated"] += 1
             return False

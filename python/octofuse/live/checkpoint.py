@@ -2,8 +2,8 @@
 
 Written whole to a temporary name beside the checkpoint and renamed over it (after an fsync),
 so a kill at any moment leaves the previous checkpoint or the new one, never a mix. Maps are
-OctoMap streams; the rest is plain data. The information-loss maps are not kept: after a
-restart an agent counts its loss from there.
+OctoMap streams; the rest is plain data (source layers included). The information-loss maps
+are not kept: after a restart an agent counts its loss from there.
 
 A restarted agent starts a new *epoch*: its sequence numbers continue above every number it
 used before (``epoch << 32``), so its neighbours take its messages as new, and it resynchronises
@@ -46,6 +46,7 @@ def save(path: Path, agent: Agent, local: OccupancyMap, progress: dict) -> None:
         "links": {n: {"seq": link.seq, "applied": link.applied,
                       "received": _stream(link.received)}
                   for n, link in agent.links.items()},
+        "layers": _layers_state(agent.layers) if agent.layers is not None else None,
     }
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
@@ -74,6 +75,8 @@ def restore(path: Path, agent: Agent, epoch: int) -> tuple[OccupancyMap, dict]:
     exact = agent.exact
     agent.map = _map(state["map"], exact)
     agent.reset_loss()
+    if agent.layers is not None:
+        _restore_layers(agent, state["layers"], epoch)
     agent.links.clear()
     for n, saved in state["links"].items():
         link = agent.link(n)
@@ -83,6 +86,31 @@ def restore(path: Path, agent: Agent, epoch: int) -> tuple[OccupancyMap, dict]:
         link.restart()
         link.needs_whole = True
     return _map(state["local"], False), state["progress"]
+
+
+def _layers_state(layers) -> dict:
+    """Source layers as plain data: every layer's version and map, the own layer, the
+    remainder of folded layers."""
+    return {"own": layers.own.to_bytes(), "own_version": layers.own_version,
+            "heard": layers.heard, "folded": dict(layers.folded),
+            "remainder": _stream(layers.remainder),
+            "layers": {src: (x.version, x.map.to_bytes(), x.heard)
+                       for src, x in layers.layers.items()}}
+
+
+def _restore_layers(agent: Agent, saved: dict, epoch: int) -> None:
+    """The layers of a checkpoint, the own layer's versions numbered in ``epoch``: above every
+    version a neighbour may hold of it, so they take the restarted one as newer."""
+    from ..fusion.source_layers import Layer
+
+    layers = agent.layers
+    layers.own = _map(saved["own"], True)
+    layers.fused = agent.map
+    layers.heard, layers.folded = saved["heard"], dict(saved["folded"])
+    layers.remainder = _map(saved["remainder"], True)
+    layers.layers = {src: Layer(version, _map(data, True), heard)
+                     for src, (version, data, heard) in saved["layers"].items()}
+    layers.own_version = max(saved["own_version"], epoch << 32)
 
 
 def next_epoch(path: Path) -> int:
