@@ -397,6 +397,8 @@ class LiveConfig:
     timeout: float = 120.0
     #: after the mission, rounds of fault-free exchanges in which the fleet settles
     settle_rounds: int = 0
+    #: seconds between an agent's publications of its fused map (0: only at the end)
+    map_period: float = 2.0
     faults: FaultConfig = field(default_factory=FaultConfig)
     #: TLS (PEM files): the certificate authority, this machine's certificate and key
     tls_root_ca: str = ""
@@ -424,6 +426,9 @@ class LiveConfig:
                              "1024 to 4 GiB")
         if not 0 < self.timeout <= 3600:
             raise ValueError(f"{where}.timeout = {self.timeout}: expected above 0, up to 3600 s")
+        if not 0 <= self.map_period <= 3600:
+            raise ValueError(f"{where}.map_period = {self.map_period}: expected 0 (only at the "
+                             "end) to 3600 seconds")
         if not 0 <= self.settle_rounds <= 1000:
             raise ValueError(f"{where}.settle_rounds = {self.settle_rounds}: expected 0 to 1000")
         self.faults.validate(f"{where}.faults")

@@ -335,3 +335,38 @@ def test_agents_map_what_a_ros2_bridge_publishes_as_the_bag_would_give_it(bag, t
         assert counts["scans"] == 4 and counts["applied"] > 0, (n, counts)
         assert (d / "local.ot").read_bytes() == own[n].to_bytes(), n
         assert OccupancyMap.load(d / "fused.ot").num_leaves > own[n].num_leaves, n
+
+
+# -- a fleet seen live --------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_a_viewer_sees_the_agents_maps_grow_and_their_links_deliver(bag, tmp_path):
+    from octofuse.view.fleet_source import FleetSource
+
+    cfg, path = fleet_config(bag, tmp_path, speed=1.0, map_period=0.2, base_port=25447)
+    cfg = replace(cfg, fuse=replace(cfg.fuse, rules=["chernoff"]))
+    path.write_text(dump_yaml(cfg))
+    source = FleetSource(cfg)
+    seen: dict = {}
+    redraws = []
+    source.on_change = lambda: redraws.append(source.maps_received())
+    try:
+        out = tmp_path / "agents"
+        procs = {a.name: start_agent(path, a.name, out) for a in cfg.build.agents}
+        finish(procs)
+        time.sleep(1.5)  # the last maps on their way, the last redraw
+        for got in redraws:
+            for key, n in got.items():
+                seen.setdefault(key, set()).add(n)
+        assert {a for _, a in seen} == {a.name for a in cfg.build.agents}
+        for a in cfg.build.agents:
+            final = OccupancyMap.load(out / "chernoff" / a.name / "fused.ot").num_leaves
+            assert source.maps_received()["chernoff", a.name] == final
+            assert len(seen["chernoff", a.name]) > 1 and min(seen["chernoff", a.name]) < final
+        linked = {(e["sender"], e["receiver"]) for e in source.events}
+        assert linked and linked <= {(x, y) for a, b in source.links for x, y in ((a, b), (b, a))}
+        assert source.agents_of("chernoff") == [a.name for a in cfg.build.agents]
+        assert len(source.occupancy("chernoff", "a").values) > 0
+    finally:
+        source.close()

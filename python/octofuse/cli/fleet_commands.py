@@ -3,6 +3,7 @@ on this machine, collected and scored as ``run`` scores its own)."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import click
@@ -59,6 +60,8 @@ def _partitions(values) -> list[dict]:
               help="START:END:AGENT[,AGENT...]: those agents cut off from the others (repeatable)")
 @click.option("--settle-rounds", type=click.IntRange(0, 1000),
               help="fault-free rounds of exchanges after the mission", show_default="0")
+@click.option("--view", is_flag=True, help="show the agents' maps in a web page while they "
+              "grow (the address is printed; `octofuse view` is its own command)")
 @click.option("--base-port", type=click.IntRange(1, 65000),
               help="the first agent's port (the next free block is taken)", show_default="7447")
 @click.option("--export-agents", type=NameList(what="AGENT", metavar="A[,...]"),
@@ -91,7 +94,15 @@ def fleet(bags, **p):
     cfg = resolved(cfg)
     truth = Scene.find(cfg.truth, cfg.build.bags)
     title = f"octofuse fleet: {len(cfg.build.agents)} agent processes per rule over Zenoh"
-    with _staged_with_bag(out, "fleet", None) as stage:
+    with _staged_with_bag(out, "fleet", None) as stage, contextlib.ExitStack() as live_view:
+        if p.get("view"):
+            from ..view.fleet_source import FleetSource
+            from .view_commands import serve
+
+            source = FleetSource(cfg)
+            live_view.callback(source.close)
+            live_view.enter_context(serve(source, "127.0.0.1", 8080, 300_000,
+                                          until="until the fleet ends"))
         try:
             res = run_fleet(cfg, stage, log=say, truth=truth)
         except FleetError as e:

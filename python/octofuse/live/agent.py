@@ -98,6 +98,7 @@ class LiveAgent:
         self.counts = AgentCounts()
         self.insert_mode = cfg.build.insert_mode
         self.queued = 0  #: scans arrived and not inserted yet (the agent falls behind)
+        self._published = 0.0  #: when the fused map was last published (monotonic)
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
 
     # -- the link protocol on frames ---------------------------------------------------------
@@ -351,7 +352,29 @@ class LiveAgent:
                 continue
             self.apply(sender, frame)
 
+    def _scored(self) -> OccupancyMap:
+        """The fused map as scored and written (the exact modes' clamped)."""
+        from ..fusion.channel_filter import clamped
+
+        return clamped(self.agent.map) if self.agent.exact else self.agent.map
+
+    def _publish_map(self, transport, scored: Optional[OccupancyMap] = None) -> None:
+        """The fused map (as scored) as ROS 2 sees it behind a bridge, and as a viewer does."""
+        from ..outputs.rosbag_export import _header, occupied_cloud, octomap_message, typestore
+
+        scored = scored if scored is not None else self._scored()
+        ts = typestore(ros1=False)
+        header = _header(ts, time.time_ns(), self.cfg.build.fixed_frame)
+        rule = self.rule if len(self.cfg.fuse.rules) > 1 else None
+        transport.publish(keys.fused_map(self.name, rule), bytes(ts.serialize_cdr(
+            octomap_message(ts, scored, header), "octomap_msgs/msg/Octomap")))
+        transport.publish(keys.occupied_cloud(self.name, rule), bytes(ts.serialize_cdr(
+            occupied_cloud(ts, scored, header), "sensor_msgs/msg/PointCloud2")))
+        self._published = time.monotonic()
+
     def _status(self, transport, t: float) -> None:
+        if self.live.map_period and time.monotonic() - self._published >= self.live.map_period:
+            self._publish_map(transport)
         transport.publish_status({"agent": self.name, "rule": self.rule, "t": round(t, 3),
                                   "scans": self.counts.scans, "sent": self.counts.sent,
                                   "applied": self.counts.applied,
@@ -363,10 +386,7 @@ class LiveAgent:
 
     def _finish(self, transport) -> None:
         """Write the final state and publish the fused map."""
-        from ..outputs.rosbag_export import _header, occupied_cloud, octomap_message, typestore
-        from ..fusion.channel_filter import clamped
-
-        scored = clamped(self.agent.map) if self.agent.exact else self.agent.map
+        scored = self._scored()
         _write(self.out / "fused.ot", scored.to_bytes())
         _write(self.out / "local.ot", self.local.to_bytes())
         values, depths = self.agent.loss_map().values_depths()
@@ -378,12 +398,7 @@ class LiveAgent:
             "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
             "frames_over_bound": transport.dropped, "peak_rss": resident_memory()[2],
             "cpu_s": sum(os.times()[:2])}).encode())
-        ts = typestore(ros1=False)
-        header = _header(ts, time.time_ns(), self.cfg.build.fixed_frame)
-        transport.publish(keys.fused_map(self.name), bytes(ts.serialize_cdr(
-            octomap_message(ts, scored, header), "octomap_msgs/msg/Octomap")))
-        transport.publish(keys.occupied_cloud(self.name), bytes(ts.serialize_cdr(
-            occupied_cloud(ts, scored, header), "sensor_msgs/msg/PointCloud2")))
+        self._publish_map(transport, scored)
 
 
 def _own_build(cfg: FleetConfig, index: int):

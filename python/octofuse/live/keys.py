@@ -10,8 +10,10 @@ Between agents (payload: one message frame, :mod:`octofuse.fusion.wire`)::
 What ROS 2 sees behind zenoh-bridge-ros2dds (key = the topic without its leading slash,
 payload = the message's CDR bytes)::
 
-    <agent>/octomap_full                octomap_msgs/msg/Octomap of the agent's fused map
+    <agent>/octomap_full                octomap_msgs/msg/Octomap of the agent's fused map, every
+                                        live.map_period seconds and at the end
     <agent>/octomap_point_cloud_centers sensor_msgs/msg/PointCloud2 of its occupied voxels
+    (with several rules: <agent>/<rule>/octomap_full, ...)
     <scan topic>, tf, tf_static         what the agent maps when it is fed by the bridge
 """
 
@@ -56,9 +58,11 @@ def ros_topic_key(topic: str) -> str:
     return topic.lstrip("/")
 
 
-def fused_map(agent: str) -> str:
-    return f"{agent}/octomap_full"
+def fused_map(agent: str, rule: str | None = None) -> str:
+    """The agent's fused map; ``rule`` names it when a fleet runs several."""
+    return f"{agent}/{rule}/octomap_full" if rule else f"{agent}/octomap_full"
 
 
-def occupied_cloud(agent: str) -> str:
-    return f"{agent}/octomap_point_cloud_centers"
+def occupied_cloud(agent: str, rule: str | None = None) -> str:
+    return (f"{agent}/{rule}/octomap_point_cloud_centers" if rule
+            else f"{agent}/octomap_point_cloud_centers")

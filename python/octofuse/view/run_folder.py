@@ -47,6 +47,7 @@ class RunFolder:
         self.resolution = float(cfg.get("build", {}).get("map", {}).get("resolution", 0.05))
         self.tol = float(cfg.get("fuse", {}).get("overconfidence_tol", 0.1))
         self.frames = {a: pose_matrix(**p) for a, p in (s.get("agent_frames") or {}).items()}
+        self.on_change = lambda: None  # a finished run's maps do not change
         self._leaves: dict = {}
         self._lock = threading.Lock()  # the page's callbacks run on threads
 

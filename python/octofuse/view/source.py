@@ -18,6 +18,8 @@ class MapSource(Protocol):
     means: dict[str, dict]  #: rule -> mean scores (kl_mean, overconfidence, agreement, ...)
     loss_range: Optional[tuple[float, float]]  #: one colour range of loss for every rule
     resolution: float  #: the finest voxel size, metres
+    #: what a live source calls when its maps changed (the page sets it: its redraw)
+    on_change: object
 
     def has_central(self) -> bool:
         """Whether there is a centralized map to show and compare with."""
