@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -553,3 +554,22 @@ def test_score_numbers_are_finite(run_out):
         for s in per.values():
             for key in ("kl_mean", "agreement", "coverage", "overconfidence"):
                 assert math.isfinite(getattr(s, key))
+
+
+def test_a_run_bag_of_every_nth_map_as_clouds_says_its_size_first(bag, tmp_path, capsys):
+    from octofuse.outputs.rosbag_export import POINTCLOUD2
+    from rosbags.highlevel import AnyReader
+
+    replay = tmp_path / "replay.mcap"
+    code, text, err = run_cli(capsys, "run", bag, *RUN_ARGS, "--schedule", "periodic:0.33",
+                              "--export-bag", replay, "--bag-every", "2", "--bag-clouds-only",
+                              "--out", tmp_path / "out")
+    assert code == 0, err
+    said = re.search(r"--export-bag: (\d+) of about (\d+) map messages written, about [\d.,]+ "
+                     r"MB expected", text)
+    assert said, text
+    with AnyReader([replay]) as reader:
+        assert {c.msgtype for c in reader.connections} == {POINTCLOUD2}
+        written = sum(c.msgcount for c in reader.connections)
+    assert written == int(said.group(2))  # the projection counted the messages right
+    assert f"bag: {replay} ({written} map messages)" in text

@@ -11,21 +11,28 @@ from typing import Optional
 import click
 
 from ..config import RunConfig
-from .options import (_DEFAULT, CliError, ListOption, NameList, Progress, bag_arguments, build_options, cli,
-                      config_options, console, dump_config, exchange_options, export_options,
-                      frame_options, map_rule_names, need_bags, need_out, out_option,
-                      passes_option, rule_option, run_config, say, topology_option)
+from .options import (_DEFAULT, CliError, ListOption, NameList, Progress, _options,
+                      bag_arguments, build_options, cli, config_options, console, dump_config,
+                      exchange_options, export_options, frame_options, map_rule_names,
+                      need_bags, need_out, out_option, passes_option, rule_option, run_config,
+                      say, topology_option)
 
 
-export_bag_option = click.option(
-    "--export-bag", type=click.Path(dir_okay=False, path_type=Path),
-    help="also write every exported agent's map after each fusion it received, per rule, as "
-         "octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag folder) to replay the "
-         "run in RViz or Foxglove")
+export_bag_option = _options(
+    click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
+                 help="also write every exported agent's map after each fusion it received, per "
+                      "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
+                      "folder) to replay the run in RViz or Foxglove"),
+    click.option("--bag-every", type=click.IntRange(min=1), default=1, show_default=True,
+                 metavar="N",
+                 help="--export-bag: an agent's map at every N-th fusion it receives"),
+    click.option("--bag-clouds-only", is_flag=True,
+                 help="--export-bag: occupied voxels only (PointCloud2, what a viewer such as "
+                      "Foxglove shows), not the whole octomaps"))
 
 
 def _run_and_report(cfg: RunConfig, title: str, command: str,
-                    export_bag: Optional[Path] = None) -> None:
+                    export_bag: Optional[Path] = None, bag_options: Optional[dict] = None) -> None:
     from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
     from ..outputs.libraries import import_once_under_way
@@ -40,7 +47,8 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
         if cfg.export_agents == "none":
             raise CliError("--export-bag: no agent is exported (--export-agents none)")
         bag = _event_bag(export_bag, cfg, out,
-                         lambda agents: _export_agents(cfg.export_agents, agents))
+                         lambda agents: _export_agents(cfg.export_agents, agents),
+                         **(bag_options or {}))
     with _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
@@ -51,6 +59,7 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
 
                 src = stack.enter_context(ScanSource(cfg.build))
                 bag.start_ns = src.bags.start_ns or 0
+                bag.expected = _bag_messages(cfg, src, bag.every)
                 passes = _one_group(lambda: simulate(
                     cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar,
                     source=src, observer=bag, keep_loss_leaves=True))
@@ -110,7 +119,8 @@ def _one_group(run):
     yield run()
 
 
-def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
+def _event_bag(path: Path, cfg: RunConfig, out: Path, select, bag_every: int = 1,
+               bag_clouds_only: bool = False):
     """The per-event bag of ``--export-bag`` with the maps of the agents ``select(agents)``,
     checked and opened before the run."""
     from ..outputs.event_bag import FusionEventBag
@@ -118,8 +128,26 @@ def _event_bag(path: Path, cfg: RunConfig, out: Path, select):
     if path.absolute() == out.absolute() or out.absolute() in path.absolute().parents:
         raise CliError(f"--export-bag '{path}' is inside --out '{out}', which is replaced "
                        "whole; give a path outside it")
-    return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"),
-                          select=select)
+    return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"), select=select,
+                          every=bag_every, clouds_only=bag_clouds_only, say=say)
+
+
+def _bag_messages(cfg: RunConfig, src, every: int) -> int:
+    """About how many map messages the run's ``--export-bag`` will hold: per rule and
+    exported agent, every ``every``-th of the exchange times at which it receives."""
+    from ..fusion.graph import make_graph
+    from ..fusion.schedule import mission_events, parse_schedule
+
+    agents = [a.name for a in src.agents]
+    graph = make_graph(cfg.fuse.topology, len(agents), seed=cfg.fuse.seed, names=agents)
+    _, events = mission_events(parse_schedule(cfg.fuse.schedule), graph, cfg.fuse,
+                               src.bags.start_ns, src.bags.end_ns)
+    exported = set(_export_agents(cfg.export_agents, agents))
+    times: dict[str, set] = {a: set() for a in exported}
+    for e in events:
+        if not e.lost and agents[e.receiver] in exported:
+            times[agents[e.receiver]].add(e.time_s)
+    return len(cfg.fuse.rules) * sum(-(-len(t) // every) for t in times.values())
 
 
 @contextlib.contextmanager
@@ -175,7 +203,8 @@ def run(bags, export_bag, **p):
         return dump_config(cfg)
     need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
     need_out(cfg, p["out"])
-    _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag)
+    _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag,
+                    bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")})
 
 
 #: the demo's 9 rules in 3 passes over the bag: at most 4 rules' maps held at once (with 8
@@ -213,7 +242,8 @@ def demo(export_bag, **p):
         "samples": 8, "export_agents": "first"})
     say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
         "aperiodic exchanges, every rule")
-    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo", export_bag=export_bag)
+    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo", export_bag=export_bag,
+                    bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")})
 
 
 @cli.command("fuse")
@@ -259,7 +289,8 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     every = lambda agents: agents  # noqa: E731  (every agent's maps are written)
-    bag = _event_bag(export_bag, cfg, out, every) if export_bag is not None else None
+    bag = (_event_bag(export_bag, cfg, out, every, p["bag_every"], p["bag_clouds_only"])
+           if export_bag is not None else None)
     with _staged_with_bag(out, "fuse", bag) as stage:
         if bag is not None:  # every rule in one group, the bag written round by round
             groups = _one_group(lambda: fuse_finished(maps, central, cfg.fuse, truth=truth,

@@ -30,13 +30,23 @@ class FusionEventBag:
     """
 
     def __init__(self, path: str | os.PathLike, *, frame_id: str = "map",
-                 select: Optional[Callable[[list[str]], Sequence[str]]] = None):
-        self.writer = MapBagWriter(path, frame_id=frame_id, topic=TOPIC, cloud_topic=CLOUD_TOPIC)
+                 select: Optional[Callable[[list[str]], Sequence[str]]] = None,
+                 every: int = 1, clouds_only: bool = False,
+                 say: Callable[[str], None] = lambda _m: None):
+        self.writer = MapBagWriter(path, frame_id=frame_id,
+                                   topic=None if clouds_only else TOPIC, cloud_topic=CLOUD_TOPIC)
         self.path = Path(path)
         self.start_ns = 0
+        #: an agent's map written at every ``every``-th fusion it receives
+        self.every = every
+        #: map messages the run will write (set before the run), for the size projection
+        self.expected = 0
+        self._say = say
         self._select = select
         self._agents: Optional[set[str]] = None
         self._seen: dict[str, int] = {}  # rule -> fusion records handled
+        self._received: dict[tuple[str, str], int] = {}  # (rule, agent) -> fusions received
+        self._projected = False
 
     @property
     def messages(self) -> int:
@@ -52,12 +62,27 @@ class FusionEventBag:
             new = records[self._seen.get(rule, 0):]
             self._seen[rule] = len(records)
             for agent in dict.fromkeys(e.receiver for e in new if e.receiver in self._agents):
+                k = self._received[rule, agent] = self._received.get((rule, agent), 0) + 1
+                if (k - 1) % self.every:
+                    continue
                 m = net.fused[rule][agent]
                 if rule in EXACT_MODES:  # kept unclamped while fusing; written clamped
                     from ..fusion.channel_filter import clamped
 
                     m = clamped(m)
                 self.writer.write(MapEvent(f"{rule}/{agent}", stamp, m))
+        self._project()
+
+    def _project(self) -> None:
+        """Once a tenth of the expected messages are written: say the bag's expected size."""
+        w = self.writer
+        if self._projected or not self.expected or w.count * 10 < self.expected:
+            return
+        self._projected = True
+        mb = w.bytes / w.count * self.expected / 1e6
+        self._say(f"--export-bag: {w.count} of about {self.expected} map messages written, "
+                  f"about {mb:,.1f} MB expected (maps grow: likely more; --bag-every N and "
+                  "--bag-clouds-only write less)")
 
     def close(self) -> Path:
         return self.writer.close()

@@ -125,7 +125,7 @@ class MapBagWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, kind: str | None = None,
-                 frame_id: str = "map", topic: str = "/{name}/octomap",
+                 frame_id: str = "map", topic: str | None = "/{name}/octomap",
                  cloud_topic: str | None = "/{name}/occupied_cells", occupied: float = 0.0):
         from rosbags.rosbag1 import Writer as Writer1
         from rosbags.rosbag2 import StoragePlugin
@@ -142,6 +142,7 @@ class MapBagWriter:
         if not frame_id:
             raise ValueError("frame_id must not be empty")
         self.path, self.kind, self.count = out, kind, 0
+        self.bytes = 0  #: message bytes written so far
         self._frame, self._topic, self._cloud_topic = frame_id, topic, cloud_topic
         self._occupied = occupied
         self._ros1 = kind == "ros1"
@@ -172,8 +173,9 @@ class MapBagWriter:
             raise ValueError(f"'{self.path}': the bag is closed")
         _check_stamp(e)
         hdr = _header(self._ts, e.stamp_ns, self._frame)
-        self._put(self._topic.format(name=e.name), OCTOMAP,
-                  octomap_message(self._ts, e.map, hdr), e.stamp_ns)
+        if self._topic is not None:
+            self._put(self._topic.format(name=e.name), OCTOMAP,
+                      octomap_message(self._ts, e.map, hdr), e.stamp_ns)
         if self._cloud_topic is not None:
             self._put(self._cloud_topic.format(name=e.name), POINTCLOUD2,
                       occupied_cloud(self._ts, e.map, hdr, self._occupied), e.stamp_ns)
@@ -237,6 +239,7 @@ class MapBagWriter:
         ts = self._ts
         raw = ts.serialize_ros1(msg, msgtype) if self._ros1 else ts.serialize_cdr(msg, msgtype)
         self._writer.write(self._conns[key], log_ns, raw)
+        self.bytes += len(raw)
 
 
 def _check_stamp(e: MapEvent) -> None:
