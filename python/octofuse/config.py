@@ -393,6 +393,8 @@ class LiveConfig:
     checkpoint_period: float = 5.0
     #: the largest message an agent takes (bytes); larger ones are dropped and counted
     max_message_bytes: int = 256 * 2**20
+    #: messages go over the links in chunks of at most this many bytes
+    max_chunk_bytes: int = 64 * 2**10
     #: seconds an agent waits for a neighbour (to appear, or in lockstep for its message)
     timeout: float = 120.0
     #: after the mission, rounds of fault-free exchanges in which the fleet settles
@@ -424,6 +426,9 @@ class LiveConfig:
         if not 1024 <= self.max_message_bytes <= 2**32 - 1:
             raise ValueError(f"{where}.max_message_bytes = {self.max_message_bytes}: expected "
                              "1024 to 4 GiB")
+        if not 256 <= self.max_chunk_bytes <= self.max_message_bytes:
+            raise ValueError(f"{where}.max_chunk_bytes = {self.max_chunk_bytes}: expected 256 "
+                             f"to max_message_bytes ({self.max_message_bytes})")
         if not 0 < self.timeout <= 3600:
             raise ValueError(f"{where}.timeout = {self.timeout}: expected above 0, up to 3600 s")
         if not 0 <= self.map_period <= 3600:

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("zenoh")
 
@@ -120,16 +122,22 @@ def finish(procs: dict) -> None:
 @pytest.mark.slow
 def test_through_loss_duplicates_reordering_and_delay_the_channel_filter_stays_exact(
         bag, tmp_path):
-    cfg, path = fleet_config(bag, tmp_path, faults={"loss": 0.3, "duplicate": 0.2,
-                                                    "reorder": 0.2, "delay": 0.2, "seed": 4})
+    # small chunks: a message is several, each lost, repeated, held back or late on its own
+    cfg, path = fleet_config(bag, tmp_path, max_chunk_bytes=2048,
+                             faults={"loss": 0.3, "duplicate": 0.2, "reorder": 0.2,
+                                     "delay": 0.2, "seed": 4})
     out = tmp_path / "agents"
     finish({a.name: start_agent(path, a.name, out) for a in cfg.build.agents})
     want = exact_sum(bag)
+    faults = {"lost": 0, "duplicated": 0, "reordered": 0, "delayed": 0}
     for a in cfg.build.agents:
         assert_same_values(OccupancyMap.load(out / "channel-filter" / a.name / "fused.ot"), want,
                            a.name)
         counts = json.loads((out / "channel-filter" / a.name / "counts.json").read_text())
-        assert counts["refused"].get("old or repeated", 0) > 0  # duplicates came, and did nothing
+        assert counts["chunks_refused"] == 0
+        for k in faults:
+            faults[k] += counts["faults"].get(k, 0)
+    assert all(n > 0 for n in faults.values()), faults  # every fault happened, to chunks
 
 
 @pytest.mark.slow
@@ -370,3 +378,24 @@ def test_a_viewer_sees_the_agents_maps_grow_and_their_links_deliver(bag, tmp_pat
         assert len(source.occupancy("chernoff", "a").values) > 0
     finally:
         source.close()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(min_size=0, max_size=3000), st.integers(24, 700), st.randoms())
+def test_chunks_put_a_message_together_in_any_order_and_only_whole(frame, size, rnd):
+    from octofuse.live.chunks import Reassembler, split
+
+    chunks = split(frame, 7, size)
+    assert all(len(c) <= size for c in chunks)
+    got = Reassembler(4096)
+    order = chunks + chunks[:1]  # a repeat
+    rnd.shuffle(order)
+    out = [f for c in order if (f := got.add("b", c)) is not None]
+    # whole once; a repeated one-chunk message is whole again (the link protocol drops it)
+    assert out == [frame] * (2 if len(chunks) == 1 else 1)
+    if len(chunks) > 1:  # one chunk missing: never whole
+        late = Reassembler(4096)
+        assert [late.add("b", c) for c in chunks[1:]] == [None] * (len(chunks) - 1)
+    if frame:  # a message over the receiver's bound is refused at its first chunk
+        small = Reassembler(len(frame) - 1)
+        assert small.add("b", chunks[0]) is None and small.dropped == 1

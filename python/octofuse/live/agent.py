@@ -99,6 +99,7 @@ class LiveAgent:
         self.insert_mode = cfg.build.insert_mode
         self.queued = 0  #: scans arrived and not inserted yet (the agent falls behind)
         self._published = 0.0  #: when the fused map was last published (monotonic)
+        self.faults: dict = {}  #: what the fault layer did to this agent's chunks
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
 
     # -- the link protocol on frames ---------------------------------------------------------
@@ -192,15 +193,16 @@ class LiveAgent:
         try:
             transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
             t0 = time.monotonic()
-            links = FaultyLinks(live.faults, self.name, self.index, transport.send,
+            links = FaultyLinks(live.faults, self.name, self.index, transport.put,
                                 lambda: time.monotonic() - t0)
+            self.faults = links.counts
             for t, group in [*timed, (duration, [])]:
                 while time.monotonic() - t0 < t:
                     self._insert(feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))),
                                  progress)
                     self.queued = feed.backlog()
                     self._drain(transport, until=time.monotonic())
-                self._exchange(group, links.send, transport, t, progress)
+                self._exchange(group, _through(transport, links), transport, t, progress)
             links.flush()
             for reason, n in feed.skipped.items():
                 self.counts.refused[f"scan: {reason}"] += n
@@ -300,7 +302,8 @@ class LiveAgent:
         live = self.live
         t0 = time.monotonic() - max(progress["t"], 0.0) / live.speed
         now = lambda: (time.monotonic() - t0) * live.speed  # noqa: E731 - mission time
-        links = FaultyLinks(live.faults, self.name, self.index, transport.send, now)
+        links = FaultyLinks(live.faults, self.name, self.index, transport.put, now)
+        self.faults = links.counts
         next_ckpt = progress["t"] + live.checkpoint_period if live.checkpoint_period else None
         carry: list = []
         for t, group in [*timed, (float("inf"), [])]:
@@ -321,7 +324,7 @@ class LiveAgent:
                 self._insert([scan], progress)
             if t == float("inf"):
                 break
-            self._exchange(group, links.send, transport, t, progress)
+            self._exchange(group, _through(transport, links), transport, t, progress)
             if next_ckpt is not None and t >= next_ckpt:
                 checkpoint.save(ckpt, self.agent, self.local, progress)
                 next_ckpt = t + live.checkpoint_period
@@ -396,9 +399,16 @@ class LiveAgent:
             "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
             "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
             "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
-            "frames_over_bound": transport.dropped, "peak_rss": resident_memory()[2],
+            "chunks_over_bound": transport.dropped, "chunks_refused": transport.chunks_refused,
+            "faults": dict(self.faults),
+            "peak_rss": resident_memory()[2],
             "cpu_s": sum(os.times()[:2])}).encode())
         self._publish_map(transport, scored)
+
+
+def _through(transport: ZenohTransport, links: FaultyLinks):
+    """``send(receiver, frame)``: the frame in chunks, each through the fault layer."""
+    return lambda receiver, frame: transport.send(receiver, frame, put=links.send)
 
 
 def _own_build(cfg: FleetConfig, index: int):

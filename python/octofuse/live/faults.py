@@ -13,12 +13,13 @@ from ..config import FaultConfig
 
 
 class FaultyLinks:
-    """``send(receiver, frame)`` through the faults of ``faults``; ``now()`` gives the mission
-    time (seconds) the partitions' timetable is read in. :attr:`counts` says what was done."""
+    """``send(receiver, chunk)`` of agent ``name`` through the faults of ``faults`` to
+    ``put(receiver, chunk)``; ``now()`` gives the mission time (seconds) the partitions'
+    timetable is read in. :attr:`counts` says what was done."""
 
     def __init__(self, faults: FaultConfig, name: str, index: int,
-                 send: Callable[[str, bytes], None], now: Callable[[], float]):
-        self.faults, self.name, self._send, self._now = faults, name, send, now
+                 put: Callable[[str, bytes], None], now: Callable[[], float]):
+        self.faults, self.name, self._send, self._now = faults, name, put, now
         self.rng = np.random.default_rng([faults.seed, index])
         self.held: dict[str, bytes] = {}  # per receiver, a frame to send after the next one
         self.counts: Counter = Counter()
@@ -30,6 +31,7 @@ class FaultyLinks:
                    for p in self.faults.partitions)
 
     def send(self, receiver: str, frame: bytes) -> None:
+        """One chunk (or any frame) through the faults."""
         f = self.faults
         if self.cut_off(receiver, self._now()):
             self.counts["partitioned"] += 1

@@ -1,10 +1,11 @@
 """One agent's Zenoh session: messages to its neighbours, its inbox, liveliness and status.
 
 Peers meet on explicit endpoints (no multicast scouting): every agent listens on its own
-endpoint and connects to its neighbours'. Messages are put reliably with congestion control
-that blocks rather than drops, so loss comes only from the network or the fault layer
-(:mod:`.faults`). What arrives is queued as it comes (Zenoh's callback thread) and taken by the
-agent's loop; a frame over the size bound is dropped and counted before it is copied.
+endpoint and connects to its neighbours'. Messages go in chunks of a bounded size
+(:mod:`.chunks`), put reliably with congestion control that blocks rather than drops, so loss
+comes only from the network or the fault layer (:mod:`.faults`, which sees each chunk). What
+arrives is put together and queued as it comes (Zenoh's callback threads) and taken by the
+agent's loop; a chunk over the size bound is dropped and counted before it is copied.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Optional
 
 from ..config import LiveConfig
 from . import keys
+from .chunks import Reassembler, split
 
 
 def endpoint(live: LiveConfig, index: int) -> str:
@@ -64,8 +66,11 @@ class ZenohTransport:
 
         self.live, self.rule, self.name = live, rule, name
         self.inbox: "queue.Queue[tuple[str, bytes]]" = queue.Queue()
-        self.dropped = 0  #: frames over the size bound
-        self.received = 0
+        self.dropped = 0  #: chunks over the size bound
+        self.received = 0  #: whole messages
+        self._number = 0  # this agent's messages, numbered for their chunks
+        self._chunks = Reassembler(live.max_message_bytes)
+        self._assembling = threading.Lock()
         self._alive: set[str] = set()
         self._alive_changed = threading.Condition()
         self.session = zenoh.open(zenoh_config(live, listen, connect))
@@ -84,8 +89,15 @@ class ZenohTransport:
             keys.done(live.fleet, rule, "*"), self._on_done, history=True)
 
     # -- messages ----------------------------------------------------------------------------
-    def send(self, receiver: str, frame: bytes) -> None:
-        """Put ``frame`` to ``receiver`` (reliably; blocks while the link is congested)."""
+    def send(self, receiver: str, frame: bytes, put=None) -> None:
+        """Send ``frame`` to ``receiver`` in chunks of at most ``live.max_chunk_bytes``, each
+        through ``put(receiver, chunk)`` (default :meth:`put`; a fault layer goes there)."""
+        self._number += 1
+        for chunk in split(frame, self._number, self.live.max_chunk_bytes):
+            (put or self.put)(receiver, chunk)
+
+    def put(self, receiver: str, chunk: bytes) -> None:
+        """Put ``chunk`` to ``receiver`` (reliably; blocks while the link is congested)."""
         import zenoh
 
         pub = self._publishers.get(receiver)
@@ -94,15 +106,19 @@ class ZenohTransport:
                 keys.message(self.live.fleet, self.rule, receiver, self.name),
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 reliability=zenoh.Reliability.RELIABLE)
-        pub.put(frame)
+        pub.put(chunk)
 
     def _on_message(self, sample) -> None:
         payload = sample.payload
-        if len(payload) > self.live.max_message_bytes:
+        if len(payload) > self.live.max_chunk_bytes:
             self.dropped += 1
             return
-        self.received += 1
-        self.inbox.put((keys.sender_of(sample.key_expr), payload.to_bytes()))
+        sender = keys.sender_of(sample.key_expr)
+        with self._assembling:  # Zenoh may call on several threads
+            frame = self._chunks.add(sender, payload.to_bytes())
+        if frame is not None:
+            self.received += 1
+            self.inbox.put((sender, frame))
 
     # -- who is there --------------------------------------------------------------------------
     def _on_alive(self, sample) -> None:
@@ -129,6 +145,11 @@ class ZenohTransport:
                                        f"within {timeout:g} s (are they running, on the "
                                        "fleet's endpoints?)")
                 self._alive_changed.wait(left)
+
+    @property
+    def chunks_refused(self) -> int:
+        """Chunks that were malformed or did not fit their message."""
+        return self._chunks.dropped
 
     def announce(self) -> None:
         """Say that this agent listens (once every subscriber of its is declared)."""
