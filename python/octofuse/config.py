@@ -35,6 +35,8 @@ SPANNING_TREES = ("bfs", "given")
 #: what a run writes per rule and exported agent (``RunConfig.export``), and heat-map formats
 EXPORTS = ("all", "fused", "none")
 HEATMAP_FORMATS = ("ply", "pcd")
+#: how scans go into a map: OctoMap's insertPointCloud voxel for voxel, or the real-time mode
+INSERT_MODES = ("exact", "fast")
 
 
 @dataclass
@@ -124,7 +126,7 @@ class BuildConfig:
             raise ValueError(f"{where}.scan_stride = {self.scan_stride}: expected 1 or more")
         if not 1 <= self.batch_size <= 4096:
             raise ValueError(f"{where}.batch_size = {self.batch_size}: expected 1 to 4096")
-        if self.insert_mode not in ("exact", "fast"):
+        if self.insert_mode not in INSERT_MODES:
             raise ValueError(f"{where}.insert_mode = {self.insert_mode!r}: expected 'exact' or "
                              "'fast'")
         if not 0 <= self.threads <= MAX_THREADS:

@@ -14,7 +14,7 @@ from typing import Optional
 
 import click
 
-from ..config import RunConfig
+from ..config import INSERT_MODES, RunConfig
 from ..interrupts import raise_if_interrupted
 
 _DEFAULT = RunConfig()
@@ -132,7 +132,7 @@ build_options = _options(
                  show_default="1"),
     click.option("--threads", type=click.IntRange(0, 256),
                  help="threads for ray casting, fusion and scoring; 0: one per core", show_default="0"),
-    click.option("--insert-mode", type=click.Choice(["exact", "fast"]), metavar="MODE",
+    click.option("--insert-mode", type=click.Choice(INSERT_MODES), metavar="MODE",
                  help="exact: OctoMap's insertPointCloud; fast: real time for dense 3D lidar scans",
                  show_default=_DEFAULT.build.insert_mode),
 )
@@ -244,7 +244,8 @@ def run_config(p: dict, *, bags=None, defaults: Optional[dict] = None, cls=RunCo
         fuse["align"] = p["align"]
     run = _given(out=str(p["out"]) if p.get("out") else None,
                  truth=str(p["truth"]) if p.get("truth") else None,
-                 samples=p.get("samples"), export_agents=",".join(p["export_agents"]) if p.get("export_agents") else None,
+                 samples=p.get("samples"),
+                 export_agents=",".join(p["export_agents"]) if p.get("export_agents") else None,
                  export=p.get("export"), formats=[p["formats"]] if p.get("formats") else None)
     data = merge(data, {"build": build, "fuse": fuse, **run, **(extra or {})})
     _agent_poses(data, p)
