@@ -135,13 +135,10 @@ def _event_bag(path: Path, cfg: RunConfig, out: Path, select, bag_every: int = 1
 def _bag_messages(cfg: RunConfig, src, every: int) -> int:
     """About how many map messages the run's ``--export-bag`` will hold: per rule and
     exported agent, every ``every``-th of the exchange times at which it receives."""
-    from ..fusion.graph import make_graph
-    from ..fusion.schedule import mission_events, parse_schedule
+    from ..fusion.schedule import run_schedule
 
     agents = [a.name for a in src.agents]
-    graph = make_graph(cfg.fuse.topology, len(agents), seed=cfg.fuse.seed, names=agents)
-    _, events = mission_events(parse_schedule(cfg.fuse.schedule), graph, cfg.fuse,
-                               src.bags.start_ns, src.bags.end_ns)
+    _, _, events = run_schedule(cfg.fuse, agents, src.bags.start_ns, src.bags.end_ns)
     exported = set(_export_agents(cfg.export_agents, agents))
     times: dict[str, set] = {a: set() for a in exported}
     for e in events:

@@ -27,6 +27,8 @@ from itertools import groupby
 
 import numpy as np
 
+from .graph import Graph, make_graph
+
 DIRECTIONS = ("both", "one")
 SCHEDULE_KINDS = ("periodic:SECONDS", "aperiodic:SECONDS", "rounds:R")
 #: most exchange events one schedule may hold (each one is a map fusion)
@@ -101,6 +103,17 @@ def mission_events(spec: "ScheduleSpec", graph, fuse_cfg, start_ns: int | None,
     events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed,
                         directions=fuse_cfg.directions)
     return duration, drop_messages(events, fuse_cfg.loss, fuse_cfg.seed)
+
+
+def run_schedule(fuse_cfg, agents: list[str], start_ns: int | None,
+                 end_ns: int | None) -> tuple[Graph, float, list[Exchange]]:
+    """The graph of a run in time on ``agents`` (names), the mission's length and its
+    exchanges (:func:`mission_events`), all from ``fuse_cfg`` and the bags' first and last
+    message."""
+    graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
+    duration, events = mission_events(parse_schedule(fuse_cfg.schedule), graph, fuse_cfg,
+                                      start_ns, end_ns)
+    return graph, duration, events
 
 
 def periodic(

@@ -19,12 +19,11 @@ from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
-from .graph import make_graph
 from .network import Network
 from .robust import admitted, vote_for_run
 from .results import (LOCAL, SimResult, rule_groups, score_agent, timeline_point,
                       with_traffic)
-from .schedule import EXCHANGE, VOTE, check_samples, mission_events, moments, parse_schedule
+from .schedule import EXCHANGE, VOTE, check_samples, moments, parse_schedule, run_schedule
 
 #: the lane of the maps in the common frame (centralized) and the agents' own maps
 COMMON = "common frame"
@@ -81,9 +80,8 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
         done = [0]
         agents = [a.name for a in src.agents]
-        graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
         start = src.bags.start_ns
-        duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
+        graph, duration, events = run_schedule(fuse_cfg, agents, start, src.bags.end_ns)
         mk = lambda: OccupancyMap.from_config(build_cfg.map)  # noqa: E731
         tree = exact = None
         if CHANNEL_FILTER in rules:

@@ -48,7 +48,7 @@ from .agent_frames import AgentFrames
 from .executors import ray_session
 from .results import LOCAL, Traffic
 from .robust import admitted, vote_for_run
-from .schedule import EXCHANGE, VOTE, check_samples, mission_events, moments, parse_schedule
+from .schedule import EXCHANGE, VOTE, check_samples, moments, parse_schedule, run_schedule
 from .swarm_worker import SwarmWorker
 
 
@@ -108,7 +108,6 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     ``samples=0`` (the default) skips the KL timeline.
     """
     from ..scans.source import ScanSource, prefetch
-    from .graph import make_graph
 
     fuse_cfg.validate("fuse")
     spec = parse_schedule(fuse_cfg.schedule)
@@ -124,9 +123,8 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     with ray_session(address, num_cpus) as ray, ScanSource(build_cfg) as src:
         agents = [a.name for a in src.agents]
         frames = AgentFrames.from_config(agents, fuse_cfg)
-        graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
         start = src.bags.start_ns
-        duration, events = mission_events(spec, graph, fuse_cfg, start, src.bags.end_ns)
+        graph, duration, events = run_schedule(fuse_cfg, agents, start, src.bags.end_ns)
         tree: list[tuple[str, str]] = []
         if CHANNEL_FILTER in rules:
             from .channel_filter import spanning_tree

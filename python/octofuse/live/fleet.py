@@ -24,9 +24,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from ..config import FleetConfig, dump_yaml
-from ..fusion.graph import make_graph
 from ..fusion.results import SimResult, Traffic, score_result
-from ..fusion.schedule import mission_events, parse_schedule
+from ..fusion.schedule import run_schedule
 from ..maps.build import build
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
@@ -100,8 +99,7 @@ def run_fleet(cfg: FleetConfig, stage: Path, *, log: Callable[[str], None] = pri
             if p.poll() is None:
                 p.kill()
                 p.wait()
-        if watcher is not None:
-            watcher.close()
+        watcher.close()
     wall = time.perf_counter() - t0
     return _collect(cfg, names, rules, agents_dir, built, truth, wall)
 
@@ -139,7 +137,7 @@ def progress_line(status: dict) -> str:
 
 def _watch_status(cfg: FleetConfig, names: list[str], status: dict):
     """A Zenoh session of the launcher's own, connected to every agent, that keeps the last
-    status of each; None if Zenoh cannot open one."""
+    status of each."""
     import zenoh
 
     from .transport import zenoh_config
@@ -170,10 +168,7 @@ def _watch_status(cfg: FleetConfig, names: list[str], status: dict):
 def _collect(cfg: FleetConfig, names, rules, agents_dir: Path, built, truth,
              wall: float) -> SimResult:
     """The fleet's result: every agent's final map, loss leaves and traffic, scored."""
-    graph = make_graph(cfg.fuse.topology, len(names), seed=cfg.fuse.seed, names=names)
-    with ScanSource(cfg.build) as src:
-        start, end = src.bags.start_ns, src.bags.end_ns
-    _, events = mission_events(parse_schedule(cfg.fuse.schedule), graph, cfg.fuse, start, end)
+    graph, _, events = run_schedule(cfg.fuse, names, built.start_ns, built.end_ns)
     fused, leaves, traffic = {}, {}, {}
     for r in rules:
         fused[r], leaves[r], traffic[r] = {}, {}, Traffic()

@@ -44,6 +44,8 @@ class BuildResult:
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)  #: where the time went
     notes: list[str] = field(default_factory=list)  #: skipped transforms and dropped points
+    start_ns: Optional[int] = None  #: the bags' first message (None: no messages)
+    end_ns: Optional[int] = None  #: and their last
 
     def all_maps(self) -> dict[str, OccupancyMap]:
         return {**self.maps, "centralized": self.centralized}
@@ -78,10 +80,11 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
                 progress(done, src.total_scans)
         src.check_placed()
         stats, notes = src.stats, src.notes()
+        start_ns, end_ns = src.bags.start_ns, src.bags.end_ns
     total = time.perf_counter() - t_start
     timings = {"insert (C++, GIL released)": t_insert,
                "read + decode + transforms (overlapped)": sum(s.seconds for s in stats) - t_insert}
-    return BuildResult(maps, central, stats, total, timings, notes)
+    return BuildResult(maps, central, stats, total, timings, notes, start_ns, end_ns)
 
 
 def build_maps(bags, agents: Optional[Sequence[AgentSpec | str]] = None, fixed_frame: str = "map",
