@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
@@ -147,10 +148,8 @@ class LiveAgent:
         cfg, live = self.cfg, self.live
         build = _own_build(cfg, self.index)
         with ScanSource(build) as src:
-            start, end = src.bags.start_ns, src.bags.end_ns
-            spec = parse_schedule(cfg.fuse.schedule)
-            duration, events = mission_events(spec, self.graph, cfg.fuse, start, end)
-            timed = [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
+            start = src.bags.start_ns
+            timed = self._exchange_times(start, src.bags.end_ns)
             progress = {"t": -1.0, "scans": 0}
             ckpt = self.out / "checkpoint.pkl"
             epoch = checkpoint.next_epoch(self.out / "epoch")
@@ -182,9 +181,7 @@ class LiveAgent:
         from .bridged import BridgedScans
 
         cfg, live = self.cfg, self.live
-        spec = parse_schedule(cfg.fuse.schedule)
-        _, events = mission_events(spec, self.graph, cfg.fuse, 0, int(duration * 1e9))
-        timed = [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
+        timed = self._exchange_times(0, int(duration * 1e9))
         progress = {"t": -1.0, "scans": 0}
         transport = self._open(announce=False)
         feed = BridgedScans(transport.session, cfg.build.agents[self.index].topic, scan_type,
@@ -211,6 +208,13 @@ class LiveAgent:
             feed.close()
             transport.close()
         return self.counts
+
+    def _exchange_times(self, start_ns: int, end_ns: int) -> list:
+        """The schedule's groups of simultaneous exchanges, ``(mission time, group)``, of a
+        mission from ``start_ns`` to ``end_ns``."""
+        duration, events = mission_events(parse_schedule(self.cfg.fuse.schedule), self.graph,
+                                          self.cfg.fuse, start_ns, end_ns)
+        return [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
 
     def _exchange(self, group, send, transport, t: float, progress: dict) -> None:
         """Send this agent's messages of ``group`` (mission time ``t``) through ``send``."""
@@ -290,8 +294,8 @@ class LiveAgent:
             if left > 0:
                 try:
                     item = transport.inbox.get(timeout=left)
-                except Exception:  # noqa: BLE001 - queue.Empty
-                    item = None
+                except queue.Empty:
+                    pass
             if item is None:
                 raise TimeoutError(f"agent {self.name}: no message from {sender} within "
                                    f"{self.live.timeout:g} s (lockstep)")
@@ -349,7 +353,7 @@ class LiveAgent:
                                    f"{self.live.timeout:g} s: {late}")
             try:
                 sender, frame = transport.inbox.get(timeout=max(wait, 0.0))
-            except Exception:  # noqa: BLE001 - queue.Empty
+            except queue.Empty:
                 if until is None and not transport.running(done or []):
                     return
                 continue
@@ -390,19 +394,23 @@ class LiveAgent:
     def _finish(self, transport) -> None:
         """Write the final state and publish the fused map."""
         scored = self._scored()
-        _write(self.out / "fused.ot", scored.to_bytes())
-        _write(self.out / "local.ot", self.local.to_bytes())
+        with checkpoint.written(self.out / "fused.ot") as f:
+            f.write(scored.to_bytes())
+        with checkpoint.written(self.out / "local.ot") as f:
+            f.write(self.local.to_bytes())
         values, depths = self.agent.loss_map().values_depths()
-        _write_npz(self.out / "loss.npz", values=values, depths=depths)
+        with checkpoint.written(self.out / "loss.npz") as f:
+            np.savez(f, values=values, depths=depths)
         c = self.counts
-        _write(self.out / "counts.json", json.dumps({
-            "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
-            "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
-            "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
-            "chunks_over_bound": transport.dropped, "chunks_refused": transport.chunks_refused,
-            "faults": dict(self.faults),
-            "peak_rss": resident_memory()[2],
-            "cpu_s": sum(os.times()[:2])}).encode())
+        with checkpoint.written(self.out / "counts.json") as f:
+            f.write(json.dumps({
+                "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
+                "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
+                "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
+                "chunks_over_bound": transport.dropped, "chunks_refused": transport.chunks_refused,
+                "faults": dict(self.faults),
+                "peak_rss": resident_memory()[2],
+                "cpu_s": sum(os.times()[:2])}).encode())
         self._publish_map(transport, scored)
 
 
@@ -417,14 +425,3 @@ def _own_build(cfg: FleetConfig, index: int):
 
     return replace(cfg.build, agents=[cfg.build.agents[index]])
 
-
-def _write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
-def _write_npz(path: Path, **arrays) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)

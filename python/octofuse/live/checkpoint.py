@@ -14,10 +14,12 @@ the checkpoint).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Optional
+from typing import BinaryIO, Optional
 
 from ..fusion.agent import Agent
 from ..fusion.channel_filter import open_map
@@ -37,6 +39,21 @@ def _map(data: Optional[bytes], exact: bool) -> Optional[OccupancyMap]:
     return open_map(m) if exact else m
 
 
+@contextlib.contextmanager
+def written(path: Path, fsync: bool = False) -> Iterator[BinaryIO]:
+    """A file to write the new content of ``path`` into: written under a temporary name beside
+    it and renamed over it once complete (after an fsync with ``fsync``), so ``path`` holds its
+    old content or the new one, never a part."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    with open(tmp, "wb") as f:
+        yield f
+        if fsync:
+            f.flush()
+            os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
 def save(path: Path, agent: Agent, local: OccupancyMap, progress: dict) -> None:
     """Write ``agent``'s state, its own map ``local`` and ``progress`` (plain data) to
     ``path`` atomically."""
@@ -48,13 +65,8 @@ def save(path: Path, agent: Agent, local: OccupancyMap, progress: dict) -> None:
                   for n, link in agent.links.items()},
         "layers": _layers_state(agent.layers) if agent.layers is not None else None,
     }
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    with open(tmp, "wb") as f:
+    with written(path, fsync=True) as f:
         pickle.dump(state, f, protocol=pickle.HIGHEST_PROTOCOL)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def restore(path: Path, agent: Agent, epoch: int) -> tuple[OccupancyMap, dict]:
@@ -120,7 +132,6 @@ def next_epoch(path: Path) -> int:
         epoch = int(path.read_text()) + 1
     except (OSError, ValueError):
         epoch = 1
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    tmp.write_text(str(epoch))
-    os.replace(tmp, path)
+    with written(path) as f:
+        f.write(str(epoch).encode())
     return epoch

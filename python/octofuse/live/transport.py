@@ -14,7 +14,6 @@ import json
 import queue
 import threading
 import time
-from typing import Optional
 
 from ..config import LiveConfig
 from . import keys
@@ -57,7 +56,7 @@ def zenoh_config(live: LiveConfig, listen: str, connect: list[str]):
 class ZenohTransport:
     """Agent ``name``'s session in fleet ``live.fleet`` under ``rule``.
 
-    ``inbox`` holds ``(sender, frame)`` in arrival order; :meth:`wait_for_neighbours` returns
+    ``inbox`` holds ``(sender, frame)`` in arrival order; :meth:`wait_for` returns
     once every neighbour has declared it listens."""
 
     def __init__(self, live: LiveConfig, rule: str, name: str, listen: str,
@@ -67,7 +66,6 @@ class ZenohTransport:
         self.live, self.rule, self.name = live, rule, name
         self.inbox: "queue.Queue[tuple[str, bytes]]" = queue.Queue()
         self.dropped = 0  #: chunks over the size bound
-        self.received = 0  #: whole messages
         self._number = 0  # this agent's messages, numbered for their chunks
         self._chunks = Reassembler(live.max_message_bytes)
         self._assembling = threading.Lock()
@@ -117,7 +115,6 @@ class ZenohTransport:
         with self._assembling:  # Zenoh may call on several threads
             frame = self._chunks.add(sender, payload.to_bytes())
         if frame is not None:
-            self.received += 1
             self.inbox.put((sender, frame))
 
     # -- who is there --------------------------------------------------------------------------
@@ -189,10 +186,3 @@ class ZenohTransport:
                 pass
         self.session.close()
 
-
-def next_frame(transport: ZenohTransport, timeout: Optional[float]) -> Optional[tuple[str, bytes]]:
-    """The next ``(sender, frame)`` of the inbox, or None after ``timeout`` seconds."""
-    try:
-        return transport.inbox.get(timeout=timeout)
-    except queue.Empty:
-        return None
