@@ -71,7 +71,11 @@ class ZenohTransport:
         self._assembling = threading.Lock()
         self._alive: set[str] = set()
         self._alive_changed = threading.Condition()
-        self.session = zenoh.open(zenoh_config(live, listen, connect))
+        try:
+            self.session = zenoh.open(zenoh_config(live, listen, connect))
+        except zenoh.ZError as e:  # a port taken, a certificate that does not load, ...
+            reason = str(e).split(" at /", 1)[0]
+            raise OSError(f"agent {name}: Zenoh cannot listen on {listen}: {reason}") from None
         self._publishers: dict[str, object] = {}
         self._subscriber = self.session.declare_subscriber(
             keys.inbox(live.fleet, rule, name), self._on_message)
