@@ -1,5 +1,5 @@
-"""The README tells the truth: its Python code blocks run as written on the bundled data,
-and its layout section names the folders the package has."""
+"""The README tells the truth: its Python code blocks (and those of the pages in docs/) run as
+written on the bundled data, and its layout section names the folders the package has."""
 
 import os
 import re
@@ -13,8 +13,15 @@ REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
 
 
-def python_blocks() -> list[str]:
-    return re.findall(r"```python\n(.*?)```", README, flags=re.S)
+DOCS = sorted((REPO / "docs").glob("*.md"))
+
+
+def python_blocks(text: str = README) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def every_python_block() -> list[str]:
+    return python_blocks() + [b for page in DOCS for b in python_blocks(page.read_text())]
 
 
 def test_the_readme_has_python_examples():
@@ -22,11 +29,11 @@ def test_the_readme_has_python_examples():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index", range(len(python_blocks())))
+@pytest.mark.parametrize("index", range(len(every_python_block())))
 def test_each_python_block_runs_as_written(tmp_path, index):
     (tmp_path / "data").symlink_to(REPO / "data")
     script = tmp_path / "example.py"
-    script.write_text(python_blocks()[index])
+    script.write_text(every_python_block()[index])
     env = {**os.environ, "MPLBACKEND": "Agg"}
     done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=300)
