@@ -9,9 +9,9 @@ JOBS ?= 2
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := build-essential cmake git python3-venv python3-dev \
                 liboctomap-dev libeigen3-dev libgtest-dev octomap-tools libusb-1.0-0 openssl \
-                chromium
+                chromium clang-format
 
-.PHONY: all deps venv install test test-cpp test-python demo bench fuzz clean
+.PHONY: all deps venv install lint format test test-cpp test-python demo bench fuzz clean
 
 all: install
 
@@ -41,7 +41,19 @@ test-cpp: deps ## C++ unit tests (GoogleTest via ctest)
 test-python: install
 	$(PY) -m pytest
 
-test: test-cpp test-python ## the whole suite
+CXX_SOURCES = $(shell git ls-files 'cpp/*.[ch]pp' 'tests/cpp/*.[ch]pp' 2>/dev/null)
+
+lint: install ## ruff (lint and format) and clang-format, checked
+	$(VENV)/bin/ruff check python tests benchmarks
+	$(VENV)/bin/ruff format --check python tests benchmarks
+	clang-format --dry-run -Werror $(CXX_SOURCES)
+
+format: install ## rewrite the sources in the project's style
+	$(VENV)/bin/ruff check --fix python tests benchmarks
+	$(VENV)/bin/ruff format python tests benchmarks
+	clang-format -i $(CXX_SOURCES)
+
+test: lint test-cpp test-python ## the whole suite, style included
 
 demo: install ## the main job on the bundled dataset
 	$(VENV)/bin/octofuse demo

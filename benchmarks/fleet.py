@@ -41,38 +41,63 @@ def main() -> None:
 
     rows = []
     for loss in (float(x) for x in a.losses.split(",")):
-        base = {"build": {"bags": [a.bag], "scan_stride": a.every},
-                "fuse": {"rules": a.rules.split(","), "topology": a.topology,
-                         "schedule": a.schedule}}
+        base = {
+            "build": {"bags": [a.bag], "scan_stride": a.every},
+            "fuse": {"rules": a.rules.split(","), "topology": a.topology, "schedule": a.schedule},
+        }
         run_cfg = from_dict(RunConfig, {**base, "fuse": {**base["fuse"], "loss": loss}})
         t0 = time.perf_counter()
         sim = simulate(run_cfg.build, run_cfg.fuse, samples=0)
         sim_s = time.perf_counter() - t0
-        fleet_cfg = resolved(from_dict(FleetConfig, {**base, "live": {
-            "speed": a.speed, "faults": {"loss": loss, "seed": 1}, "base_port": 21447}}))
+        fleet_cfg = resolved(
+            from_dict(
+                FleetConfig,
+                {
+                    **base,
+                    "live": {
+                        "speed": a.speed,
+                        "faults": {"loss": loss, "seed": 1},
+                        "base_port": 21447,
+                    },
+                },
+            )
+        )
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
             res = run_fleet(fleet_cfg, Path(tmp), log=lambda m: print(m, file=sys.stderr))
             wall = time.perf_counter() - t0
-            counts = {r: [agent_counts(Path(tmp) / "agents", r, n) for n in res.agents]
-                      for r in res.rules}
+            counts = {
+                r: [agent_counts(Path(tmp) / "agents", r, n) for n in res.agents] for r in res.rules
+            }
         mission = max(e.time_s for e in res.events) / a.speed if res.events else wall
         links = len(res.graph.edges) * 2
         for r in res.rules:
-            rows.append({
-                "loss": loss, "rule": r, "agents": len(res.agents),
-                "cpu_s_per_agent": round(sum(c["cpu_s"] for c in counts[r]) / len(res.agents), 2),
-                "peak_rss_mib": round(max(c["peak_rss"] for c in counts[r]) / 2**20, 1),
-                "bytes_per_link_s": round(sum(res.traffic[r].sent.values()) / links / mission),
-                "kl_fleet": round(_mean(res.scores[r], "kl_mean"), 4),
-                "kl_run": round(_mean(sim.scores[r], "kl_mean"), 4),
-                "fleet_wall_s": round(wall, 1), "run_wall_s": round(sim_s, 1)})
+            rows.append(
+                {
+                    "loss": loss,
+                    "rule": r,
+                    "agents": len(res.agents),
+                    "cpu_s_per_agent": round(
+                        sum(c["cpu_s"] for c in counts[r]) / len(res.agents), 2
+                    ),
+                    "peak_rss_mib": round(max(c["peak_rss"] for c in counts[r]) / 2**20, 1),
+                    "bytes_per_link_s": round(sum(res.traffic[r].sent.values()) / links / mission),
+                    "kl_fleet": round(_mean(res.scores[r], "kl_mean"), 4),
+                    "kl_run": round(_mean(sim.scores[r], "kl_mean"), 4),
+                    "fleet_wall_s": round(wall, 1),
+                    "run_wall_s": round(sim_s, 1),
+                }
+            )
             print(json.dumps(rows[-1]))
-    print("\n| loss | rule | CPU s/agent | peak MiB | B/link/s | KL fleet | KL run |\n"
-          "|---:|---|---:|---:|---:|---:|---:|")
+    print(
+        "\n| loss | rule | CPU s/agent | peak MiB | B/link/s | KL fleet | KL run |\n"
+        "|---:|---|---:|---:|---:|---:|---:|"
+    )
     for x in rows:
-        print(f"| {x['loss']:.0%} | {x['rule']} | {x['cpu_s_per_agent']} | {x['peak_rss_mib']} | "
-              f"{x['bytes_per_link_s']:,} | {x['kl_fleet']} | {x['kl_run']} |")
+        print(
+            f"| {x['loss']:.0%} | {x['rule']} | {x['cpu_s_per_agent']} | {x['peak_rss_mib']} | "
+            f"{x['bytes_per_link_s']:,} | {x['kl_fleet']} | {x['kl_run']} |"
+        )
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1))
 

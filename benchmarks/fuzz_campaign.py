@@ -44,13 +44,29 @@ class Inputs:
         self.team = tf.team_bag(root)
         self.maps = tf.small_maps(root)
         self.built = root / "built"
-        self._cli(["build", str(self.bags["ros1"]), "--resolution", "0.1", "--out", str(self.built)])
+        self._cli(
+            ["build", str(self.bags["ros1"]), "--resolution", "0.1", "--out", str(self.built)]
+        )
         self.maps["built.ot"] = self.built / "r1.ot"
         self.ran = root / "ran"
-        self._cli(["run", str(self.team), "--resolution", "0.1", "--topology", "ring",
-                   "--samples", "2", "--out", str(self.ran)])
-        self.hostile = {w: tf.bag_lying_definition(root, w)
-                        for w in ("pc2_no_header", "pc2_float_height", "tf_string_transform")}
+        self._cli(
+            [
+                "run",
+                str(self.team),
+                "--resolution",
+                "0.1",
+                "--topology",
+                "ring",
+                "--samples",
+                "2",
+                "--out",
+                str(self.ran),
+            ]
+        )
+        self.hostile = {
+            w: tf.bag_lying_definition(root, w)
+            for w in ("pc2_no_header", "pc2_float_height", "tf_string_transform")
+        }
         self.hostile["renamed_field"] = tf.bag_renamed_field(root)
         for w in ("nan_quaternion", "nan_angle", "huge_points", "huge_tf", "huge_ray"):
             self.hostile[w] = tf.bag_hostile_numbers(root, w)
@@ -121,14 +137,24 @@ def gen_map_special(rng, x: Inputs) -> Case:
         dst = tf.bt_all_inner(x.fresh("inner").with_suffix(".bt"), int(rng.integers(1, 8_000_000)))
         return Case("bt all inner", ["info", str(dst)], timeout=60)
     path = [x.fifo, Path("/dev/zero"), Path("/dev/null")][int(rng.integers(3))]
-    return Case(f"{path} as a map", [["info"], ["export"]][int(rng.integers(2))] + [str(path)]
-                + ([] if rng.random() < 0.5 else ["--out", str(x.fresh("x")) + ".ply"]), timeout=20)
+    return Case(
+        f"{path} as a map",
+        [["info"], ["export"]][int(rng.integers(2))]
+        + [str(path)]
+        + ([] if rng.random() < 0.5 else ["--out", str(x.fresh("x")) + ".ply"]),
+        timeout=20,
+    )
 
 
 def _build(x: Inputs, bag: Path, expect: str = "error", **kw) -> Case:
     out = x.copy_of(x.built)
-    return Case(f"build {bag.name}", ["build", str(bag), "--resolution", "0.1", "--out", str(out)],
-                expect=expect, out=out, **kw)
+    return Case(
+        f"build {bag.name}",
+        ["build", str(bag), "--resolution", "0.1", "--out", str(out)],
+        expect=expect,
+        out=out,
+        **kw,
+    )
 
 
 def gen_bag_truncate(rng, x: Inputs) -> Case:
@@ -149,8 +175,19 @@ def gen_bag_hostile(rng, x: Inputs) -> Case:
     return _build(x, bag, expect="any" if which == "nan_quaternion" else "error", timeout=30)
 
 
-NUMBERS = ["float('nan')", "float('inf')", "-float('inf')", "1e30", "-1e30", "1e10", "5e-324",
-           "0.0", "-1.0", "1e-30", "1e308"]
+NUMBERS = [
+    "float('nan')",
+    "float('inf')",
+    "-float('inf')",
+    "1e30",
+    "-1e30",
+    "1e10",
+    "5e-324",
+    "0.0",
+    "-1.0",
+    "1e-30",
+    "1e308",
+]
 
 
 def gen_api(rng, x: Inputs) -> Case:
@@ -170,21 +207,64 @@ def gen_cli(rng, x: Inputs) -> Case:
         kind = rng.choice(["periodic", "aperiodic"])
         value = 10 ** rng.uniform(-12, -4.5)
         out = x.copy_of(x.ran)
-        return Case(f"schedule {kind}:{value:.3g}", ["run", str(x.team), "--topology", "ring",
-                                                    "--schedule", f"{kind}:{value:.3g}", "--out",
-                                                    str(out)], out=out, timeout=30)
+        return Case(
+            f"schedule {kind}:{value:.3g}",
+            [
+                "run",
+                str(x.team),
+                "--topology",
+                "ring",
+                "--schedule",
+                f"{kind}:{value:.3g}",
+                "--out",
+                str(out),
+            ],
+            out=out,
+            timeout=30,
+        )
     argv = tf.HOSTILE_ARGUMENTS[int(rng.integers(len(tf.HOSTILE_ARGUMENTS)))]
     built = x.copy_of(x.built)
     argv = [a.format(built=built, bag=x.bags["ros1"], root=x.root) for a in argv]
-    return Case(" ".join(argv[:4]), argv, out=built,
-                expect="any" if "--max-range" in argv else "error")
+    return Case(
+        " ".join(argv[:4]), argv, out=built, expect="any" if "--max-range" in argv else "error"
+    )
 
 
-CONFIG_KEYS = ["build.scan_stride", "build.max_range", "build.map.clamping", "build.fixed_frame",
-               "fuse.rules", "build.threads", "build.map.resolution", "build.agents", "build.bags",
-               "build.map.prob_hit", "build.batch_size", "build.no_return", "build.deskew"]
-CONFIG_VALUES = ["'2'", "far", "5", "-1", "100000", "two", "[1, 2]", "{a: 1}", "null", ".nan",
-                 "1e-30", "1e30", "-.inf", "[{name: a}]", "\xff", "''", "[", "!!binary AAAA"]
+CONFIG_KEYS = [
+    "build.scan_stride",
+    "build.max_range",
+    "build.map.clamping",
+    "build.fixed_frame",
+    "fuse.rules",
+    "build.threads",
+    "build.map.resolution",
+    "build.agents",
+    "build.bags",
+    "build.map.prob_hit",
+    "build.batch_size",
+    "build.no_return",
+    "build.deskew",
+]
+CONFIG_VALUES = [
+    "'2'",
+    "far",
+    "5",
+    "-1",
+    "100000",
+    "two",
+    "[1, 2]",
+    "{a: 1}",
+    "null",
+    ".nan",
+    "1e-30",
+    "1e30",
+    "-.inf",
+    "[{name: a}]",
+    "\xff",
+    "''",
+    "[",
+    "!!binary AAAA",
+]
 
 
 def gen_config(rng, x: Inputs) -> Case:
@@ -195,18 +275,41 @@ def gen_config(rng, x: Inputs) -> Case:
         key = CONFIG_KEYS[int(rng.integers(len(CONFIG_KEYS)))].split(".")
         value = CONFIG_VALUES[int(rng.integers(len(CONFIG_VALUES)))]
         text = "".join(f"{'  ' * i}{k}:\n" for i, k in enumerate(key[:-1]))
-        path.write_bytes((text + f"{'  ' * (len(key) - 1)}{key[-1]}: {value}\n").encode("utf-8",
-                                                                                         "surrogateescape"))
+        path.write_bytes(
+            (text + f"{'  ' * (len(key) - 1)}{key[-1]}: {value}\n").encode(
+                "utf-8", "surrogateescape"
+            )
+        )
     out = x.copy_of(x.built)
-    return Case(f"config {path.name}", ["build", str(x.bags["ros1"]), "--config", str(path), "--out",
-                                        str(out)], out=out, expect="any")
+    return Case(
+        f"config {path.name}",
+        ["build", str(x.bags["ros1"]), "--config", str(path), "--out", str(out)],
+        out=out,
+        expect="any",
+    )
 
 
 def gen_sigint(rng, x: Inputs) -> Case:
     out = x.copy_of(x.ran)
-    return Case("SIGINT in run", ["run", str(x.team), "--topology", "ring", "--samples", "2",
-                                  "--resolution", "0.1", "--out", str(out)],
-                out=out, sigint_after=float(rng.uniform(0.0, 2.5)), exit_code=130, expect="any")
+    return Case(
+        "SIGINT in run",
+        [
+            "run",
+            str(x.team),
+            "--topology",
+            "ring",
+            "--samples",
+            "2",
+            "--resolution",
+            "0.1",
+            "--out",
+            str(out),
+        ],
+        out=out,
+        sigint_after=float(rng.uniform(0.0, 2.5)),
+        exit_code=130,
+        expect="any",
+    )
 
 
 def gen_interrupt_export(rng, x: Inputs) -> Case:
@@ -217,16 +320,24 @@ def gen_interrupt_export(rng, x: Inputs) -> Case:
     target = out / f"cloud{rng.choice(['.ply', '.pcd', '.ot'])}"
     target.write_bytes(b"earlier output\n")
     sig = (signal.SIGINT, signal.SIGTERM)[int(rng.integers(2))]
-    return Case(f"{sig.name} in export", ["export", str(x.big), "--out", str(target)], out=out,
-                sigint_after=float(rng.uniform(0.0, 1.5)), stop_signal=sig, exit_code=128 + sig,
-                expect="any")
+    return Case(
+        f"{sig.name} in export",
+        ["export", str(x.big), "--out", str(target)],
+        out=out,
+        sigint_after=float(rng.uniform(0.0, 1.5)),
+        stop_signal=sig,
+        exit_code=128 + sig,
+        expect="any",
+    )
 
 
 MAP_VALUES = [-1e38, -100.0, 100.0, 1e-40, -1e-42, 3.0e38, 0.5, -1.0]
 
 
 def gen_map_values(rng, x: Inputs) -> Case:
-    values = [MAP_VALUES[int(rng.integers(len(MAP_VALUES)))] for _ in range(int(rng.integers(1, 6)))]
+    values = [
+        MAP_VALUES[int(rng.integers(len(MAP_VALUES)))] for _ in range(int(rng.integers(1, 6)))
+    ]
     src = tf.map_with_values(x.maps[".ot"], x.fresh("values").with_suffix(".ot"), values)
     out = x.copy_of(x.built)
     if rng.random() < 0.5:
@@ -247,32 +358,59 @@ def gen_full_disk(rng, x: Inputs) -> Case:
     which = int(rng.integers(3))
     if which == 0:
         out = x.copy_of(x.ran)
-        argv = ["run", str(x.team), "--topology", "ring", "--samples", "2", "--resolution", "0.1",
-                "--out", str(out)]
+        argv = [
+            "run",
+            str(x.team),
+            "--topology",
+            "ring",
+            "--samples",
+            "2",
+            "--resolution",
+            "0.1",
+            "--out",
+            str(out),
+        ]
     elif which == 1:
         out = x.copy_of(x.built)
         argv = ["build", str(x.bags["ros1"]), "--resolution", "0.1", "--out", str(out)]
     else:
         out = x.copy_of(x.built)
-        argv = ["export", str(out / "r1.ot"), "--out", str(out / f"cloud{rng.choice(['.ply', '.pcd'])}")]
+        argv = [
+            "export",
+            str(out / "r1.ot"),
+            "--out",
+            str(out / f"cloud{rng.choice(['.ply', '.pcd'])}"),
+        ]
     return Case(f"{argv[0]} with fsize {fsize}", argv, out=out, fsize=fsize, expect="any")
 
 
 GENERATORS = {
-    "map truncated": (gen_map_truncate, 6), "map flipped": (gen_map_flip, 6),
-    "map header": (gen_map_header, 3), "map special": (gen_map_special, 1),
-    "bag truncated": (gen_bag_truncate, 3), "bag flipped": (gen_bag_flip, 4),
-    "bag hostile": (gen_bag_hostile, 2), "api numbers": (gen_api, 4), "cli args": (gen_cli, 2),
-    "config": (gen_config, 3), "sigint": (gen_sigint, 1), "full disk": (gen_full_disk, 1),
-    "signal export": (gen_interrupt_export, 2), "map values": (gen_map_values, 2),
+    "map truncated": (gen_map_truncate, 6),
+    "map flipped": (gen_map_flip, 6),
+    "map header": (gen_map_header, 3),
+    "map special": (gen_map_special, 1),
+    "bag truncated": (gen_bag_truncate, 3),
+    "bag flipped": (gen_bag_flip, 4),
+    "bag hostile": (gen_bag_hostile, 2),
+    "api numbers": (gen_api, 4),
+    "cli args": (gen_cli, 2),
+    "config": (gen_config, 3),
+    "sigint": (gen_sigint, 1),
+    "full disk": (gen_full_disk, 1),
+    "signal export": (gen_interrupt_export, 2),
+    "map values": (gen_map_values, 2),
     "loss values": (gen_loss_values, 1),
 }
 
 
 def classify(case: Case, outcome: tf.Outcome) -> str:
     said = {130: "error: interrupted", 143: "error: terminated"}.get(outcome.returncode)
-    if case.sigint_after is not None and said is not None and outcome.stderr.strip() == said \
-            and outcome.kind in ("clean", "messy"):
+    if (
+        case.sigint_after is not None
+        and said is not None
+        and outcome.stderr.strip() == said
+        and outcome.kind in ("clean", "messy")
+    ):
         return "interrupted"
     if outcome.kind == "ok" and case.expect == "error":
         return "lie"
@@ -306,31 +444,40 @@ def main() -> int:
         pending = set()
         k = 0
         while pending or (k < args.cases and time.monotonic() < deadline):
-            while k < args.cases and len(pending) < 2 * args.workers and time.monotonic() < deadline:
-                pending.add(pool.submit(one, k, names[rng.choice(len(names), p=weights / weights.sum())],
-                                        k))
+            while (
+                k < args.cases and len(pending) < 2 * args.workers and time.monotonic() < deadline
+            ):
+                pending.add(
+                    pool.submit(one, k, names[rng.choice(len(names), p=weights / weights.sum())], k)
+                )
                 k += 1
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
                 gen, kind, case, out = fut.result()
                 counts[gen][kind] += 1
                 if kind in BAD:
-                    failures.append(f"[{kind}] {gen}: {case.name}: exit {out.returncode}: "
-                                    f"{' | '.join(out.stderr.strip().splitlines()[-3:])[:300]}")
+                    failures.append(
+                        f"[{kind}] {gen}: {case.name}: exit {out.returncode}: "
+                        f"{' | '.join(out.stderr.strip().splitlines()[-3:])[:300]}"
+                    )
     total = Counter()
     for c in counts.values():
         total.update(c)
     cols = ["clean", "usage", "interrupted", "ok", *BAD]
-    print(f"octofuse fuzz campaign: seed {args.seed}, {sum(total.values())} cases in "
-          f"{time.monotonic() - t0:.0f} s")
+    print(
+        f"octofuse fuzz campaign: seed {args.seed}, {sum(total.values())} cases in "
+        f"{time.monotonic() - t0:.0f} s"
+    )
     print(f"{'generator':16s}" + "".join(f"{c:>12s}" for c in ["cases", *cols]))
     for gen in names + ["TOTAL"]:
         c = total if gen == "TOTAL" else counts.get(gen, Counter())
         print(f"{gen:16s}" + "".join(f"{v:>12d}" for v in [sum(c.values()), *(c[k] for k in cols)]))
-    print(f"clean errors {total['clean'] + total['usage'] + total['interrupted']}, accepted "
-          f"{total['ok']}, tracebacks {total['traceback']}, signals {total['signal']}, hangs "
-          f"{total['hang']}, outputs changed {total['changed']}, messy stderr {total['messy']}, "
-          f"accepted but must be refused {total['lie']}, internal errors {total['internal']}")
+    print(
+        f"clean errors {total['clean'] + total['usage'] + total['interrupted']}, accepted "
+        f"{total['ok']}, tracebacks {total['traceback']}, signals {total['signal']}, hangs "
+        f"{total['hang']}, outputs changed {total['changed']}, messy stderr {total['messy']}, "
+        f"accepted but must be refused {total['lie']}, internal errors {total['internal']}"
+    )
     for line in failures[:40]:
         print(line)
     if args.keep:

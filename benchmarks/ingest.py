@@ -48,16 +48,16 @@ import shutil
 import statistics
 import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 
-from octofuse.maps.build import build, insert_scans, make_build_config, trace_scans, write_maps
-from octofuse.maps.ray_batches import apply_rays
-from octofuse.maps.occupancy import OccupancyMap
-from octofuse.scans.source import SCAN_TYPES, Scan, ScanSource
 from bench_common import log, machine, peak_rss_mib  # noqa: E402
+from octofuse.maps.build import build, insert_scans, make_build_config, trace_scans, write_maps
+from octofuse.maps.occupancy import OccupancyMap
+from octofuse.maps.ray_batches import apply_rays
+from octofuse.scans.source import SCAN_TYPES, Scan, ScanSource
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -87,9 +87,10 @@ def batched_insert(scans: Sequence[Scan], cfg, n_agents: int, central: bool, thr
     size = cfg.batch_size
     t0 = time.perf_counter()
     for i in range(0, len(scans), size):
-        batch = scans[i:i + size]
-        insert_scans(batch, [(maps[s.agent], cmap) if central else (maps[s.agent],) for s in batch],
-                     threads)
+        batch = scans[i : i + size]
+        insert_scans(
+            batch, [(maps[s.agent], cmap) if central else (maps[s.agent],) for s in batch], threads
+        )
     return time.perf_counter() - t0, maps, cmap
 
 
@@ -97,7 +98,10 @@ def traced_batches(scans: Sequence[Scan], cfg) -> list:
     """Each batch of cfg.batch_size scans with its rays traced once (as a run traces them)."""
     grid = OccupancyMap.from_config(cfg.map)
     size = cfg.batch_size
-    return [(b, trace_scans(b, grid, 2)) for b in (scans[i:i + size] for i in range(0, len(scans), size))]
+    return [
+        (b, trace_scans(b, grid, 2))
+        for b in (scans[i : i + size] for i in range(0, len(scans), size))
+    ]
 
 
 def apply_traced(traced: list, cfg, n_agents: int, together: bool):
@@ -111,7 +115,10 @@ def apply_traced(traced: list, cfg, n_agents: int, together: bool):
         if together:
             calls.append((rays, targets))
         else:
-            calls += [(rays, [t if i == k else [] for i, t in enumerate(targets)]) for k in range(len(batch))]
+            calls += [
+                (rays, [t if i == k else [] for i, t in enumerate(targets)])
+                for k in range(len(batch))
+            ]
     t0 = time.perf_counter()
     for rays, targets in calls:
         apply_rays(rays, targets, 1)
@@ -120,8 +127,14 @@ def apply_traced(traced: list, cfg, n_agents: int, together: bool):
 
 def to_map_frame(scans: Sequence[Scan]) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Each scan's points in the map frame with its sensor origin (for the one-map public API)."""
-    return [(np.ascontiguousarray(s.points @ s.pose[:3, :3].T + s.pose[:3, 3]), s.pose[:3, 3].copy(),
-             s.max_range) for s in scans]
+    return [
+        (
+            np.ascontiguousarray(s.points @ s.pose[:3, :3].T + s.pose[:3, 3]),
+            s.pose[:3, 3].copy(),
+            s.max_range,
+        )
+        for s in scans
+    ]
 
 
 def public_plain(scans: Sequence[Scan], world, cfg, n_agents: int):
@@ -151,9 +164,11 @@ def public_insert_scans(scans: Sequence[Scan], world, cfg, n_agents: int, thread
     t0 = time.perf_counter()
     for a, items in per_agent.items():
         for i in range(0, len(items), cfg.batch_size):
-            chunk = items[i:i + cfg.batch_size]
+            chunk = items[i : i + cfg.batch_size]
             for r in sorted({w[2] for w in chunk}):
-                maps[a].insert_scans([(p, o) for p, o, rr in chunk if rr == r], max_range=r, threads=threads)
+                maps[a].insert_scans(
+                    [(p, o) for p, o, rr in chunk if rr == r], max_range=r, threads=threads
+                )
     return time.perf_counter() - t0, maps, None
 
 
@@ -166,8 +181,12 @@ def sorted_leaves(m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def same_map(a, b) -> bool:
     ca, sa, va = sorted_leaves(a)
     cb, sb, vb = sorted_leaves(b)
-    return (len(ca) == len(cb) and np.array_equal(ca, cb) and np.array_equal(sa, sb)
-            and np.array_equal(va, vb))
+    return (
+        len(ca) == len(cb)
+        and np.array_equal(ca, cb)
+        and np.array_equal(sa, sb)
+        and np.array_equal(va, vb)
+    )
 
 
 def same_maps(x, y, central: bool) -> bool:
@@ -247,17 +266,26 @@ def compare_builds(cfg, repeats: int) -> dict:
                 maps[name] = bres.all_maps()
             del bres
     same = all(same_map(maps["batched"][k], maps["per_scan"][k]) for k in maps["per_scan"])
-    out = {name: {"build_s": median_of(build_s[name]), "build_runs_s": build_s[name],
-                  "build_points_per_s": points / median_of(build_s[name]),
-                  "insert_calls_s": median_of(insert_s[name]), "scans_s": median_of(scans_s[name]),
-                  "scans_runs_s": scans_s[name]} for name in paths}
+    out = {
+        name: {
+            "build_s": median_of(build_s[name]),
+            "build_runs_s": build_s[name],
+            "build_points_per_s": points / median_of(build_s[name]),
+            "insert_calls_s": median_of(insert_s[name]),
+            "scans_s": median_of(scans_s[name]),
+            "scans_runs_s": scans_s[name],
+        }
+        for name in paths
+    }
     out["points"] = points
     out["speedup"] = out["per_scan"]["build_s"] / out["batched"]["build_s"]
     out["same_maps"] = same
     return out
 
 
-def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, insertion_only: bool = False) -> dict:
+def run(
+    bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, insertion_only: bool = False
+) -> dict:
     cfg = make_build_config(str(bag), scan_stride=every)
     with ScanSource(cfg) as src:
         agents = [a.name for a in src.agents]
@@ -265,10 +293,19 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
         scans = list(src.scans())
     n_agents = len(agents)
     points = sum(len(s.points) for s in scans)
-    res: dict = {"bag": str(Path(bag).resolve().relative_to(ROOT)) if Path(bag).resolve().is_relative_to(ROOT)
-                 else str(bag), "machine": machine(), "repeats": repeats, "every": every,
-                 "agents": n_agents, "scans": len(scans), "points": points,
-                 "batch_size": cfg.batch_size, "resolution": cfg.map.resolution}
+    res: dict = {
+        "bag": str(Path(bag).resolve().relative_to(ROOT))
+        if Path(bag).resolve().is_relative_to(ROOT)
+        else str(bag),
+        "machine": machine(),
+        "repeats": repeats,
+        "every": every,
+        "agents": n_agents,
+        "scans": len(scans),
+        "points": points,
+        "batch_size": cfg.batch_size,
+        "resolution": cfg.map.resolution,
+    }
 
     # 1. insertion, scans in memory
     world = to_map_frame(scans)
@@ -300,10 +337,16 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
             else:
                 del maps, cmap
     same = {
-        "two_maps": all(same_maps(last["octomap-2"], last[k], True) for k in ("octofuse-2-t2", "octofuse-2-t1")),
-        "one_map": all(same_maps(last["octomap-1"], last[k], False) for k in ("octofuse-1-t2", "octofuse-1-t1")),
-        "public_api": all(same_maps(last["public-octomap"], last[k], False)
-                          for k in ("public-insert_scan", "public-insert_scans-t1", "public-insert_scans-t2")),
+        "two_maps": all(
+            same_maps(last["octomap-2"], last[k], True) for k in ("octofuse-2-t2", "octofuse-2-t1")
+        ),
+        "one_map": all(
+            same_maps(last["octomap-1"], last[k], False) for k in ("octofuse-1-t2", "octofuse-1-t1")
+        ),
+        "public_api": all(
+            same_maps(last["public-octomap"], last[k], False)
+            for k in ("public-insert_scan", "public-insert_scans-t1", "public-insert_scans-t2")
+        ),
         "walks": same_maps(last["apply-scan-by-scan"], last["apply-together"], False)
         and same_maps(last["octomap-1"], last["apply-together"], False),
     }
@@ -311,8 +354,10 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
     central_leaves = last["octomap-2"][2].num_leaves
     central_ref = last["octomap-2"][2]
     del last
-    res["insertion"] = {k: {"median_s": median_of(v), "runs_s": v, "points_per_s": points / median_of(v)}
-                        for k, v in times.items()}
+    res["insertion"] = {
+        k: {"median_s": median_of(v), "runs_s": v, "points_per_s": points / median_of(v)}
+        for k, v in times.items()
+    }
     res["same_maps"] = same
     res["central_leaves"] = central_leaves
     if insertion_only:
@@ -323,8 +368,9 @@ def run(bag: str | Path = DEFAULT_BAG, repeats: int = 3, every: int = 1, inserti
     out_dir = OUT / "ingest-maps"
     nodeskew = copy.deepcopy(cfg)
     nodeskew.deskew = False
-    stages: dict[str, list[float]] = {k: [] for k in ("open", "read", "scans_nodeskew", "scans",
-                                                      "build", "write")}
+    stages: dict[str, list[float]] = {
+        k: [] for k in ("open", "read", "scans_nodeskew", "scans", "build", "write")
+    }
     build_insert: list[float] = []
     build_same = None
     for r in range(repeats):
@@ -380,59 +426,95 @@ def fmt_rate(x: float) -> str:
 def print_tables(res: dict, out=sys.stdout) -> None:
     p = lambda s="": print(s, file=out)  # noqa: E731
     ins = res["insertion"]
-    p(f"Scan insertion: {res['bag']}" + (f" (every {res['every']}th scan)" if res["every"] > 1 else "")
-      + f", {res['agents']} agents, {res['scans']:,} scans, {res['points']:,} points, "
-      f"{res['resolution']} m voxels; batches of {res['batch_size']} scans; median of {res['repeats']} runs")
+    p(
+        f"Scan insertion: {res['bag']}"
+        + (f" (every {res['every']}th scan)" if res["every"] > 1 else "")
+        + f", {res['agents']} agents, {res['scans']:,} scans, {res['points']:,} points, "
+        f"{res['resolution']} m voxels; batches of {res['batch_size']} scans; median of {res['repeats']} runs"
+    )
     p(f"machine: {res['machine']}")
-    p(f"same maps as OctoMap's insertPointCloud (every leaf: centre, size, log-odds): "
-      f"agent + centralized maps {'yes' if res['same_maps']['two_maps'] else 'NO'}, "
-      f"agent maps only {'yes' if res['same_maps']['one_map'] else 'NO'}")
+    p(
+        f"same maps as OctoMap's insertPointCloud (every leaf: centre, size, log-odds): "
+        f"agent + centralized maps {'yes' if res['same_maps']['two_maps'] else 'NO'}, "
+        f"agent maps only {'yes' if res['same_maps']['one_map'] else 'NO'}"
+    )
     p()
-    p(f"   one map, public API (map-frame points, each scan into its agent's map); same maps: "
-      f"{'yes' if res['same_maps'].get('public_api') else 'NO'}")
-    for name, label in (("public-octomap", "OctoMap insertPointCloud, scan by scan (baseline)"),
-                        ("public-insert_scan", "OccupancyMap.insert_scan, scan by scan"),
-                        ("public-insert_scans-t1", "OccupancyMap.insert_scans, lists of 32, 1 thread"),
-                        ("public-insert_scans-t2", "OccupancyMap.insert_scans, lists of 32, 2 threads")):
+    p(
+        f"   one map, public API (map-frame points, each scan into its agent's map); same maps: "
+        f"{'yes' if res['same_maps'].get('public_api') else 'NO'}"
+    )
+    for name, label in (
+        ("public-octomap", "OctoMap insertPointCloud, scan by scan (baseline)"),
+        ("public-insert_scan", "OccupancyMap.insert_scan, scan by scan"),
+        ("public-insert_scans-t1", "OccupancyMap.insert_scans, lists of 32, 1 thread"),
+        ("public-insert_scans-t2", "OccupancyMap.insert_scans, lists of 32, 2 threads"),
+    ):
         r = ins[name]
-        p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
-          f"{ins['public-octomap']['median_s'] / r['median_s']:8.2f}x")
-    rows = [("agent + centralized map (2 insertions per scan)", "octomap-2", "octofuse-2-t2", "octofuse-2-t1"),
-            ("agent map only (1 insertion per scan)", "octomap-1", "octofuse-1-t2", "octofuse-1-t1")]
+        p(
+            f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
+            f"{ins['public-octomap']['median_s'] / r['median_s']:8.2f}x"
+        )
+    rows = [
+        (
+            "agent + centralized map (2 insertions per scan)",
+            "octomap-2",
+            "octofuse-2-t2",
+            "octofuse-2-t1",
+        ),
+        ("agent map only (1 insertion per scan)", "octomap-1", "octofuse-1-t2", "octofuse-1-t1"),
+    ]
     p(f"   {'method':60s} {'s':>7s} {'points/s':>10s} {'speed-up':>9s}")
     for title, b, o2, o1 in rows:
         p(f"   {title}")
-        for name, label in ((b, "OctoMap insertPointCloud, scan by scan (baseline)"),
-                            (o2, "octofuse insert_scans, 2 threads"),
-                            (o1, "octofuse insert_scans, 1 thread")):
+        for name, label in (
+            (b, "OctoMap insertPointCloud, scan by scan (baseline)"),
+            (o2, "octofuse insert_scans, 2 threads"),
+            (o1, "octofuse insert_scans, 1 thread"),
+        ):
             r = ins[name]
-            p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
-              f"{ins[b]['median_s'] / r['median_s']:8.2f}x")
+            p(
+                f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
+                f"{ins[b]['median_s'] / r['median_s']:8.2f}x"
+            )
     if "apply-together" in ins:
-        p(f"   traced rays applied to the agents' maps, 1 thread (a run's lanes); same maps: "
-          f"{'yes' if res['same_maps'].get('walks') else 'NO'}")
-        for name, label in (("apply-scan-by-scan", "one walk per scan (baseline)"),
-                            ("apply-together", "a map's scans of a batch walked together")):
+        p(
+            f"   traced rays applied to the agents' maps, 1 thread (a run's lanes); same maps: "
+            f"{'yes' if res['same_maps'].get('walks') else 'NO'}"
+        )
+        for name, label in (
+            ("apply-scan-by-scan", "one walk per scan (baseline)"),
+            ("apply-together", "a map's scans of a batch walked together"),
+        ):
             r = ins[name]
-            p(f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
-              f"{ins['apply-scan-by-scan']['median_s'] / r['median_s']:8.2f}x")
+            p(
+                f"     {label:58s} {r['median_s']:7.2f} {fmt_rate(r['points_per_s']):>10s} "
+                f"{ins['apply-scan-by-scan']['median_s'] / r['median_s']:8.2f}x"
+            )
     p()
     if "build" not in res:
         return
     b = res["build"]
     total = sum(b["stages_s"].values())
-    p(f"Whole build (octofuse.maps.build.build + write_maps) of {res['bag']}: {b['end_to_end_s']:.2f} s end to end "
-      f"({b['build_s']:.2f} s build + {b['write_s']:.2f} s writing {b['maps_bytes'] / 1e6:.1f} MB of maps), "
-      f"{fmt_rate(b['build_points_per_s'])} points/s for the build")
-    p(f"   centralized map of the build = OctoMap's: {'yes' if b['same_central_as_octomap'] else 'NO'}")
+    p(
+        f"Whole build (octofuse.maps.build.build + write_maps) of {res['bag']}: {b['end_to_end_s']:.2f} s end to end "
+        f"({b['build_s']:.2f} s build + {b['write_s']:.2f} s writing {b['maps_bytes'] / 1e6:.1f} MB of maps), "
+        f"{fmt_rate(b['build_points_per_s'])} points/s for the build"
+    )
+    p(
+        f"   centralized map of the build = OctoMap's: {'yes' if b['same_central_as_octomap'] else 'NO'}"
+    )
     p(f"   {'stage, timed alone':48s} {'s':>7s} {'share':>7s}")
     for k, v in b["stages_s"].items():
         p(f"   {k:48s} {v:7.2f} {100 * v / total:6.1f}%")
     p(f"   {'sum of the stages':48s} {total:7.2f}")
-    p(f"   in build(), decoding runs in a second thread while the C++ insertion works: "
-      f"{b['build_insert_calls_s']:.2f} s in insertion calls, the rest waiting for scans")
-    p(f"   the same stages with OctoMap's insertion, one after the other: {b['octomap_sequential_s']:.2f} s "
-      f"({b['octomap_sequential_s'] / b['end_to_end_s']:.2f}x the octofuse build)")
+    p(
+        f"   in build(), decoding runs in a second thread while the C++ insertion works: "
+        f"{b['build_insert_calls_s']:.2f} s in insertion calls, the rest waiting for scans"
+    )
+    p(
+        f"   the same stages with OctoMap's insertion, one after the other: {b['octomap_sequential_s']:.2f} s "
+        f"({b['octomap_sequential_s'] / b['end_to_end_s']:.2f}x the octofuse build)"
+    )
     if "build_paths" in res:
         p()
         print_build_paths(res["build_paths"], res["bag"], res["repeats"], out)
@@ -440,29 +522,46 @@ def print_tables(res: dict, out=sys.stdout) -> None:
 
 def print_build_paths(c: dict, bag: str, repeats: int, out=sys.stdout) -> None:
     p = lambda s="": print(s, file=out)  # noqa: E731
-    p(f"build() of {bag}: transform look-ups many scans at once vs scan by scan, same run, "
-      f"median of {repeats}; {c['points']:,} points; same maps (every leaf of every map): "
-      f"{'yes' if c['same_maps'] else 'NO'}")
-    p(f"   {'path':44s} {'build s':>8s} {'points/s':>10s} {'insert calls s':>15s} {'scans() alone s':>16s}")
-    for name, label in (("per_scan", "scan by scan (previous path, baseline)"),
-                        ("batched", "many scans at once (the build's path)")):
+    p(
+        f"build() of {bag}: transform look-ups many scans at once vs scan by scan, same run, "
+        f"median of {repeats}; {c['points']:,} points; same maps (every leaf of every map): "
+        f"{'yes' if c['same_maps'] else 'NO'}"
+    )
+    p(
+        f"   {'path':44s} {'build s':>8s} {'points/s':>10s} {'insert calls s':>15s} {'scans() alone s':>16s}"
+    )
+    for name, label in (
+        ("per_scan", "scan by scan (previous path, baseline)"),
+        ("batched", "many scans at once (the build's path)"),
+    ):
         r = c[name]
-        p(f"   {label:44s} {r['build_s']:8.2f} {fmt_rate(r['build_points_per_s']):>10s} "
-          f"{r['insert_calls_s']:15.2f} {r['scans_s']:16.2f}")
-    p(f"   speed-up of the build: {c['speedup']:.2f}x; scans() alone: "
-      f"{c['per_scan']['scans_s'] / c['batched']['scans_s']:.2f}x")
+        p(
+            f"   {label:44s} {r['build_s']:8.2f} {fmt_rate(r['build_points_per_s']):>10s} "
+            f"{r['insert_calls_s']:15.2f} {r['scans_s']:16.2f}"
+        )
+    p(
+        f"   speed-up of the build: {c['speedup']:.2f}x; scans() alone: "
+        f"{c['per_scan']['scans_s'] / c['batched']['scans_s']:.2f}x"
+    )
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bag", default=str(DEFAULT_BAG))
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--every", type=int, default=1, help="use every N-th scan of each agent (1: all)")
-    ap.add_argument("--quick", action="store_true", help="every 20th scan, 1 run (checks that it runs)")
+    ap.add_argument(
+        "--every", type=int, default=1, help="use every N-th scan of each agent (1: all)"
+    )
+    ap.add_argument(
+        "--quick", action="store_true", help="every 20th scan, 1 run (checks that it runs)"
+    )
     ap.add_argument("--json", help="also write the figures to this JSON file")
     ap.add_argument("--insertion-only", action="store_true", help="skip the build and its stages")
-    ap.add_argument("--builds-only", action="store_true",
-                    help="only build() with batched vs per-scan transform look-ups")
+    ap.add_argument(
+        "--builds-only",
+        action="store_true",
+        help="only build() with batched vs per-scan transform look-ups",
+    )
     args = ap.parse_args(argv)
     if args.quick:
         args.every, args.repeats = 20, 1
@@ -473,15 +572,28 @@ def main(argv=None) -> int:
         print_build_paths(c, bag, args.repeats)
         if args.json:
             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.json).write_text(json.dumps({"bag": str(args.bag), "every": args.every,
-                                                   "machine": machine(), "build_paths": c}, indent=2))
+            Path(args.json).write_text(
+                json.dumps(
+                    {
+                        "bag": str(args.bag),
+                        "every": args.every,
+                        "machine": machine(),
+                        "build_paths": c,
+                    },
+                    indent=2,
+                )
+            )
         return 0 if c["same_maps"] else 1
     res = run(args.bag, args.repeats, args.every, args.insertion_only)
     print_tables(res)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(res, indent=2))
-    return 0 if all(res["same_maps"].values()) and res.get("build_paths", {}).get("same_maps", True) else 1
+    return (
+        0
+        if all(res["same_maps"].values()) and res.get("build_paths", {}).get("same_maps", True)
+        else 1
+    )
 
 
 if __name__ == "__main__":

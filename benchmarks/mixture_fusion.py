@@ -66,21 +66,51 @@ def main(argv=None) -> int:
     for rule in RULES:
         grid_ms, truth = timed(lambda k: grid_fuse(a, b, rule, grid, prior=prior), args.repeats)
         for method in METHODS:
-            ms, res = timed(lambda k: fuse_mixtures(a, b, rule=rule, n_samples=1000, method=method,
-                                                    max_components=15, prior=prior, seed=k), args.repeats)
-            rows.append({"rule": rule, "method": method, "ms": ms, "grid_ms": grid_ms,
-                         "grid_over_sampling": grid_ms / ms, "omega": res.omega, "grid_omega": truth.omega,
-                         "kl_from_grid": grid_kl(truth.log_density, res.mixture.logpdf(pts))})
-    print(f"Mixture fusion, 2 x 15 components in 2-D, N_s = 1000, reduction to 15 ({machine()}, one core;"
-          f" CPU time; grid {args.grid} x {args.grid}, median of {args.repeats})")
-    print(f"{'rule':24s} {'method':13s} {'ms':>8s} {'grid ms':>8s} {'grid/IS':>8s} {'omega':>7s}"
-          f" {'grid w':>7s} {'KL grid||fused':>15s}")
+            ms, res = timed(
+                lambda k: fuse_mixtures(
+                    a,
+                    b,
+                    rule=rule,
+                    n_samples=1000,
+                    method=method,
+                    max_components=15,
+                    prior=prior,
+                    seed=k,
+                ),
+                args.repeats,
+            )
+            rows.append(
+                {
+                    "rule": rule,
+                    "method": method,
+                    "ms": ms,
+                    "grid_ms": grid_ms,
+                    "grid_over_sampling": grid_ms / ms,
+                    "omega": res.omega,
+                    "grid_omega": truth.omega,
+                    "kl_from_grid": grid_kl(truth.log_density, res.mixture.logpdf(pts)),
+                }
+            )
+    print(
+        f"Mixture fusion, 2 x 15 components in 2-D, N_s = 1000, reduction to 15 ({machine()}, one core;"
+        f" CPU time; grid {args.grid} x {args.grid}, median of {args.repeats})"
+    )
+    print(
+        f"{'rule':24s} {'method':13s} {'ms':>8s} {'grid ms':>8s} {'grid/IS':>8s} {'omega':>7s}"
+        f" {'grid w':>7s} {'KL grid||fused':>15s}"
+    )
     for r in rows:
-        print(f"{r['rule']:24s} {r['method']:13s} {r['ms']:8.1f} {r['grid_ms']:8.1f} "
-              f"{r['grid_over_sampling']:8.2f} {r['omega']:7.3f} {r['grid_omega']:7.3f} {r['kl_from_grid']:15.4f}")
+        print(
+            f"{r['rule']:24s} {r['method']:13s} {r['ms']:8.1f} {r['grid_ms']:8.1f} "
+            f"{r['grid_over_sampling']:8.2f} {r['omega']:7.3f} {r['grid_omega']:7.3f} {r['kl_from_grid']:15.4f}"
+        )
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"machine": machine(), "grid": args.grid, "repeats": args.repeats, "rows": rows}, f, indent=1)
+            json.dump(
+                {"machine": machine(), "grid": args.grid, "repeats": args.repeats, "rows": rows},
+                f,
+                indent=1,
+            )
     return 0
 
 

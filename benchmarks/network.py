@@ -37,6 +37,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
 from bench_common import log, machine, peak_rss_mib  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -51,8 +52,14 @@ SAMPLES = 8
 GROWTH_RULES = ("min-info-loss", "naive-bayes")
 
 #: the parts of a run, in the order they are printed (thread-seconds inside simulate's lanes)
-PARTS = ("insertion", "exchange + fusion", "scoring: KL samples during the run", "scoring: final scores",
-         "export", "outputs (plots, summary, report)")
+PARTS = (
+    "insertion",
+    "exchange + fusion",
+    "scoring: KL samples during the run",
+    "scoring: final scores",
+    "export",
+    "outputs (plots, summary, report)",
+)
 
 
 # -- one run (in its own process) --------------------------------------------------------------
@@ -97,13 +104,24 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
         "outputs (plots, summary, report)": max(t_out - export, 0.0) if out is not None else 0.0,
     }
     return {
-        "bag": bag, "rules": list(res.rules), "agents": len(res.agents), "scans": scans,
-        "points": points, "events": len(res.events), "messages_per_rule": messages,
-        "messages": sum(messages.values()), "bytes_sent_per_rule": sent,
-        "links": len(res.graph.edges), "simulate_s": t_sim, "simulate_cpu_s": cpu_sim,
+        "bag": bag,
+        "rules": list(res.rules),
+        "agents": len(res.agents),
+        "scans": scans,
+        "points": points,
+        "events": len(res.events),
+        "messages_per_rule": messages,
+        "messages": sum(messages.values()),
+        "bytes_sent_per_rule": sent,
+        "links": len(res.graph.edges),
+        "simulate_s": t_sim,
+        "simulate_cpu_s": cpu_sim,
         "outputs_s": t_out,
-        "wall_s": t_sim + t_out, "parts_s": parts, "timings_raw": tm,
-        "fusion_summed_s": tm.get("fusion", 0.0), "exchange_summed_s": tm.get("exchange", 0.0),
+        "wall_s": t_sim + t_out,
+        "parts_s": parts,
+        "timings_raw": tm,
+        "fusion_summed_s": tm.get("fusion", 0.0),
+        "exchange_summed_s": tm.get("exchange", 0.0),
         "central_leaves": res.central.num_leaves,
         "peak_rss_mib": peak_rss_mib(),
         "ru_maxrss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
@@ -111,8 +129,16 @@ def one_run(bag: str, rules: list[str], out: str | None, every: int = 1) -> dict
 
 
 def run_in_process(bag: Path, rules: list[str], out: Path | None, every: int = 1) -> dict:
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(bag), "--rules", ",".join(rules),
-           "--every", str(every)]
+    cmd = [
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--one",
+        str(bag),
+        "--rules",
+        ",".join(rules),
+        "--every",
+        str(every),
+    ]
     if out is not None:
         cmd += ["--out", str(out)]
     proc = subprocess.run(cmd, text=True, capture_output=True)
@@ -127,8 +153,14 @@ def median_run(runs: list[dict]) -> dict:
     runs = sorted(runs, key=lambda r: r["wall_s"])
     mid = dict(runs[len(runs) // 2])
     mid["parts_s"] = {k: statistics.median(r["parts_s"][k] for r in runs) for k in PARTS}
-    for k in ("simulate_s", "simulate_cpu_s", "outputs_s", "wall_s", "fusion_summed_s",
-              "exchange_summed_s"):
+    for k in (
+        "simulate_s",
+        "simulate_cpu_s",
+        "outputs_s",
+        "wall_s",
+        "fusion_summed_s",
+        "exchange_summed_s",
+    ):
         mid[k] = statistics.median(r[k] for r in runs)
     mid["peak_rss_mib"] = max(r["peak_rss_mib"] for r in runs)
     mid["ru_maxrss_mib"] = max(r.get("ru_maxrss_mib", 0.0) for r in runs)
@@ -146,8 +178,16 @@ def dataset(robots: int, duration: float, rate: float | None = None) -> Path:
     if not bag.exists():
         DATA.mkdir(parents=True, exist_ok=True)
         log(f"generating {bag.relative_to(ROOT)} ({robots} robots, {duration:g} s)")
-        cmd = [sys.executable, str(ROOT / "data" / "generate_lab.py"), "--robots", str(robots),
-               "--duration", str(duration), "--out", str(bag)]
+        cmd = [
+            sys.executable,
+            str(ROOT / "data" / "generate_lab.py"),
+            "--robots",
+            str(robots),
+            "--duration",
+            str(duration),
+            "--out",
+            str(bag),
+        ]
         if rate:
             cmd += ["--rate", str(rate)]
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -157,18 +197,33 @@ def dataset(robots: int, duration: float, rate: float | None = None) -> Path:
 # -- the benchmark -----------------------------------------------------------------------------
 
 
-def run(robots=(4, 8, 16, 32, 64), duration: float = 60.0, repeats: int = 1, demo_rules=None,
-        demo_every: int = 1, rate: float | None = None, demo: bool = True) -> dict:
+def run(
+    robots=(4, 8, 16, 32, 64),
+    duration: float = 60.0,
+    repeats: int = 1,
+    demo_rules=None,
+    demo_every: int = 1,
+    rate: float | None = None,
+    demo: bool = True,
+) -> dict:
     from octofuse.rules import RULES
 
     demo_rules = list(demo_rules or RULES)
-    res: dict = {"machine": machine(), "topology": TOPOLOGY, "schedule": SCHEDULE, "samples": SAMPLES,
-                 "repeats": repeats}
+    res: dict = {
+        "machine": machine(),
+        "topology": TOPOLOGY,
+        "schedule": SCHEDULE,
+        "samples": SAMPLES,
+        "repeats": repeats,
+    }
     out = OUT / "network-demo-out"
     runs = []
     for r in range(repeats if demo else 0):
-        log(f"demo setting on {LAB8.name} with {len(demo_rules)} rules"
-            + (f" (every {demo_every}th scan)" if demo_every > 1 else "") + f", run {r + 1} of {repeats}")
+        log(
+            f"demo setting on {LAB8.name} with {len(demo_rules)} rules"
+            + (f" (every {demo_every}th scan)" if demo_every > 1 else "")
+            + f", run {r + 1} of {repeats}"
+        )
         runs.append(run_in_process(LAB8, demo_rules, out, demo_every))
     shutil.rmtree(out, ignore_errors=True)
     if runs:
@@ -202,20 +257,26 @@ def print_tables(res: dict, out=sys.stdout) -> None:
 def print_demo(res: dict, out=sys.stdout) -> None:
     p = lambda s="": print(s, file=out)  # noqa: E731
     d = res["demo"]
-    p(f"Fusion run in the demo's setting: {Path(d['bag']).name}"
-      + (f" (every {d['every']}th scan)" if d.get("every", 1) > 1 else "")
-      + f", {d['agents']} agents, {res['topology']} ({d['links']} links), {res['schedule']}, "
-      f"{len(d['rules'])} rules, {res['samples']} samples; median of {res['repeats']} runs")
+    p(
+        f"Fusion run in the demo's setting: {Path(d['bag']).name}"
+        + (f" (every {d['every']}th scan)" if d.get("every", 1) > 1 else "")
+        + f", {d['agents']} agents, {res['topology']} ({d['links']} links), {res['schedule']}, "
+        f"{len(d['rules'])} rules, {res['samples']} samples; median of {res['repeats']} runs"
+    )
     p(f"machine: {res['machine']}")
-    p(f"   {d['scans']:,} scans, {d['points']:,} points, {d['events']} messages per rule ({d['messages']:,} "
-      f"over {len(d['rules'])} rules); wall {fmt_s(d['wall_s'])} s "
-      f"(simulate {fmt_s(d['simulate_s'])} s on {cores(d):.2f} cores + write_outputs "
-      f"{fmt_s(d['outputs_s'])} s), peak memory {d['peak_rss_mib']:.0f} MiB")
+    p(
+        f"   {d['scans']:,} scans, {d['points']:,} points, {d['events']} messages per rule ({d['messages']:,} "
+        f"over {len(d['rules'])} rules); wall {fmt_s(d['wall_s'])} s "
+        f"(simulate {fmt_s(d['simulate_s'])} s on {cores(d):.2f} cores + write_outputs "
+        f"{fmt_s(d['outputs_s'])} s), peak memory {d['peak_rss_mib']:.0f} MiB"
+    )
     p(f"   {'part':42s} {'thread-s':>8s}")
     for k in PARTS:
         p(f"   {k:42s} {fmt_s(d['parts_s'][k]):>8s}")
-    p(f"   exchange + fusion per message: {1e3 * d['parts_s']['exchange + fusion'] / max(d['messages'], 1):.1f} "
-      "thread-ms (each rule's maps a lane of their own, the lanes on 2 threads)")
+    p(
+        f"   exchange + fusion per message: {1e3 * d['parts_s']['exchange + fusion'] / max(d['messages'], 1):.1f} "
+        "thread-ms (each rule's maps a lane of their own, the lanes on 2 threads)"
+    )
     p()
 
 
@@ -230,25 +291,35 @@ def print_growth(res: dict, out=sys.stdout) -> None:
     if not g:
         return
     p(f"machine: {res['machine']}")
-    p(f"Growth with the number of agents: generated labN bags of {res['growth_duration_s']:g} s, rules "
-      f"{' + '.join(res['growth_rules'])}, {res['topology']}, {res['schedule']}, {res['samples']} samples, "
-      f"no outputs; median of {res['repeats']} runs")
-    head = (f"   {'agents':>6s} {'scans':>7s} {'points':>10s} {'msgs':>6s} {'wall s':>7s} {'cores':>5s} "
-            f"{'insert':>7s} {'exch+fus':>8s} {'KL samp':>7s} {'scores':>7s} {'ms/msg':>7s} "
-            f"{'us/point':>8s} {'peak MiB':>8s}")
+    p(
+        f"Growth with the number of agents: generated labN bags of {res['growth_duration_s']:g} s, rules "
+        f"{' + '.join(res['growth_rules'])}, {res['topology']}, {res['schedule']}, {res['samples']} samples, "
+        f"no outputs; median of {res['repeats']} runs"
+    )
+    head = (
+        f"   {'agents':>6s} {'scans':>7s} {'points':>10s} {'msgs':>6s} {'wall s':>7s} {'cores':>5s} "
+        f"{'insert':>7s} {'exch+fus':>8s} {'KL samp':>7s} {'scores':>7s} {'ms/msg':>7s} "
+        f"{'us/point':>8s} {'peak MiB':>8s}"
+    )
     p(head)
     for r in g:
         pt = r["parts_s"]
-        p(f"   {r['agents']:6d} {r['scans']:7,d} {r['points']:10,d} {r['messages']:6,d} "
-          f"{fmt_s(r['simulate_s']):>7s} {cores(r):5.2f} {fmt_s(pt['insertion']):>7s} "
-          f"{fmt_s(pt['exchange + fusion']):>8s} {fmt_s(pt['scoring: KL samples during the run']):>7s} "
-          f"{fmt_s(pt['scoring: final scores']):>7s} "
-          f"{1e3 * pt['exchange + fusion'] / max(r['messages'], 1):7.1f} "
-          f"{1e6 * pt['insertion'] / max(r['points'], 1):8.2f} {r['peak_rss_mib']:8.0f}")
-    p("   msgs: messages over both rules; insert, exch+fus, KL samp: thread-seconds in the lanes; "
-      "scores: the final scores (thread-s in the lanes);")
-    p("   ms/msg: exchange + fusion thread-ms per message; us/point: insertion thread-us per scan "
-      "point (each point goes into 4 maps: 2 rules, local-only, centralized)")
+        p(
+            f"   {r['agents']:6d} {r['scans']:7,d} {r['points']:10,d} {r['messages']:6,d} "
+            f"{fmt_s(r['simulate_s']):>7s} {cores(r):5.2f} {fmt_s(pt['insertion']):>7s} "
+            f"{fmt_s(pt['exchange + fusion']):>8s} {fmt_s(pt['scoring: KL samples during the run']):>7s} "
+            f"{fmt_s(pt['scoring: final scores']):>7s} "
+            f"{1e3 * pt['exchange + fusion'] / max(r['messages'], 1):7.1f} "
+            f"{1e6 * pt['insertion'] / max(r['points'], 1):8.2f} {r['peak_rss_mib']:8.0f}"
+        )
+    p(
+        "   msgs: messages over both rules; insert, exch+fus, KL samp: thread-seconds in the lanes; "
+        "scores: the final scores (thread-s in the lanes);"
+    )
+    p(
+        "   ms/msg: exchange + fusion thread-ms per message; us/point: insertion thread-us per scan "
+        "point (each point goes into 4 maps: 2 rules, local-only, centralized)"
+    )
 
 
 def main(argv=None) -> int:
@@ -256,11 +327,18 @@ def main(argv=None) -> int:
     ap.add_argument("--robots", default="4,8,16,32,64", help="agent counts of the growth table")
     ap.add_argument("--growth-only", action="store_true", help="skip the demo-setting run")
     ap.add_argument("--duration", type=float, default=60.0, help="length of the generated bags, s")
-    ap.add_argument("--rate", type=float, default=None, help="scan rate of the generated bags (default 5 Hz)")
+    ap.add_argument(
+        "--rate", type=float, default=None, help="scan rate of the generated bags (default 5 Hz)"
+    )
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--demo-rules", default="all", help="rules of the demo-setting run: all or a list")
-    ap.add_argument("--quick", action="store_true",
-                    help="tiny settings: demo setting on every 20th scan with 2 rules, 4 and 8 agents for 10 s")
+    ap.add_argument(
+        "--demo-rules", default="all", help="rules of the demo-setting run: all or a list"
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="tiny settings: demo setting on every 20th scan with 2 rules, 4 and 8 agents for 10 s",
+    )
     ap.add_argument("--json", help="also write the figures to this JSON file")
     # one run in this process (used by the benchmark itself)
     ap.add_argument("--one", help=argparse.SUPPRESS)
@@ -279,8 +357,15 @@ def main(argv=None) -> int:
     if args.quick:
         robots, args.duration, args.repeats, demo_every = (4, 8), 10.0, 1, 20
         demo_rules = list(GROWTH_RULES)
-    res = run(robots, args.duration, args.repeats, demo_rules, demo_every, args.rate,
-              demo=not args.growth_only)
+    res = run(
+        robots,
+        args.duration,
+        args.repeats,
+        demo_rules,
+        demo_every,
+        args.rate,
+        demo=not args.growth_only,
+    )
     print_tables(res)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bench_common import log, machine  # noqa: E402
 from octofuse import _core
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.bags import BagSet
 from octofuse.scans.decode import pointcloud2_to_xyz
-from bench_common import log, machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMINAR = ROOT.parent / "shared" / "data" / "real" / "luminar_pointcloud2.bag"
@@ -51,13 +51,17 @@ def luminar_scans(bag: Path) -> list[tuple[np.ndarray, np.ndarray]]:
     """The bag's clouds (finite points, float32) with the sensor at their origin."""
     with BagSet(bag) as b:
         clouds = [pointcloud2_to_xyz(m.msg) for m in b.messages("/luminar_pointcloud")]
-    return [(np.ascontiguousarray(c[np.isfinite(c).all(axis=1)], dtype=np.float32), np.zeros(3))
-            for c in clouds]
+    return [
+        (np.ascontiguousarray(c[np.isfinite(c).all(axis=1)], dtype=np.float32), np.zeros(3))
+        for c in clouds
+    ]
 
 
 def warehouse_scans(n_scans: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Map-frame scans of the generated warehouse along robot 1's loop, 10 per second."""
-    spec = importlib.util.spec_from_file_location("generate_warehouse", ROOT / "data" / "generate_warehouse.py")
+    spec = importlib.util.spec_from_file_location(
+        "generate_warehouse", ROOT / "data" / "generate_warehouse.py"
+    )
     gw = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gw)
     rng = np.random.default_rng(7)
@@ -68,8 +72,14 @@ def warehouse_scans(n_scans: int) -> list[tuple[np.ndarray, np.ndarray]]:
     out = []
     for k in range(n_scans):
         x, y, yaw = (float(v) for v in traj.pose(np.array(k / gw.SCAN_HZ)))
-        d = np.stack([np.outer(np.cos(el), np.cos(az + yaw)), np.outer(np.cos(el), np.sin(az + yaw)),
-                      np.outer(np.sin(el), np.ones_like(az))], axis=-1).reshape(-1, 3)
+        d = np.stack(
+            [
+                np.outer(np.cos(el), np.cos(az + yaw)),
+                np.outer(np.cos(el), np.sin(az + yaw)),
+                np.outer(np.sin(el), np.ones_like(az)),
+            ],
+            axis=-1,
+        ).reshape(-1, 3)
         origin = np.array([x, y, gw.MOUNT_Z])
         r = scene.raycast(origin, d)
         keep = np.isfinite(r) & (r < gw.RANGE_MAX) & (r > gw.RANGE_MIN)
@@ -84,6 +94,7 @@ def _scan_by_scan(insert):
         for pts, origin in scans:
             insert(m, pts, origin)
         return m
+
     return run
 
 
@@ -95,14 +106,27 @@ def _insert_scans_fast(scans):
 
 #: (name, threads, build the map of a set of scans)
 METHODS = [
-    ("OctoMap insertPointCloud", 1, _scan_by_scan(
-        lambda m, p, o: m._m.insert_scan(p, o, MAX_RANGE, False))),
-    ("OctoMap insertRay loop", 1, _scan_by_scan(
-        lambda m, p, o: _core._insert_ray_loop(m._m, p, o, MAX_RANGE))),
+    (
+        "OctoMap insertPointCloud",
+        1,
+        _scan_by_scan(lambda m, p, o: m._m.insert_scan(p, o, MAX_RANGE, False)),
+    ),
+    (
+        "OctoMap insertRay loop",
+        1,
+        _scan_by_scan(lambda m, p, o: _core._insert_ray_loop(m._m, p, o, MAX_RANGE)),
+    ),
     ("octofuse exact", 1, _scan_by_scan(lambda m, p, o: m.insert_scan(p, o, MAX_RANGE))),
-    ("octofuse fast", 1, _scan_by_scan(lambda m, p, o: m.insert_scan(p, o, MAX_RANGE, mode="fast"))),
-    ("octofuse fast, 2 threads", 2, _scan_by_scan(
-        lambda m, p, o: m.insert_scan(p, o, MAX_RANGE, mode="fast", threads=2))),
+    (
+        "octofuse fast",
+        1,
+        _scan_by_scan(lambda m, p, o: m.insert_scan(p, o, MAX_RANGE, mode="fast")),
+    ),
+    (
+        "octofuse fast, 2 threads",
+        2,
+        _scan_by_scan(lambda m, p, o: m.insert_scan(p, o, MAX_RANGE, mode="fast", threads=2)),
+    ),
     ("octofuse fast, insert_scans 2 threads", 2, _insert_scans_fast),
 ]
 
@@ -112,8 +136,12 @@ def agreement(m: OccupancyMap, ref: OccupancyMap) -> dict:
     c = m.class_counts(ref, 0.0)
     q = np.array(c["confusion"])
     occ, free = q[0].sum(), q[1].sum()
-    return {"occupied_kept": q[0, 0] / occ, "extra_occupied": (q[1, 0] + q[2, 0]) / occ,
-            "free_voxels": q[:, 1].sum() / free, "kl_sum": c["kl_sum"]}
+    return {
+        "occupied_kept": q[0, 0] / occ,
+        "extra_occupied": (q[1, 0] + q[2, 0]) / occ,
+        "free_voxels": q[:, 1].sum() / free,
+        "kl_sum": c["kl_sum"],
+    }
 
 
 def bench_set(name: str, scans, repeats: int) -> list[dict]:
@@ -135,12 +163,23 @@ def bench_set(name: str, scans, repeats: int) -> list[dict]:
     for label, threads, _ in METHODS:
         w, c = statistics.median(wall[label]), statistics.median(cpu[label])
         per_scan = w / len(scans)
-        rows.append({"set": name, "method": label, "threads": threads, "scans": len(scans),
-                     "points_per_scan": n_pts / len(scans), "ms_per_scan": 1e3 * per_scan,
-                     "cpu_ms_per_scan": 1e3 * c / len(scans), "points_per_s": n_pts / w,
-                     "realtime_factor": (1.0 / HZ) / per_scan, "speedup": base / w,
-                     "cpu_speedup": statistics.median(cpu[METHODS[0][0]]) / c,
-                     "memory_mb": maps[label].memory_bytes / 1e6, **agreement(maps[label], ref)})
+        rows.append(
+            {
+                "set": name,
+                "method": label,
+                "threads": threads,
+                "scans": len(scans),
+                "points_per_scan": n_pts / len(scans),
+                "ms_per_scan": 1e3 * per_scan,
+                "cpu_ms_per_scan": 1e3 * c / len(scans),
+                "points_per_s": n_pts / w,
+                "realtime_factor": (1.0 / HZ) / per_scan,
+                "speedup": base / w,
+                "cpu_speedup": statistics.median(cpu[METHODS[0][0]]) / c,
+                "memory_mb": maps[label].memory_bytes / 1e6,
+                **agreement(maps[label], ref),
+            }
+        )
     return rows
 
 
@@ -148,17 +187,21 @@ def table(rows: list[dict]) -> str:
     """Markdown: wall times, and CPU times (what the process used: on a shared machine the
     wall times grow with the other load; ``real time (CPU)`` is 0.1 s over the CPU time per
     scan, the rate of a core of its own)."""
-    head = ("| scans | method | ms/scan | CPU ms/scan | real time | real time (CPU) | "
-            "vs insertPointCloud (CPU) | memory | occupied kept | extra occupied | "
-            "free voxels | KL |")
+    head = (
+        "| scans | method | ms/scan | CPU ms/scan | real time | real time (CPU) | "
+        "vs insertPointCloud (CPU) | memory | occupied kept | extra occupied | "
+        "free voxels | KL |"
+    )
     lines = [head, "|" + "---|" * 12]
     base = {r["set"]: r["cpu_ms_per_scan"] for r in rows if r["method"] == METHODS[0][0]}
     for r in rows:
-        lines.append(f"| {r['set']} | {r['method']} | {r['ms_per_scan']:.0f} | {r['cpu_ms_per_scan']:.0f} | "
-                     f"{r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
-                     f"{base[r['set']] / r['cpu_ms_per_scan']:.1f}x | {r['memory_mb']:.1f} MB | "
-                     f"{100 * r['occupied_kept']:.1f}% | {100 * r['extra_occupied']:.1f}% | "
-                     f"{100 * r['free_voxels']:.0f}% | {r['kl_sum']:.0f} |")
+        lines.append(
+            f"| {r['set']} | {r['method']} | {r['ms_per_scan']:.0f} | {r['cpu_ms_per_scan']:.0f} | "
+            f"{r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
+            f"{base[r['set']] / r['cpu_ms_per_scan']:.1f}x | {r['memory_mb']:.1f} MB | "
+            f"{100 * r['occupied_kept']:.1f}% | {100 * r['extra_occupied']:.1f}% | "
+            f"{100 * r['free_voxels']:.0f}% | {r['kl_sum']:.0f} |"
+        )
     return "\n".join(lines)
 
 
@@ -167,7 +210,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="rounds (methods taking turns)")
     ap.add_argument("--sets", default="luminar,warehouse", help="luminar, warehouse or both")
     ap.add_argument("--luminar-bag", type=Path, default=LUMINAR)
-    ap.add_argument("--warehouse-scans", type=int, default=20, help="scans of the warehouse (10 Hz)")
+    ap.add_argument(
+        "--warehouse-scans", type=int, default=20, help="scans of the warehouse (10 Hz)"
+    )
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args(argv)
     log(machine())

@@ -31,9 +31,22 @@ GENERATOR = Path(__file__).resolve().parents[1] / "data" / "generate_lab.py"
 
 def generate(out: Path, robot: int, offset, yaw: float, drift, yaw_drift: float) -> Path:
     if not out.exists():
-        cmd = [sys.executable, str(GENERATOR), "--out", str(out), "--bias-robot", str(robot),
-               "--bias-offset", *map(str, offset), "--bias-yaw", str(yaw),
-               "--bias-drift", *map(str, drift), "--bias-yaw-drift", str(yaw_drift)]
+        cmd = [
+            sys.executable,
+            str(GENERATOR),
+            "--out",
+            str(out),
+            "--bias-robot",
+            str(robot),
+            "--bias-offset",
+            *map(str, offset),
+            "--bias-yaw",
+            str(yaw),
+            "--bias-drift",
+            *map(str, drift),
+            "--bias-yaw-drift",
+            str(yaw_drift),
+        ]
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     return out
 
@@ -55,31 +68,52 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
-    bag = generate(args.out, args.bias_robot, args.bias_offset, args.bias_yaw, args.bias_drift,
-                   args.bias_yaw_drift)
+    bag = generate(
+        args.out,
+        args.bias_robot,
+        args.bias_offset,
+        args.bias_yaw,
+        args.bias_drift,
+        args.bias_yaw_drift,
+    )
     scene = Scene.load(bag.with_name(bag.stem + "_scene.json"))
     biased = f"robot{args.bias_robot}"
     bcfg = make_build_config(bag, scan_stride=args.every, threads=args.threads)
     names = [f"robot{k}" for k in range(1, 9)]
     good = [n for n in names if n != biased]
-    clean_cfg = make_build_config(bag, agents=[f"{n}=/{n}/scan" for n in good],
-                                  scan_stride=args.every, threads=args.threads)
+    clean_cfg = make_build_config(
+        bag, agents=[f"{n}=/{n}/scan" for n in good], scan_stride=args.every, threads=args.threads
+    )
     clean = build(clean_cfg).centralized
     rules = [r for r in args.rules.split(",") if r]
     runs = {}
     # off; on (no exchange before the vote); on with exchanges before the vote as usual
-    for mode, robust, hold in (("off", False, True), ("on", True, True), ("on, no hold", True, False)):
-        fcfg = FuseConfig(rules=rules, topology=args.topology, schedule=args.schedule,
-                          robust=RobustConfig(enabled=robust, time=args.robust_time, hold=hold))
+    for mode, robust, hold in (
+        ("off", False, True),
+        ("on", True, True),
+        ("on, no hold", True, False),
+    ):
+        fcfg = FuseConfig(
+            rules=rules,
+            topology=args.topology,
+            schedule=args.schedule,
+            robust=RobustConfig(enabled=robust, time=args.robust_time, hold=hold),
+        )
         runs[mode] = simulate(bcfg, fcfg, samples=0)
 
-    print(f"bag {bag}: {biased} biased by offset {tuple(args.bias_offset)} m, yaw {args.bias_yaw} deg, "
-          f"drift {tuple(args.bias_drift)} m/s, {args.bias_yaw_drift} deg/s; every {args.every}. scan, "
-          f"{args.topology}, {args.schedule}")
-    print("scores: mean over the correctly localised robots; reference = centralized map of those "
-          "robots only; truth = occupied voxels on a true surface\n")
-    head = f"{'rule':<20} {'robust':<12} {'KL to clean':>11} {'agreement':>9} {'occ. agr.':>9} " \
-           f"{'on surface':>10} {'MB sent':>8}"
+    print(
+        f"bag {bag}: {biased} biased by offset {tuple(args.bias_offset)} m, yaw {args.bias_yaw} deg, "
+        f"drift {tuple(args.bias_drift)} m/s, {args.bias_yaw_drift} deg/s; every {args.every}. scan, "
+        f"{args.topology}, {args.schedule}"
+    )
+    print(
+        "scores: mean over the correctly localised robots; reference = centralized map of those "
+        "robots only; truth = occupied voxels on a true surface\n"
+    )
+    head = (
+        f"{'rule':<20} {'robust':<12} {'KL to clean':>11} {'agreement':>9} {'occ. agr.':>9} "
+        f"{'on surface':>10} {'MB sent':>8}"
+    )
     print(head)
     print("-" * len(head))
     for rule in rules + ["local-only", "centralized (all 8)"]:
@@ -98,23 +132,34 @@ def main(argv=None) -> int:
                 sent = sum(res.traffic[rule].sent.values()) / 1e6
             s = [score(m, clean, truth=scene) for m in maps.values()]
             kl, agr = np.mean([x.kl_mean for x in s]), np.mean([x.agreement for x in s])
-            occ, acc = np.mean([x.agreement_occupied for x in s]), np.mean([x.occupied_accuracy for x in s])
-            print(f"{rule:<20} {mode:<12} {kl:>11.4f} {agr:>9.1%} {occ:>9.1%} "
-                  f"{acc:>10.1%} {sent:>8.1f}")
+            occ, acc = (
+                np.mean([x.agreement_occupied for x in s]),
+                np.mean([x.occupied_accuracy for x in s]),
+            )
+            print(
+                f"{rule:<20} {mode:<12} {kl:>11.4f} {agr:>9.1%} {occ:>9.1%} "
+                f"{acc:>10.1%} {sent:>8.1f}"
+            )
     out = runs["on"].robust
     print()
     for a, m, ab, ok, v in zip(out.agents, out.measurements, out.abstained, out.inliers, out.votes):
-        state = "abstained" if ab else f"({m[0]:+.3f} m, {m[1]:+.3f} m, {np.degrees(m[2]):+.2f} deg)"
+        state = (
+            "abstained" if ab else f"({m[0]:+.3f} m, {m[1]:+.3f} m, {np.degrees(m[2]):+.2f} deg)"
+        )
         print(f"  {a}: offset to neighbours {state}, votes {v:.2f}, {'kept' if ok else 'EXCLUDED'}")
     found = out.excluded == [biased]
     late = runs["on, no hold"].excluded
-    print(f"\nvote at t = {out.time_s:.0f} s: excluded {out.excluded or 'none'}; biased robot "
-          f"{biased} {'found (and nobody else)' if found else 'NOT cleanly found'}; "
-          f"without hold: excluded {late or 'none'}")
-    print(f"bytes: {out.alignment_bytes / 1e3:.1f} kB of 2-D map points to neighbours + "
-          f"{out.voting_bytes / 1e3:.1f} kB of voting messages ({out.hypotheses} hypotheses, "
-          f"{out.rounds} rounds) = {out.total_bytes / 1e3:.1f} kB; the map exchange of one rule "
-          f"sends {sum(runs['on'].traffic[rules[0]].sent.values()) / 1e6:.1f} MB")
+    print(
+        f"\nvote at t = {out.time_s:.0f} s: excluded {out.excluded or 'none'}; biased robot "
+        f"{biased} {'found (and nobody else)' if found else 'NOT cleanly found'}; "
+        f"without hold: excluded {late or 'none'}"
+    )
+    print(
+        f"bytes: {out.alignment_bytes / 1e3:.1f} kB of 2-D map points to neighbours + "
+        f"{out.voting_bytes / 1e3:.1f} kB of voting messages ({out.hypotheses} hypotheses, "
+        f"{out.rounds} rounds) = {out.total_bytes / 1e3:.1f} kB; the map exchange of one rule "
+        f"sends {sum(runs['on'].traffic[rules[0]].sent.values()) / 1e6:.1f} MB"
+    )
     print(f"time {time.perf_counter() - t0:.0f} s")
     return 0 if found else 1
 

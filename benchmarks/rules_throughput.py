@@ -65,19 +65,33 @@ def run(pairs: int, repeats: int) -> dict:
 def print_table(res: dict, out=sys.stdout) -> None:
     pairs = res["pairs"]
     nb = res["rules"]["naive-bayes"]["median_s"]
-    print("octofuse per-voxel rules on arrays (octofuse.fuse_logodds, single-threaded kernel)", file=out)
+    print(
+        "octofuse per-voxel rules on arrays (octofuse.fuse_logodds, single-threaded kernel)",
+        file=out,
+    )
     print(f"machine: {res['machine']}", file=out)
-    print(f"{pairs:,} log-odds pairs; median of {res['repeats']} runs; each call returns the "
-          "fused value, the weight and the information loss (3 arrays)", file=out)
-    print(f"{'method':34s} {'median s':>9s} {'pairs/s':>14s} {'time / numpy add':>17s} "
-          f"{'time / NB':>10s}", file=out)
-    print(f"{'numpy l_a + l_b (baseline)':34s} {res['numpy_add_s']:9.3f} "
-          f"{res['numpy_add_pairs_per_s']:14,.0f} {1.0:17.2f} {res['numpy_add_s'] / nb:10.2f}",
-          file=out)
+    print(
+        f"{pairs:,} log-odds pairs; median of {res['repeats']} runs; each call returns the "
+        "fused value, the weight and the information loss (3 arrays)",
+        file=out,
+    )
+    print(
+        f"{'method':34s} {'median s':>9s} {'pairs/s':>14s} {'time / numpy add':>17s} "
+        f"{'time / NB':>10s}",
+        file=out,
+    )
+    print(
+        f"{'numpy l_a + l_b (baseline)':34s} {res['numpy_add_s']:9.3f} "
+        f"{res['numpy_add_pairs_per_s']:14,.0f} {1.0:17.2f} {res['numpy_add_s'] / nb:10.2f}",
+        file=out,
+    )
     for rule, r in res["rules"].items():
         tag = " *" if rule in CLOSED_FORM else ""
-        print(f"{'fuse_logodds ' + rule + tag:34s} {r['median_s']:9.3f} {r['pairs_per_s']:14,.0f} "
-              f"{r['median_s'] / res['numpy_add_s']:17.2f} {r['median_s'] / nb:10.2f}", file=out)
+        print(
+            f"{'fuse_logodds ' + rule + tag:34s} {r['median_s']:9.3f} {r['pairs_per_s']:14,.0f} "
+            f"{r['median_s'] / res['numpy_add_s']:17.2f} {r['median_s'] / nb:10.2f}",
+            file=out,
+        )
     print("* closed-form rule", file=out)
 
 

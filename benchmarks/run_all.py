@@ -54,19 +54,46 @@ def build() -> None:
     jobs = str(os.cpu_count() or 2)
     if not (BUILD / "CMakeCache.txt").exists():
         log(f"configuring the C++ benchmark in {BUILD.relative_to(ROOT)} (Release)")
-        subprocess.run(["cmake", "-S", str(ROOT), "-B", str(BUILD), "-DOCTOFUSE_BUILD_BENCHMARKS=ON",
-                        "-DCMAKE_BUILD_TYPE=Release"], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [
+                "cmake",
+                "-S",
+                str(ROOT),
+                "-B",
+                str(BUILD),
+                "-DOCTOFUSE_BUILD_BENCHMARKS=ON",
+                "-DCMAKE_BUILD_TYPE=Release",
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
     log("building the C++ benchmark (if out of date)")
-    subprocess.run(["cmake", "--build", str(BUILD), "-j", jobs, "--target", "octofuse_bench_fuse_trees"],
-                   check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(
+        ["cmake", "--build", str(BUILD), "-j", jobs, "--target", "octofuse_bench_fuse_trees"],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
 
 
 def run_trees(values: str, repeats: int, scale: float) -> dict:
     out = BUILD / f"fuse_trees_{values}.json"
     log(f"running the tree benchmark ({values} values, {repeats} runs per method)")
     t0 = time.perf_counter()
-    proc = subprocess.run([str(EXE), "--repeats", str(repeats), "--scale", str(scale), "--values", values,
-                           "--json", str(out)], text=True, capture_output=True)
+    proc = subprocess.run(
+        [
+            str(EXE),
+            "--repeats",
+            str(repeats),
+            "--scale",
+            str(scale),
+            "--values",
+            values,
+            "--json",
+            str(out),
+        ],
+        text=True,
+        capture_output=True,
+    )
     if proc.returncode not in (0, 1) or not out.exists():
         sys.stderr.write(proc.stdout + proc.stderr)
         raise SystemExit(f"the tree benchmark failed (exit code {proc.returncode})")
@@ -85,8 +112,11 @@ def bag_path(name: str, quick: bool) -> Path:
     if not (bag / "metadata.yaml").exists():
         log(f"generating {bag.relative_to(ROOT)} (data/generate_warehouse.py)")
         extra = ["--duration", "4"] if quick else []
-        subprocess.run([sys.executable, str(ROOT / "data" / "generate_warehouse.py"), "--out", str(bag)] + extra,
-                       check=True)
+        subprocess.run(
+            [sys.executable, str(ROOT / "data" / "generate_warehouse.py"), "--out", str(bag)]
+            + extra,
+            check=True,
+        )
     return bag
 
 
@@ -95,18 +125,40 @@ def bag_maps(name: str, quick: bool) -> Path:
     bag = bag_path(name, quick)
     maps = DATA / f"{name}_maps"
     if not (maps / "robot1.ot").exists():
-        log(f"building the maps of {bag.name} into {maps.relative_to(ROOT)} (once; minutes for the warehouse)")
-        subprocess.run([str(Path(sys.executable).parent / "octofuse"), "build", str(bag), "--out", str(maps)],
-                       check=True, stdout=subprocess.DEVNULL)
+        log(
+            f"building the maps of {bag.name} into {maps.relative_to(ROOT)} (once; minutes for the warehouse)"
+        )
+        subprocess.run(
+            [str(Path(sys.executable).parent / "octofuse"), "build", str(bag), "--out", str(maps)],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
     return maps
 
 
 def run_map_files(name: str, a: Path, b: Path, repeats: int) -> dict:
     out = BUILD / f"fuse_maps_{name}.json"
-    log(f"running the tree benchmark on the {name} maps {a.name} + {b.name} ({repeats} runs per method)")
+    log(
+        f"running the tree benchmark on the {name} maps {a.name} + {b.name} ({repeats} runs per method)"
+    )
     t0 = time.perf_counter()
-    proc = subprocess.run([str(EXE), "--repeats", str(repeats), "--map-a", str(a), "--map-b", str(b),
-                           "--threads", "2", "--json", str(out)], text=True, capture_output=True)
+    proc = subprocess.run(
+        [
+            str(EXE),
+            "--repeats",
+            str(repeats),
+            "--map-a",
+            str(a),
+            "--map-b",
+            str(b),
+            "--threads",
+            "2",
+            "--json",
+            str(out),
+        ],
+        text=True,
+        capture_output=True,
+    )
     if proc.returncode not in (0, 1) or not out.exists():
         sys.stderr.write(proc.stdout + proc.stderr)
         raise SystemExit(f"the tree benchmark failed on {name} (exit code {proc.returncode})")
@@ -123,14 +175,20 @@ def report_maps(sets: dict[str, dict]) -> str:
     lines: list[str] = []
     p = lines.append
     names = list(sets)
-    p("Tree fusion on maps built from bags (0.05 m), against OctoMap's updateNode merge in the same run")
+    p(
+        "Tree fusion on maps built from bags (0.05 m), against OctoMap's updateNode merge in the same run"
+    )
     for n, r in sets.items():
-        p(f"   {n}: {r['maps'][0]} ({r['leaves_a']:,} leaves) + {r['maps'][1]} ({r['leaves_b']:,} leaves); "
-          f"{r['voxels']:,} leaf pairs; median of {r['repeats']} runs; same results as the merges and as "
-          f"fuse_maps: {'yes' if r['ok'] else 'NO'}")
+        p(
+            f"   {n}: {r['maps'][0]} ({r['leaves_a']:,} leaves) + {r['maps'][1]} ({r['leaves_b']:,} leaves); "
+            f"{r['voxels']:,} leaf pairs; median of {r['repeats']} runs; same results as the merges and as "
+            f"fuse_maps: {'yes' if r['ok'] else 'NO'}"
+        )
     p(f"   {'method':58s}" + "".join(f" {n + ' s':>12s} {'ratio':>7s}" for n in names))
-    p(f"   {'OctoMap merge in place (expand b + updateNode)':58s}"
-      + "".join(f" {sets[n]['merge_in_place_s']:12.3f} {1.0:7.2f}" for n in names))
+    p(
+        f"   {'OctoMap merge in place (expand b + updateNode)':58s}"
+        + "".join(f" {sets[n]['merge_in_place_s']:12.3f} {1.0:7.2f}" for n in names)
+    )
     for i, row in enumerate(sets[names[0]]["in_place"]):
         label = f"octofuse {row['rule']} fuse_into, {row['threads']} thread(s)"
         cells = ""
@@ -138,9 +196,18 @@ def report_maps(sets: dict[str, dict]) -> str:
             rr = sets[n]["in_place"][i]
             cells += f" {rr['median_s']:12.3f} {sets[n]['merge_in_place_s'] / rr['median_s']:7.2f}"
         p(f"   {label:58s}{cells}")
-    merge = {n: next(r["median_s"] for r in sets[n]["rows"] if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false"))
-             for n in names}
-    p(f"   {'OctoMap merge (copy a + expand b + updateNode)':58s}" + "".join(f" {merge[n]:12.3f} {1.0:7.2f}" for n in names))
+    merge = {
+        n: next(
+            r["median_s"]
+            for r in sets[n]["rows"]
+            if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false")
+        )
+        for n in names
+    }
+    p(
+        f"   {'OctoMap merge (copy a + expand b + updateNode)':58s}"
+        + "".join(f" {merge[n]:12.3f} {1.0:7.2f}" for n in names)
+    )
     for i, row in enumerate(sets[names[0]]["whole_cost"]):
         cells = ""
         for n in names:
@@ -164,33 +231,51 @@ def report(trees: dict[str, dict], rules: dict) -> tuple[str, dict]:
     p = lines.append
     s = trees["sensor"]
     p("octofuse benchmarks")
-    p(f"machine: {s['hardware_threads']} hardware threads, {s['memory']} memory; every benchmarked "
-      "code path is single-threaded (one core)")
+    p(
+        f"machine: {s['hardware_threads']} hardware threads, {s['memory']} memory; every benchmarked "
+        "code path is single-threaded (one core)"
+    )
     p("")
-    p("1. Tree fusion: two overlapping maps, every rule (unknown = copy) beside OctoMap's updateNode merge")
-    p(f"   map a: {s['leaves_a']:,} leaves, map b: {s['leaves_b']:,} leaves "
-      f"({100 * s['finest_leaves_a'] / s['leaves_a']:.1f}% / {100 * s['finest_leaves_b'] / s['leaves_b']:.1f}% "
-      "at the finest level); node layout as read from a map file")
-    p(f"   voxels = leaf pairs walked = {s['voxels']:,} ({s['voxels_both']:,} known to both maps); "
-      f"median of {s['repeats']} runs")
+    p(
+        "1. Tree fusion: two overlapping maps, every rule (unknown = copy) beside OctoMap's updateNode merge"
+    )
+    p(
+        f"   map a: {s['leaves_a']:,} leaves, map b: {s['leaves_b']:,} leaves "
+        f"({100 * s['finest_leaves_a'] / s['leaves_a']:.1f}% / {100 * s['finest_leaves_b'] / s['leaves_b']:.1f}% "
+        "at the finest level); node layout as read from a map file"
+    )
+    p(
+        f"   voxels = leaf pairs walked = {s['voxels']:,} ({s['voxels_both']:,} known to both maps); "
+        f"median of {s['repeats']} runs"
+    )
     same = all(t["same_result_eager"] and t["same_result_lazy"] for t in trees.values())
-    p(f"   octofuse naive-bayes gives the same map as the updateNode merges (all finest-level voxels "
-      f"compared): {'yes' if same else 'NO'}")
+    p(
+        f"   octofuse naive-bayes gives the same map as the updateNode merges (all finest-level voxels "
+        f"compared): {'yes' if same else 'NO'}"
+    )
     p("")
     head = f"   {'method':44s} {'sensor-model values':>27s} {'continuous values':>27s}"
     p(head)
     p(f"   {'':44s} {'voxels/s':>13s} {'time / NB':>13s} {'voxels/s':>13s} {'time / NB':>13s}")
     cont = trees["continuous"]
     for rs, rc in zip(s["rows"], cont["rows"]):
-        p(f"   {rs['name']:44s} {fmt_rate(rs['voxels_per_s']):>13s} {rs['vs_naive_bayes']:13.2f} "
-          f"{fmt_rate(rc['voxels_per_s']):>13s} {rc['vs_naive_bayes']:13.2f}")
+        p(
+            f"   {rs['name']:44s} {fmt_rate(rs['voxels_per_s']):>13s} {rs['vs_naive_bayes']:13.2f} "
+            f"{fmt_rate(rc['voxels_per_s']):>13s} {rc['vs_naive_bayes']:13.2f}"
+        )
     p("")
     nb_s = next(r["median_s"] for r in s["rows"] if r["name"] == "octofuse naive-bayes")
-    merge_s = next(r["median_s"] for r in s["rows"] if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false"))
-    p(f"   allocation floor: OctoMap's own deep copy of the naive-bayes result ({s['result_nodes']:,} nodes, "
-      f"one heap allocation each) takes {s['copy_result_s'] * 1e3:.0f} ms, octofuse naive-bayes "
-      f"{nb_s * 1e3:.0f} ms, the updateNode merge {merge_s * 1e3:.0f} ms "
-      f"({merge_s / s['copy_result_s']:.1f}x the copy)")
+    merge_s = next(
+        r["median_s"]
+        for r in s["rows"]
+        if r["name"].startswith("OctoMap updateNode merge (lazy_eval=false")
+    )
+    p(
+        f"   allocation floor: OctoMap's own deep copy of the naive-bayes result ({s['result_nodes']:,} nodes, "
+        f"one heap allocation each) takes {s['copy_result_s'] * 1e3:.0f} ms, octofuse naive-bayes "
+        f"{nb_s * 1e3:.0f} ms, the updateNode merge {merge_s * 1e3:.0f} ms "
+        f"({merge_s / s['copy_result_s']:.1f}x the copy)"
+    )
     p("")
     rows = {r["name"]: r for r in s["rows"]}
     rows_c = {r["name"]: r for r in cont["rows"]}
@@ -199,50 +284,92 @@ def report(trees: dict[str, dict], rules: dict) -> tuple[str, dict]:
     nb_ratio_c = rows_c[merge]["vs_naive_bayes"]
     checks = {}  # name -> (met on the main trees, figure, met with continuous values or None)
     checks["naive-bayes >= 10x the updateNode merge"] = (
-        nb_ratio >= 10.0, f"{nb_ratio:.1f}x / {nb_ratio_c:.1f}x", nb_ratio_c >= 10.0)
+        nb_ratio >= 10.0,
+        f"{nb_ratio:.1f}x / {nb_ratio_c:.1f}x",
+        nb_ratio_c >= 10.0,
+    )
     for rule in CLOSED_FORM:
-        r1, r2 = rows[f"octofuse {rule}"]["vs_naive_bayes"], rows_c[f"octofuse {rule}"]["vs_naive_bayes"]
-        checks[f"{rule} within 1.5x of naive-bayes"] = (r1 <= 1.5, f"{r1:.2f}x / {r2:.2f}x", r2 <= 1.5)
+        r1, r2 = (
+            rows[f"octofuse {rule}"]["vs_naive_bayes"],
+            rows_c[f"octofuse {rule}"]["vs_naive_bayes"],
+        )
+        checks[f"{rule} within 1.5x of naive-bayes"] = (
+            r1 <= 1.5,
+            f"{r1:.2f}x / {r2:.2f}x",
+            r2 <= 1.5,
+        )
     for rule in WEIGHTED:
-        r1, r2 = rows[f"octofuse {rule}"]["vs_naive_bayes"], rows_c[f"octofuse {rule}"]["vs_naive_bayes"]
-        checks[f"{rule} within 4x of naive-bayes"] = (r1 <= 4.0, f"{r1:.2f}x / {r2:.2f}x", r2 <= 4.0)
+        r1, r2 = (
+            rows[f"octofuse {rule}"]["vs_naive_bayes"],
+            rows_c[f"octofuse {rule}"]["vs_naive_bayes"],
+        )
+        checks[f"{rule} within 4x of naive-bayes"] = (
+            r1 <= 4.0,
+            f"{r1:.2f}x / {r2:.2f}x",
+            r2 <= 4.0,
+        )
 
-    p(f"2. Per-voxel rules on arrays: octofuse.fuse_logodds on {rules['pairs']:,} random log-odds pairs "
-      f"(single-threaded kernel), median of {rules['repeats']} runs")
+    p(
+        f"2. Per-voxel rules on arrays: octofuse.fuse_logodds on {rules['pairs']:,} random log-odds pairs "
+        f"(single-threaded kernel), median of {rules['repeats']} runs"
+    )
     nb_s = rules["rules"]["naive-bayes"]["median_s"]
     p(f"   {'method':40s} {'pairs/s':>12s} {'time / numpy add':>17s} {'time / NB':>10s}")
-    p(f"   {'numpy l_a + l_b':40s} {fmt_rate(rules['numpy_add_pairs_per_s']):>12s} {1.0:17.2f} "
-      f"{rules['numpy_add_s'] / nb_s:10.2f}")
+    p(
+        f"   {'numpy l_a + l_b':40s} {fmt_rate(rules['numpy_add_pairs_per_s']):>12s} {1.0:17.2f} "
+        f"{rules['numpy_add_s'] / nb_s:10.2f}"
+    )
     for rule, r in rules["rules"].items():
-        p(f"   {'fuse_logodds ' + rule:40s} {fmt_rate(r['pairs_per_s']):>12s} "
-          f"{r['median_s'] / rules['numpy_add_s']:17.2f} {r['median_s'] / nb_s:10.2f}")
+        p(
+            f"   {'fuse_logodds ' + rule:40s} {fmt_rate(r['pairs_per_s']):>12s} "
+            f"{r['median_s'] / rules['numpy_add_s']:17.2f} {r['median_s'] / nb_s:10.2f}"
+        )
         if rule in CLOSED_FORM:
-            checks[f"array {rule} >= 20 M pairs/s"] = (r["pairs_per_s"] >= 20e6, fmt_rate(r["pairs_per_s"]), None)
+            checks[f"array {rule} >= 20 M pairs/s"] = (
+                r["pairs_per_s"] >= 20e6,
+                fmt_rate(r["pairs_per_s"]),
+                None,
+            )
     p("")
     p("3. Targets: verdict on the main trees (sensor-model values) [and with continuous values];")
     p("   figures: sensor-model values / continuous values")
     for name, (ok, fig, ok_c) in checks.items():
         extra = "" if ok_c is None else f"[{verdict(ok_c)}]"
         p(f"   {verdict(ok):7s} {extra:9s} {name:52s} {fig}")
-    summary = {"trees": {k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in trees.items()},
-               "rules": rules,
-               "targets": {k: {"met": ok, "met_continuous_values": ok_c, "figure": fig}
-                           for k, (ok, fig, ok_c) in checks.items()}}
+    summary = {
+        "trees": {k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in trees.items()},
+        "rules": rules,
+        "targets": {
+            k: {"met": ok, "met_continuous_values": ok_c, "figure": fig}
+            for k, (ok, fig, ok_c) in checks.items()
+        },
+    }
     return "\n".join(lines), summary
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5, help="timed runs per method (median reported)")
+    ap.add_argument(
+        "--repeats", type=int, default=5, help="timed runs per method (median reported)"
+    )
     ap.add_argument("--pairs", type=int, default=10_000_000, help="pairs for the array benchmark")
-    ap.add_argument("--quick", action="store_true", help="small inputs, for a smoke test of the scripts")
-    ap.add_argument("--parts", default=",".join(PARTS),
-                    help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network "
-                         "(comma separated)")
+    ap.add_argument(
+        "--quick", action="store_true", help="small inputs, for a smoke test of the scripts"
+    )
+    ap.add_argument(
+        "--parts",
+        default=",".join(PARTS),
+        help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network "
+        "(comma separated)",
+    )
     ap.add_argument("--ingest-repeats", type=int, default=3, help="timed runs per insertion method")
     ap.add_argument("--network-repeats", type=int, default=1, help="runs per fusion-run setting")
-    ap.add_argument("--network-duration", type=float, default=60.0,
-                    help="length of the generated 4-32 robot bags, s")
+    ap.add_argument(
+        "--network-duration",
+        type=float,
+        default=60.0,
+        help="length of the generated 4-32 robot bags, s",
+    )
     args = ap.parse_args(argv)
     parts = [x.strip() for x in args.parts.split(",") if x.strip()]
     bad = [x for x in parts if x not in PARTS]
@@ -271,12 +398,18 @@ def main(argv=None) -> int:
             sets[name] = run_map_files(name, d / f"{ma}.ot", d / f"{mb}.ot", args.repeats)
         print()
         print(report_maps(sets))
-        summary["maps"] = {k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in sets.items()}
+        summary["maps"] = {
+            k: {kk: vv for kk, vv in v.items() if kk != "stdout"} for k, v in sets.items()
+        }
         ok = ok and all(v["ok"] for v in sets.values())
     if "ingest" in parts:
-        log("running the insertion benchmark on the warehouse bag (every 40th scan, insertion only)")
+        log(
+            "running the insertion benchmark on the warehouse bag (every 40th scan, insertion only)"
+        )
         bag = bag_path("warehouse4", args.quick)
-        wres = ingest.run(bag, args.ingest_repeats, 40 if not args.quick else 100, insertion_only=True)
+        wres = ingest.run(
+            bag, args.ingest_repeats, 40 if not args.quick else 100, insertion_only=True
+        )
         print()
         print("4a. Scan insertion on the warehouse (16-beam 3D lidar, 12 m)")
         ingest.print_tables(wres)
@@ -291,7 +424,9 @@ def main(argv=None) -> int:
         ok = ok and all(res["same_maps"].values())
     if "network" in parts:
         log("running the fusion-run benchmark (benchmarks/network.py)")
-        res = network.run(robots, args.network_duration, args.network_repeats, demo_rules, demo_every)
+        res = network.run(
+            robots, args.network_duration, args.network_repeats, demo_rules, demo_every
+        )
         print()
         print("5. Fusion runs: where the time goes, and growth with the number of agents")
         network.print_tables(res)

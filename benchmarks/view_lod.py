@@ -25,7 +25,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_common import log, machine  # noqa: E402
-
 from octofuse.view.difference import AGREEING  # noqa: E402
 from octofuse.view.voxels import Voxels  # noqa: E402
 
@@ -54,11 +53,15 @@ def warehouse(leaves: int, seed: int = 0) -> Voxels:
     rows = max(1, left // (side // 2 * (height - 1)))
     for i in range(rows):  # shelves: walls across the hall
         ys, zs = np.meshgrid(np.arange(side // 2), np.arange(1, height), indexing="ij")
-        parts.append(np.stack([np.full(ys.size, (i + 1) * side // (rows + 1)), ys.ravel(),
-                               zs.ravel()], -1))
+        parts.append(
+            np.stack([np.full(ys.size, (i + 1) * side // (rows + 1)), ys.ravel(), zs.ravel()], -1)
+        )
     keys = np.concatenate(parts)[:leaves]
-    return Voxels((keys + 0.5) * RES, np.full(len(keys), RES),
-                  rng.gamma(2.0, 0.3, len(keys)).astype(np.float32))
+    return Voxels(
+        (keys + 0.5) * RES,
+        np.full(len(keys), RES),
+        rng.gamma(2.0, 0.3, len(keys)).astype(np.float32),
+    )
 
 
 class GeneratedRun:
@@ -78,15 +81,17 @@ class GeneratedRun:
         return self.agents
 
     def occupancy(self, rule, agent):
-        return Voxels(self.voxels.centers, self.voxels.sizes,
-                      np.full(len(self.voxels), 2.0, np.float32))
+        return Voxels(
+            self.voxels.centers, self.voxels.sizes, np.full(len(self.voxels), 2.0, np.float32)
+        )
 
     def loss(self, rule, agent):
         return self.voxels
 
     def difference(self, rule, agent):  # the same map: every voxel agrees
-        return Voxels(self.voxels.centers, self.voxels.sizes,
-                      np.full(len(self.voxels), AGREEING, np.float32))
+        return Voxels(
+            self.voxels.centers, self.voxels.sizes, np.full(len(self.voxels), AGREEING, np.float32)
+        )
 
 
 def free_port() -> int:
@@ -121,7 +126,9 @@ def measure(source, budget: int, frames: int) -> dict:
         t0 = time.perf_counter()
         page = RunPage(source, server, budget=budget)
         prepared = time.perf_counter() - t0
-        drawn = int(page.detail.content.split(" voxels drawn")[0].split("<br>")[-1].replace(",", ""))
+        drawn = int(
+            page.detail.content.split(" voxels drawn")[0].split("<br>")[-1].replace(",", "")
+        )
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=SOFTWARE_WEBGL)
             tab = browser.new_page(viewport={"width": 1100, "height": 700})
@@ -142,9 +149,14 @@ def measure(source, budget: int, frames: int) -> dict:
         with contextlib.redirect_stdout(io.StringIO()):
             server.stop()
     ms = np.array(intervals)
-    return {"budget": budget, "voxels_drawn": drawn, "prepare_s": prepared,
-            "page_to_picture_s": loaded,
-            "frame_ms_median": float(np.median(ms)), "frame_ms_p90": float(np.percentile(ms, 90))}
+    return {
+        "budget": budget,
+        "voxels_drawn": drawn,
+        "prepare_s": prepared,
+        "page_to_picture_s": loaded,
+        "frame_ms_median": float(np.median(ms)),
+        "frame_ms_p90": float(np.percentile(ms, 90)),
+    }
 
 
 def main() -> None:
@@ -162,13 +174,17 @@ def main() -> None:
         rows.append(measure(source, budget, a.frames))
         log(json.dumps(rows[-1]))
     print(f"{len(source.voxels):,} leaves; {machine()}; headless Chromium, software WebGL")
-    print("| budget | voxels drawn | prepare [s] | open to picture [s] | first picture [s] "
-          "| frame median [ms] | frame p90 [ms] |")
+    print(
+        "| budget | voxels drawn | prepare [s] | open to picture [s] | first picture [s] "
+        "| frame median [ms] | frame p90 [ms] |"
+    )
     print("|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['budget']:,} | {r['voxels_drawn']:,} | {r['prepare_s']:.1f} | "
-              f"{r['page_to_picture_s']:.1f} | {r['prepare_s'] + r['page_to_picture_s']:.1f} | "
-              f"{r['frame_ms_median']:.0f} | {r['frame_ms_p90']:.0f} |")
+        print(
+            f"| {r['budget']:,} | {r['voxels_drawn']:,} | {r['prepare_s']:.1f} | "
+            f"{r['page_to_picture_s']:.1f} | {r['prepare_s'] + r['page_to_picture_s']:.1f} | "
+            f"{r['frame_ms_median']:.0f} | {r['frame_ms_p90']:.0f} |"
+        )
     if a.json:
         a.json.write_text(json.dumps({"leaves": len(source.voxels), "rows": rows}, indent=1))
 

@@ -34,36 +34,57 @@ def print_checks(res: dict) -> None:
         print(f"   {key}: K = {v['K']} (paper {v['paper']}) {verdict}")
 
     f = res["fig3"]
-    print("\n2. Fig. 3: 10 robots, 7 inliers, fixed graph, K = %d" % f["hypotheses"])
+    print(f"\n2. Fig. 3: 10 robots, 7 inliers, fixed graph, K = {f['hypotheses']}")
     votes = f["winner_votes"]
-    print(f"   winner's votes at the robots: {min(votes):.6f} .. {max(votes):.6f} "
-          f"(paper: 0.7 = inlier fraction {f['inlier_fraction']})")
-    print(f"   inliers found exactly: {f['inliers_found']}; "
-          f"winner seeded by an inlier: {f['winner_seeded_by_inlier']}")
-    print(f"   estimate vs ML of the inliers: max difference {f['max_estimate_error_to_ml_inliers']:.2e} "
-          f"(ML of the inliers {_xy(f['ml_inliers'])}, ML of all {_xy(f['ml_all'])})")
-    print(f"   last round in which a robot changed its vote: {f['last_round_with_a_vote_change']} "
-          "(paper: fewer than 10)")
+    print(
+        f"   winner's votes at the robots: {min(votes):.6f} .. {max(votes):.6f} "
+        f"(paper: 0.7 = inlier fraction {f['inlier_fraction']})"
+    )
+    print(
+        f"   inliers found exactly: {f['inliers_found']}; "
+        f"winner seeded by an inlier: {f['winner_seeded_by_inlier']}"
+    )
+    print(
+        f"   estimate vs ML of the inliers: max difference {f['max_estimate_error_to_ml_inliers']:.2e} "
+        f"(ML of the inliers {_xy(f['ml_inliers'])}, ML of all {_xy(f['ml_all'])})"
+    )
+    print(
+        f"   last round in which a robot changed its vote: {f['last_round_with_a_vote_change']} "
+        "(paper: fewer than 10)"
+    )
     print(f"   traffic: {f['bytes'] / 1e3:.0f} kB in total")
 
-    for key, title in (("table1", "3. Table I under the paper's covariances"),
-                       ("table1_consistent", "3b. The same with covariances that state the noise (4 I)")):
+    for key, title in (
+        ("table1", "3. Table I under the paper's covariances"),
+        ("table1_consistent", "3b. The same with covariances that state the noise (4 I)"),
+    ):
         t = res[key]
-        print(f"\n{title}: {t['trials']} trials of 20 robots, {t['outliers']} outliers, "
-              f"{t['inliers']} inliers")
-        head = f"   {'method':<18}{'false pos':>10}{'false neg':>10}{'err to ML_in':>13}{'std':>7}" \
-               f"{'err to truth':>13}{'rounds':>7}{'kB/trial':>9}"
+        print(
+            f"\n{title}: {t['trials']} trials of 20 robots, {t['outliers']} outliers, "
+            f"{t['inliers']} inliers"
+        )
+        head = (
+            f"   {'method':<18}{'false pos':>10}{'false neg':>10}{'err to ML_in':>13}{'std':>7}"
+            f"{'err to truth':>13}{'rounds':>7}{'kB/trial':>9}"
+        )
         print(head)
         for name, paper_key in _rows(t):
             r = t[name]
-            print(f"   {name:<18}{r['false_positives']:>10}{r['false_negatives']:>10}"
-                  + (f"{r['mean_error']:>13.3f}{r['std_error']:>7.3f}{r['mean_error_to_truth']:>13.3f}"
-                     f"{r['rounds']:>7}{r['kilobytes_per_trial']:>9.0f}" if "mean_error" in r else
-                     "   (the gate alone, at the exact ML of the true inliers)"))
+            print(
+                f"   {name:<18}{r['false_positives']:>10}{r['false_negatives']:>10}"
+                + (
+                    f"{r['mean_error']:>13.3f}{r['std_error']:>7.3f}{r['mean_error_to_truth']:>13.3f}"
+                    f"{r['rounds']:>7}{r['kilobytes_per_trial']:>9.0f}"
+                    if "mean_error" in r
+                    else "   (the gate alone, at the exact ML of the true inliers)"
+                )
+            )
             if paper_key and key == "table1":
                 p = PAPER_TABLE[paper_key]
-                print(f"   {'  paper':<18}{p['false_positives']:>10}{p['false_negatives']:>10}"
-                      f"{p['mean_error']:>13.3f}{p['std_error']:>7.3f}{'':>13}{p['rounds']:>7}")
+                print(
+                    f"   {'  paper':<18}{p['false_positives']:>10}{p['false_negatives']:>10}"
+                    f"{p['mean_error']:>13.3f}{p['std_error']:>7.3f}{'':>13}{p['rounds']:>7}"
+                )
     print("\nAssumptions (the text leaves them open):")
     for k, v in res["table1"]["assumptions"].items():
         print(f"   {k}: {v}")
@@ -74,7 +95,14 @@ def _rows(t: dict):
     for name in t:
         if isinstance(t[name], dict) and "false_positives" in t[name]:
             base = name.split("[")[0]
-            yield name, (base if base in PAPER_TABLE and (base == "ml" or name.endswith("[paper]")) else None)
+            yield (
+                name,
+                (
+                    base
+                    if base in PAPER_TABLE and (base == "ml" or name.endswith("[paper]"))
+                    else None
+                ),
+            )
 
 
 def _xy(v) -> str:

@@ -6,7 +6,8 @@
 namespace octofuse::bindings {
 
 void define_arith(py::module_& m) {
-  m.def("_open_clamping", [](OccupancyMap& map) { open_clamping(map); }, py::arg("map"));
+  m.def(
+      "_open_clamping", [](OccupancyMap& map) { open_clamping(map); }, py::arg("map"));
   m.def(
       "_negate_values",
       [](OccupancyMap& map) {

@@ -29,7 +29,8 @@ inline void check_enum(Rule r) {
   if (static_cast<int>(r) >= kNumRules) throw py::value_error("invalid fusion rule");
 }
 inline void check_enum(UnknownPolicy u) {
-  if (static_cast<int>(u) >= kNumUnknownPolicies) throw py::value_error("invalid unknown-voxel policy");
+  if (static_cast<int>(u) >= kNumUnknownPolicies)
+    throw py::value_error("invalid unknown-voxel policy");
 }
 
 /// One function per concept, called in this order by the module.

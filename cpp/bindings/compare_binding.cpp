@@ -58,7 +58,8 @@ void define_compare(py::module_& m) {
           throw py::value_error("near box surfaces: tol must be a finite distance >= 0");
         const double* b = boxes.data();
         for (py::ssize_t i = 0; i < boxes.size(); ++i)
-          if (!std::isfinite(b[i])) throw py::value_error("near box surfaces: a box corner is not finite");
+          if (!std::isfinite(b[i]))
+            throw py::value_error("near box surfaces: a box corner is not finite");
         const auto n = static_cast<std::size_t>(points.shape(0));
         py::array_t<bool> out(static_cast<py::ssize_t>(n));
         auto* o = reinterpret_cast<std::uint8_t*>(out.mutable_data());

@@ -23,8 +23,8 @@ py::tuple counts_tuple(const FusionCounts& c) {
 void define_fusion(py::module_& m) {
   m.def(
       "_fuse_into",
-      [](OccupancyMap& dst, const OccupancyMap& msg, Rule rule, UnknownPolicy unknown, ScalarTree* loss,
-         int threads) {
+      [](OccupancyMap& dst, const OccupancyMap& msg, Rule rule, UnknownPolicy unknown,
+         ScalarTree* loss, int threads) {
         if (threads < 1 || threads > static_cast<int>(kMaxThreads)) {
           throw py::value_error("threads = " + std::to_string(threads) + ": expected 1 to " +
                                 std::to_string(kMaxThreads));
@@ -33,8 +33,8 @@ void define_fusion(py::module_& m) {
         check_enum(unknown);
         if (&dst == &msg) throw py::value_error("cannot fuse a map into itself in place");
         check_compatible(dst, msg);
-        if (loss != nullptr &&
-            std::fabs(loss->getResolution() - dst.params().resolution) > 1e-9 * dst.params().resolution) {
+        if (loss != nullptr && std::fabs(loss->getResolution() - dst.params().resolution) >
+                                   1e-9 * dst.params().resolution) {
           throw py::value_error("information-loss map has another resolution than the map");
         }
         FuseIntoStats st;
@@ -44,8 +44,8 @@ void define_fusion(py::module_& m) {
         }
         return counts_tuple(st);
       },
-      py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"), py::arg("loss").none(true),
-      py::arg("threads") = 1);
+      py::arg("dst"), py::arg("msg"), py::arg("rule"), py::arg("unknown"),
+      py::arg("loss").none(true), py::arg("threads") = 1);
 
   m.def(
       "_subtract_into",
@@ -64,7 +64,8 @@ void define_fusion(py::module_& m) {
         check_enum(rule);
         check_enum(unknown);
         if (&a == &b) throw py::value_error("cannot exchange a map with itself");
-        if (loss_a != nullptr && loss_a == loss_b) throw py::value_error("the two loss maps must differ");
+        if (loss_a != nullptr && loss_a == loss_b)
+          throw py::value_error("the two loss maps must differ");
         check_compatible(a, b);
         std::pair<FuseIntoStats, FuseIntoStats> st;
         {

@@ -154,9 +154,9 @@ void define_insert(py::module_& m) {
           for (OccupancyMap* t : per_scan) {
             if (t == nullptr) throw py::value_error("apply rays: a target map is None");
             if (std::fabs(t->params().resolution - items.resolution) > 1e-9 * items.resolution) {
-              throw py::value_error("apply rays: a map of " + std::to_string(t->params().resolution) +
-                                    " m for rays traced at " + std::to_string(items.resolution) +
-                                    " m");
+              throw py::value_error(
+                  "apply rays: a map of " + std::to_string(t->params().resolution) +
+                  " m for rays traced at " + std::to_string(items.resolution) + " m");
             }
           }
         }
@@ -197,7 +197,8 @@ void define_insert(py::module_& m) {
         }
       },
       py::arg("map"), py::arg("points"), py::arg("origin"), py::arg("max_range"),
-      py::arg("mode") = "exact", py::arg("threads") = 1, py::arg("cell_levels") = FastInsert{}.coarse_levels,
+      py::arg("mode") = "exact", py::arg("threads") = 1,
+      py::arg("cell_levels") = FastInsert{}.coarse_levels,
       py::arg("min_rays") = FastInsert{}.min_rays,
       "Insert one map-frame scan into one map by the depth-first batch path: the same map as "
       "insert_scan (OctoMap's insertPointCloud), or with mode='fast' the real-time mode "

@@ -80,7 +80,8 @@ py::tuple fuse(Rule rule, CArray a, CArray b, bool probabilities, double l0,
 
 void define_rules(py::module_& m) {
   py::enum_<Rule> rule(m, "Rule", "A per-voxel fusion rule; RULE_NAMES[int(rule)] is its name.");
-  for (int i = 0; i < kNumRules; ++i) rule.value(identifier(kRuleNames[i]).c_str(), static_cast<Rule>(i));
+  for (int i = 0; i < kNumRules; ++i)
+    rule.value(identifier(kRuleNames[i]).c_str(), static_cast<Rule>(i));
   py::enum_<UnknownPolicy> unknown(
       m, "UnknownPolicy",
       "What a voxel only one map knows becomes: COPY keeps its value, PRIOR fuses it with the "

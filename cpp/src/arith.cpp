@@ -20,7 +20,9 @@ using OcNode = OccupancyNode;
 class ClampedCopier {
  public:
   ClampedCopier(const OccupancyTree& src, OccupancyTree& dst)
-      : src_(src), dst_(dst), lo_(dst.getClampingThresMinLog()),
+      : src_(src),
+        dst_(dst),
+        lo_(dst.getClampingThresMinLog()),
         hi_(dst.getClampingThresMaxLog()) {}
 
   void run() {
@@ -68,8 +70,9 @@ class ClampedCopier {
       if (collapses) v = k.value[0];  // an inner node's value is not needed
       return collapses;
     } else {
-      const bool leaf = k.finish(dst_, self, [](OcNode* n, float x) { n->setLogOdds(x); },
-                                 depth > 0 && depth >= lowest_pruned_);
+      const bool leaf = k.finish(
+          dst_, self, [](OcNode* n, float x) { n->setLogOdds(x); },
+          depth > 0 && depth >= lowest_pruned_);
       v = k.value[0];
       return leaf;
     }
@@ -79,7 +82,7 @@ class ClampedCopier {
   OccupancyTree& dst_;
   const float lo_, hi_;
   std::array<std::size_t, 17> collapsible_{};  // per depth, in the first walk
-  unsigned lowest_pruned_ = 1;  // the coarsest depth prune() collapses nodes at
+  unsigned lowest_pruned_ = 1;                 // the coarsest depth prune() collapses nodes at
 };
 
 }  // namespace

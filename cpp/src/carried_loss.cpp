@@ -80,7 +80,8 @@ class LeavesOfSettled {
 
   void put(std::size_t at, float value, unsigned depth) {
     values_.insert(values_.begin() + static_cast<std::ptrdiff_t>(at), value);
-    depths_.insert(depths_.begin() + static_cast<std::ptrdiff_t>(at), static_cast<std::uint8_t>(depth));
+    depths_.insert(depths_.begin() + static_cast<std::ptrdiff_t>(at),
+                   static_cast<std::uint8_t>(depth));
   }
 
   const OccupancyTree& t_;

@@ -136,8 +136,8 @@ struct Differ {
     if (!cur.present()) return;
     if (cur.leaf && (!prev.present() || prev.leaf)) {
       if (!prev.present() || prev.node->getLogOdds() != cur.node->getLogOdds()) {
-        out.push_back({{k0[0], k0[1], k0[2]}, static_cast<std::uint8_t>(depth),
-                       cur.node->getLogOdds()});
+        out.push_back(
+            {{k0[0], k0[1], k0[2]}, static_cast<std::uint8_t>(depth), cur.node->getLogOdds()});
       }
       return;
     }
@@ -169,8 +169,8 @@ void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
     OccupancyNode* n = root;
     for (unsigned d = 0; d < l.depth; ++d) {
       const unsigned bit = 15 - d;
-      const unsigned i = ((l.k[0] >> bit) & 1u) | (((l.k[1] >> bit) & 1u) << 1) |
-                         (((l.k[2] >> bit) & 1u) << 2);
+      const unsigned i =
+          ((l.k[0] >> bit) & 1u) | (((l.k[1] >> bit) & 1u) << 1) | (((l.k[2] >> bit) & 1u) << 2);
       n = t.nodeChildExists(n, i) ? t.getNodeChild(n, i) : t.createNodeChild(n, i);
     }
     n->setLogOdds(l.value);

@@ -42,8 +42,8 @@ struct Walker {
 
   /// Walks the node pair (a, b) at `depth`, not both leaves or unknown. Returns for each
   /// output tree whether the subtree collapsed to one leaf, whose value is then in vm / vl.
-  void walk(const W& a, const W& b, unsigned depth, Lazy<OccupancyTree>& om,
-            Lazy<ScalarTree>& ol, bool& leaf_m, float& vm, bool& leaf_l, float& vl) {
+  void walk(const W& a, const W& b, unsigned depth, Lazy<OccupancyTree>& om, Lazy<ScalarTree>& ol,
+            bool& leaf_m, float& vm, bool& leaf_l, float& vl) {
     Kids km, kl;
     for (unsigned i = 0; i < 8; ++i) {
       const W ca = a.child(i), cb = b.child(i);
@@ -99,13 +99,13 @@ FusionResult fuse_maps(const OccupancyMap& a, const OccupancyMap& b, Rule rule,
       res.map->settled_tree().start_arena();
       res.info_loss->start_arena();
     }
-    with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
-                      [&](auto& fusion) {
-                        Walker<std::decay_t<decltype(fusion)>> w{
-                            a.tree(), b.tree(), fusion, res.map->settled_tree(), *res.info_loss, {}};
-                        w.run();
-                        res.counts = w.counts;
-                      });
+    with_voxel_fusion(
+        rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(), [&](auto& fusion) {
+          Walker<std::decay_t<decltype(fusion)>> w{
+              a.tree(), b.tree(), fusion, res.map->settled_tree(), *res.info_loss, {}};
+          w.run();
+          res.counts = w.counts;
+        });
   }
   return res;
 }

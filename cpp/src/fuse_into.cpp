@@ -73,7 +73,8 @@ struct IntoWalker {
       return;
     }
     for (unsigned i = 0; i < 8; ++i)
-      if (dst.nodeChildExists(d, i)) prior_only(dst.getNodeChild(d, i), loss.child(lc, i), depth + 1);
+      if (dst.nodeChildExists(d, i))
+        prior_only(dst.getNodeChild(d, i), loss.child(lc, i), depth + 1);
     finish_occ(d, lc);
     loss.finish(lc);
   }
@@ -226,8 +227,8 @@ struct ParallelInto {
       std::unique_ptr<ScalarTree> scratch_loss;
       if (loss_tree != nullptr) scratch_loss = std::make_unique<ScalarTree>(res);
       Fusion fusion(clamp_min, clamp_max);
-      IntoWalker<Fusion> w{fusion, scratch,
-                           detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}, carry};
+      IntoWalker<Fusion> w{
+          fusion, scratch, detail::LossAdder(loss_tree, scratch_loss.get(), &loss_lock), {}, carry};
       struct Settle {  // the scratch trees' counts go to the real trees, also on an exception
         std::size_t &n, &nl;
         OccupancyTree& t;
@@ -245,9 +246,15 @@ struct ParallelInto {
         const Part& t = level[k];
         w.st = {};
         switch (t.kind) {
-          case Kind::Walk: w.walk(t.d, t.m, *t.lc, t.depth); break;
-          case Kind::MsgOnly: w.msg_only(t.m, t.d, *t.lc, t.depth); break;
-          case Kind::PriorOnly: w.prior_only(t.d, *t.lc, t.depth); break;
+          case Kind::Walk:
+            w.walk(t.d, t.m, *t.lc, t.depth);
+            break;
+          case Kind::MsgOnly:
+            w.msg_only(t.m, t.d, *t.lc, t.depth);
+            break;
+          case Kind::PriorOnly:
+            w.prior_only(t.d, *t.lc, t.depth);
+            break;
         }
         stats[k] = w.st;
       }
@@ -256,7 +263,8 @@ struct ParallelInto {
     for (const FuseIntoStats& part : stats) st += part;
     for (std::size_t k = 0; k < threads; ++k) {
       detail::TreeAccess<OccupancyTree>::size_of(dst) += sizes[k];  // modulo 2^64: deletions too
-      if (loss_tree != nullptr) detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
+      if (loss_tree != nullptr)
+        detail::TreeAccess<ScalarTree>::size_of(*loss_tree) += loss_sizes[k];
     }
     Fusion unused(clamp_min, clamp_max);
     IntoWalker<Fusion> fin{unused, dst, detail::LossAdder(loss_tree), {}, carry};
@@ -356,21 +364,22 @@ FuseIntoStats fuse_into(OccupancyMap& dst, const OccupancyMap& msg, Rule rule,
   const bool carry = detail::CarryingAccess::start_fusion(dst, loss);
   OccupancyTree& tree = detail::CarryingAccess::tree(dst);
   FuseIntoStats st;
-  const bool parallel = threads > 1 && tree.getRoot() != nullptr &&
-                        msg.tree().getRoot() != nullptr;
-  with_voxel_fusion(rule, unknown, dst.clamp_min_logodds(), dst.clamp_max_logodds(),
-                    [&](auto& fusion) {
-                      using Fusion = std::decay_t<decltype(fusion)>;
-                      if (parallel) {
-                        st = ParallelInto<Fusion>{tree, loss, dst.clamp_min_logodds(),
-                                                  dst.clamp_max_logodds(), threads, carry, {}, {}}
-                                 .run(msg.tree());
-                        return;
-                      }
-                      IntoWalker<Fusion> w{fusion, tree, detail::LossAdder(loss), {}, carry};
-                      w.run(msg.tree());
-                      st = w.st;
-                    });
+  const bool parallel = threads > 1 && tree.getRoot() != nullptr && msg.tree().getRoot() != nullptr;
+  with_voxel_fusion(
+      rule, unknown, dst.clamp_min_logodds(), dst.clamp_max_logodds(), [&](auto& fusion) {
+        using Fusion = std::decay_t<decltype(fusion)>;
+        if (parallel) {
+          st =
+              ParallelInto<Fusion>{
+                  tree, loss, dst.clamp_min_logodds(), dst.clamp_max_logodds(), threads, carry,
+                  {},   {}}
+                  .run(msg.tree());
+          return;
+        }
+        IntoWalker<Fusion> w{fusion, tree, detail::LossAdder(loss), {}, carry};
+        w.run(msg.tree());
+        st = w.st;
+      });
   detail::TreeAccess<OccupancyTree>::mark_changed(tree);
   return st;
 }
@@ -383,22 +392,22 @@ std::pair<FuseIntoStats, FuseIntoStats> fuse_mutual(OccupancyMap& a, OccupancyMa
   OcNode *ra = ta.getRoot(), *rb = tb.getRoot();
   if (ra == nullptr || rb == nullptr) {
     // one map is empty: the other one's content is all the exchange carries
-    const std::unique_ptr<OccupancyMap> a0 = ra == nullptr ? nullptr : std::make_unique<OccupancyMap>(a);
+    const std::unique_ptr<OccupancyMap> a0 =
+        ra == nullptr ? nullptr : std::make_unique<OccupancyMap>(a);
     const FuseIntoStats sa = fuse_into(a, b, rule, unknown, loss_a);
     const FuseIntoStats sb = a0 ? fuse_into(b, *a0, rule, unknown, loss_b) : FuseIntoStats{};
     return {sa, sb};
   }
   std::pair<FuseIntoStats, FuseIntoStats> st;
-  with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(),
-                    [&](auto& fusion) {
-                      using Fusion = std::decay_t<decltype(fusion)>;
-                      IntoWalker<Fusion> wa{fusion, ta, detail::LossAdder(loss_a), {},
-                                            detail::CarryingAccess::start_fusion(a, loss_a)};
-                      IntoWalker<Fusion> wb{fusion, tb, detail::LossAdder(loss_b), {},
-                                            detail::CarryingAccess::start_fusion(b, loss_b)};
-                      MutualWalker<Fusion>{wa, wb}.run(ra, rb);
-                      st = {wa.st, wb.st};
-                    });
+  with_voxel_fusion(rule, unknown, a.clamp_min_logodds(), a.clamp_max_logodds(), [&](auto& fusion) {
+    using Fusion = std::decay_t<decltype(fusion)>;
+    IntoWalker<Fusion> wa{
+        fusion, ta, detail::LossAdder(loss_a), {}, detail::CarryingAccess::start_fusion(a, loss_a)};
+    IntoWalker<Fusion> wb{
+        fusion, tb, detail::LossAdder(loss_b), {}, detail::CarryingAccess::start_fusion(b, loss_b)};
+    MutualWalker<Fusion>{wa, wb}.run(ra, rb);
+    st = {wa.st, wb.st};
+  });
   detail::TreeAccess<OccupancyTree>::mark_changed(ta);
   detail::TreeAccess<OccupancyTree>::mark_changed(tb);
   return st;

@@ -38,9 +38,9 @@ using detail::unmorton;
 // The update of one scan as items in ascending code order (free and occupied merged;
 // occupied wins over free), with computeUpdate()'s semantics. Every ray is checked first
 // (std::invalid_argument prefixed by `where`).
-std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float* xyz,
-                                         std::size_t n, const float origin[3],
-                                         double max_range, const std::string& where) {
+std::vector<std::uint64_t> compute_items(const OccupancyTree& grid, const float* xyz, std::size_t n,
+                                         const float origin[3], double max_range,
+                                         const std::string& where) {
   const octomap::point3d o(origin[0], origin[1], origin[2]);
   const ScanCheck check(grid, o, max_range, where);
   for (std::size_t i = 0; i < n; ++i) {
@@ -134,8 +134,8 @@ class BatchApplier {
 
   // Returns whether any item below `node` was applied.
   // `lc`: the carried loss tree's cursor at node (inactive if the map carries none).
-  bool visit(OccupancyNode* node, bool just_created, unsigned depth,
-             const std::uint64_t* b, const std::uint64_t* e, const detail::LossCursor& lc) {
+  bool visit(OccupancyNode* node, bool just_created, unsigned depth, const std::uint64_t* b,
+             const std::uint64_t* e, const detail::LossCursor& lc) {
     std::vector<std::uint64_t> kept;
     if (!just_created && !t_.nodeHasChildren(node)) {
       // an existing leaf (pruned or finest) holds these voxels: a voxel's first updates that
@@ -237,7 +237,7 @@ const std::vector<std::uint64_t>& merged_items(
   }
   b.resize(a.size());
   const auto by_code = [](std::uint64_t x, std::uint64_t y) { return (x & kCode) < (y & kCode); };
-  while (bounds.size() > 2) {  // neighbouring runs merged pairwise; std::merge keeps the
+  while (bounds.size() > 2) {          // neighbouring runs merged pairwise; std::merge keeps the
     std::vector<std::size_t> next{0};  // first run's items first among equal codes
     for (std::size_t k = 0; k + 1 < bounds.size(); k += 2) {
       const auto lo = a.begin() + static_cast<std::ptrdiff_t>(bounds[k]);
@@ -292,8 +292,7 @@ std::vector<float> to_map_frame(const Real* xyz, std::size_t n, const double pos
   const Eigen::Vector3d t = T.topRightCorner<3, 1>();
   std::vector<float> out(3 * n);
   for (std::size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3d q =
-        R * Eigen::Vector3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]) + t;
+    const Eigen::Vector3d q = R * Eigen::Vector3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]) + t;
     out[3 * i] = static_cast<float>(q.x());
     out[3 * i + 1] = static_cast<float>(q.y());
     out[3 * i + 2] = static_cast<float>(q.z());
@@ -319,8 +318,8 @@ void check_threads(unsigned threads) {
 
 }  // namespace
 
-RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
-                    unsigned threads, bool targeted_only, const FastInsert* fast) {
+RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid, unsigned threads,
+                    bool targeted_only, const FastInsert* fast) {
   check_threads(threads);
   RayItems out;
   out.resolution = grid.params().resolution;
@@ -330,8 +329,8 @@ RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& gri
     const ScanInput& s = scans[i];
     if (targeted_only && s.targets.empty()) return;
     std::vector<float> pts =
-        s.map_frame ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
-                                   : as_float(static_cast<const float*>(s.xyz), s.n))
+        s.map_frame   ? (s.is_double ? as_float(static_cast<const double*>(s.xyz), s.n)
+                                     : as_float(static_cast<const float*>(s.xyz), s.n))
         : s.is_double ? to_map_frame(static_cast<const double*>(s.xyz), s.n, s.pose)
                       : to_map_frame(static_cast<const float*>(s.xyz), s.n, s.pose);
     const float origin[3] = {static_cast<float>(s.pose[3]), static_cast<float>(s.pose[7]),
@@ -380,8 +379,7 @@ void apply_rays(const RayItems& items, const std::vector<std::vector<OccupancyMa
   });
 }
 
-void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
-                  const FastInsert* fast) {
+void insert_batch(const std::vector<ScanInput>& scans, unsigned threads, const FastInsert* fast) {
   std::vector<std::vector<OccupancyMap*>> targets;
   const OccupancyMap* grid = nullptr;
   for (const ScanInput& s : scans) {
@@ -393,8 +391,8 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
 }
 
 template <class Real>
-void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
-                         const double origin[3], double max_range) {
+void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n, const double origin[3],
+                         double max_range) {
   const std::vector<float> pts = as_float(xyz, n);
   const float o[3] = {static_cast<float>(origin[0]), static_cast<float>(origin[1]),
                       static_cast<float>(origin[2])};
@@ -403,7 +401,7 @@ void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
 
 template void insert_scan_batched<float>(OccupancyMap&, const float*, std::size_t, const double*,
                                          double);
-template void insert_scan_batched<double>(OccupancyMap&, const double*, std::size_t,
-                                          const double*, double);
+template void insert_scan_batched<double>(OccupancyMap&, const double*, std::size_t, const double*,
+                                          double);
 
 }  // namespace octofuse

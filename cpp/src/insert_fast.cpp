@@ -14,9 +14,9 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
-#include <memory>
 #include <iterator>
 #include <limits>
+#include <memory>
 #include <stdexcept>
 
 namespace octofuse {
@@ -174,8 +174,8 @@ void walk_cells(const OccupancyTree& t, const octomap::point3d& o, const octomap
                                                  static_cast<octomap::key_type>(cell[2])));
   f(code);
   while (--steps_left > 0 && (cell[0] != last[0] || cell[1] != last[1] || cell[2] != last[2])) {
-    const unsigned a = t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2)
-                                           : (t_max[1] < t_max[2] ? 1 : 2);
+    const unsigned a =
+        t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
     if (t_max[a] > len) break;
     cell[a] += step[a];
     t_max[a] += t_delta[a];
@@ -202,7 +202,7 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
   const double resolution = tree.getResolution();
   const double size = resolution * static_cast<double>(1u << level);
   int step[3];
-  double t[3], t_delta[3];  // the voxel walk's
+  double t[3], t_delta[3];    // the voxel walk's
   double ct[3], ct_delta[3];  // the cell walk's
   long key[3], cell[3];
   long steps_left = 16;
@@ -524,9 +524,9 @@ std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTre
       const std::uint32_t k = first.get(c);
       return k != 0 && k <= i;
     };
-    out[i] = std::make_shared<const FastScan>(trace_fast(grid, s.pts.data(), s.pts.size() / 3,
-                                                         s.origin, s.max_range, each, s.where,
-                                                         s.map, earlier));
+    out[i] =
+        std::make_shared<const FastScan>(trace_fast(grid, s.pts.data(), s.pts.size() / 3, s.origin,
+                                                    s.max_range, each, s.where, s.map, earlier));
   });
   return out;
 }
@@ -649,11 +649,10 @@ void apply_fast(OccupancyMap& map, const FastScan& scan) {
   if (conflicts.empty()) return;
   // the cells where the map holds occupied voxels get the exact mode's voxels instead
   detail::sort_unique(conflicts);
-  const std::vector<std::uint64_t> fr =
-      free_voxels(tree, scan, threads_for(scan.ends.size() / 3, scan.threads),
-                  [&conflicts](std::uint64_t c) {
-                    return !std::binary_search(conflicts.begin(), conflicts.end(), c);
-                  });
+  const std::vector<std::uint64_t> fr = free_voxels(
+      tree, scan, threads_for(scan.ends.size() / 3, scan.threads), [&conflicts](std::uint64_t c) {
+        return !std::binary_search(conflicts.begin(), conflicts.end(), c);
+      });
   CellApplier(tree, scan.levels).apply(fr.data(), fr.data() + fr.size());
 }
 
@@ -681,8 +680,8 @@ void insert_ray_loop(OccupancyMap& map, const float* xyz, std::size_t n, const d
     check.check(i, octomap::point3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]));
   OccupancyTree& tree = map.settled_tree();
   for (std::size_t i = 0; i < n; ++i) {
-    tree.insertRay(o, octomap::point3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]),
-                         max_range, /*lazy_eval=*/false);
+    tree.insertRay(o, octomap::point3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]), max_range,
+                   /*lazy_eval=*/false);
   }
 }
 

@@ -33,8 +33,8 @@ bool leaf_at(const ScalarTree& t, double resolution, const double centre[3], uns
   for (unsigned level = 0; level < depth; ++level) {
     if (n == nullptr || !t.nodeHasChildren(n)) return false;  // a coarser leaf, or unknown
     const unsigned bit = depth - 1 - level;
-    const unsigned i = ((key[0] >> bit) & 1) | (((key[1] >> bit) & 1) << 1) |
-                       (((key[2] >> bit) & 1) << 2);
+    const unsigned i =
+        ((key[0] >> bit) & 1) | (((key[1] >> bit) & 1) << 1) | (((key[2] >> bit) & 1) << 2);
     if (!t.nodeChildExists(n, i)) return false;
     n = t.getNodeChild(n, i);
   }

@@ -66,12 +66,11 @@ struct Counts {
 // Full format: value (float) + children mask (1 byte) per node, depth first. With kBuild false
 // the data is only checked and counted (tree and node are null).
 template <bool kBuild>
-void read_ot_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth,
-                  Counts& c) {
+void read_ot_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth, Counts& c) {
   const float value = r.get<float>();
   if (!std::isfinite(value)) {
-    fail(r.path, "holds a non-finite log-odds value (" + std::to_string(value) +
-                     "): the file is corrupt");
+    fail(r.path,
+         "holds a non-finite log-odds value (" + std::to_string(value) + "): the file is corrupt");
   }
   if constexpr (kBuild) node->setLogOdds(value);
   ++c.nodes;
@@ -90,8 +89,7 @@ void read_ot_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned 
 // Binary format: 2 bits per child: 01 free leaf, 10 occupied leaf, 11 inner, 00 unknown
 // (bit 2i set = "free" flag, bit 2i+1 = "occupied" flag, as OctoMap writes them).
 template <bool kBuild>
-void read_bt_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth,
-                  Counts& c) {
+void read_bt_node(Reader& r, OccupancyTree* tree, OccupancyNode* node, unsigned depth, Counts& c) {
   const auto lo = r.get<std::uint8_t>();
   const auto hi = r.get<std::uint8_t>();
   ++c.inner;
@@ -174,10 +172,14 @@ std::size_t parse_header(const std::string& path, const std::string& buf, std::s
       if (word == "octofuse") {
         std::string k, v;
         while (ls >> k >> v) {
-          if (k == "prob_hit") h.params.prob_hit = parse_double(path, k, v);
-          else if (k == "prob_miss") h.params.prob_miss = parse_double(path, k, v);
-          else if (k == "clamping_thres_min") h.params.clamp_min = parse_double(path, k, v);
-          else if (k == "clamping_thres_max") h.params.clamp_max = parse_double(path, k, v);
+          if (k == "prob_hit")
+            h.params.prob_hit = parse_double(path, k, v);
+          else if (k == "prob_miss")
+            h.params.prob_miss = parse_double(path, k, v);
+          else if (k == "clamping_thres_min")
+            h.params.clamp_min = parse_double(path, k, v);
+          else if (k == "clamping_thres_max")
+            h.params.clamp_max = parse_double(path, k, v);
         }
       }
       continue;
@@ -235,7 +237,8 @@ void check_memory(const std::string& path, const Counts& c) {
   const double have = static_cast<double>(physical_memory());
   if (need > 0.5 * have) {
     fail(path, "holds " + std::to_string(c.nodes) + " nodes, which need about " +
-                   shortest(std::round(need / 1e8) / 10) + " GB, more than half of this machine's " +
+                   shortest(std::round(need / 1e8) / 10) +
+                   " GB, more than half of this machine's " +
                    shortest(std::round(have / 1e8) / 10) + " GB");
   }
 }
@@ -285,7 +288,8 @@ std::string read_file(const std::string& path, bool& binary) {
 
 std::string header_text(const char* first_line, const OccupancyTree& tree, const MapParams& p) {
   std::ostringstream s;
-  s << first_line << "\n# (feel free to add / change comments, but leave the first line as it is!)\n"
+  s << first_line
+    << "\n# (feel free to add / change comments, but leave the first line as it is!)\n"
     << "# octofuse prob_hit " << shortest(p.prob_hit) << " prob_miss " << shortest(p.prob_miss)
     << " clamping_thres_min " << shortest(p.clamp_min) << " clamping_thres_max "
     << shortest(p.clamp_max) << "\n#\n"
@@ -305,7 +309,8 @@ std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::stri
                                         bool binary) {
   Header h;
   const std::size_t eol = buf.find('\n');
-  const std::size_t data = parse_header(path, buf, eol == std::string::npos ? buf.size() : eol + 1, h);
+  const std::size_t data =
+      parse_header(path, buf, eol == std::string::npos ? buf.size() : eol + 1, h);
   const Reader start{path, buf.data() + data, buf.data() + buf.size()};
   if (h.has_size && h.size == 0 && start.left() > 0) {
     fail(path, "is corrupt: its header says 0 nodes but " + std::to_string(start.left()) +
@@ -315,8 +320,9 @@ std::unique_ptr<OccupancyMap> parse_map(const std::string& path, const std::stri
   auto map = std::make_unique<OccupancyMap>(h.params);
   if (!has_tree) return map;
   if (!binary && h.has_size && h.size > start.left() / kOtNodeBytes) {
-    fail(path, "is truncated or corrupt: its header says " + std::to_string(h.size) + " nodes but its " +
-                   std::to_string(start.left()) + " bytes of tree data hold at most " +
+    fail(path, "is truncated or corrupt: its header says " + std::to_string(h.size) +
+                   " nodes but its " + std::to_string(start.left()) +
+                   " bytes of tree data hold at most " +
                    std::to_string(start.left() / kOtNodeBytes));
   }
   // check and count without allocating, then build
@@ -367,7 +373,8 @@ std::unique_ptr<OccupancyMap> read_map_stream(const std::string& bytes, const st
                        kBtHeader + "' (.bt)");
   }
   if (bytes.size() > physical_memory() / 2) {
-    fail(name, "is " + std::to_string(bytes.size()) + " bytes, more than half of this machine's memory");
+    fail(name,
+         "is " + std::to_string(bytes.size()) + " bytes, more than half of this machine's memory");
   }
   return parse_map(name, bytes, binary);
 }

@@ -51,9 +51,12 @@ void MapParams::validate() const {
         "a voxel size from " + shortest(kMinResolution) + " to " + shortest(kMaxResolution) + " m");
   }
   if (!(prob_hit > 0.5 && prob_hit < 1.0)) bad("prob_hit", prob_hit, "a probability in (0.5, 1)");
-  if (!(prob_miss > 0.0 && prob_miss < 0.5)) bad("prob_miss", prob_miss, "a probability in (0, 0.5)");
-  if (!(clamp_min > 0.0 && clamp_min < 0.5)) bad("clamping min", clamp_min, "a probability in (0, 0.5)");
-  if (!(clamp_max > 0.5 && clamp_max < 1.0)) bad("clamping max", clamp_max, "a probability in (0.5, 1)");
+  if (!(prob_miss > 0.0 && prob_miss < 0.5))
+    bad("prob_miss", prob_miss, "a probability in (0, 0.5)");
+  if (!(clamp_min > 0.0 && clamp_min < 0.5))
+    bad("clamping min", clamp_min, "a probability in (0, 0.5)");
+  if (!(clamp_max > 0.5 && clamp_max < 1.0))
+    bad("clamping max", clamp_max, "a probability in (0.5, 1)");
 }
 
 OccupancyMap::OccupancyMap(const MapParams& params) : params_(params) {
@@ -138,15 +141,16 @@ void OccupancyMap::insert_scan_from_sensor(const Real* xyz, std::size_t n, const
 
 template void OccupancyMap::insert_scan<float>(const float*, std::size_t, const double*, double);
 template void OccupancyMap::insert_scan<double>(const double*, std::size_t, const double*, double);
-template void OccupancyMap::insert_scan_from_sensor<float>(const float*, std::size_t,
-                                                           const double*, double);
+template void OccupancyMap::insert_scan_from_sensor<float>(const float*, std::size_t, const double*,
+                                                           double);
 template void OccupancyMap::insert_scan_from_sensor<double>(const double*, std::size_t,
                                                             const double*, double);
 
 LeafArrays OccupancyMap::leaves(LeafClass which) const {
   // all: the node count the tree keeps (leaves and more); a class: grown as found
-  return collect_leaves(*tree_, [which](float v) { return of_class(v, which); },
-                        which == LeafClass::All ? tree_->size() : 0);
+  return collect_leaves(
+      *tree_, [which](float v) { return of_class(v, which); },
+      which == LeafClass::All ? tree_->size() : 0);
 }
 
 std::uint64_t OccupancyMap::known_voxels() const {
@@ -156,15 +160,16 @@ std::uint64_t OccupancyMap::known_voxels() const {
   return n;
 }
 LeafArrays scalar_leaves(const ScalarTree& tree) {
-  return collect_leaves(tree, [](float) { return true; }, tree.size());
+  return collect_leaves(
+      tree, [](float) { return true; }, tree.size());
 }
 
 void check_same_grid(const OccupancyMap& a, const OccupancyMap& b) {
   const MapParams &pa = a.params(), &pb = b.params();
   if (std::fabs(pa.resolution - pb.resolution) > 1e-9 * pa.resolution) {
-    throw std::invalid_argument("maps have different resolutions (" + std::to_string(pa.resolution) +
-                                " m and " + std::to_string(pb.resolution) +
-                                " m); use maps built at the same resolution");
+    throw std::invalid_argument(
+        "maps have different resolutions (" + std::to_string(pa.resolution) + " m and " +
+        std::to_string(pb.resolution) + " m); use maps built at the same resolution");
   }
 }
 

@@ -55,7 +55,9 @@ inline bool losses_differ(const ScalarNode*, const ScalarNode*) { return false; 
 /// For prune_or_max: children that would merge but for their carried losses stay apart.
 struct KeepLossesApart {
   template <class Node>
-  bool operator()(Node* const*) const { return false; }
+  bool operator()(Node* const*) const {
+    return false;
+  }
 };
 
 /// What a walk does to an inner node `n` once its children are done, as OctoMap does it (`if

@@ -28,8 +28,8 @@ std::size_t max_ray_voxels() {
   return n;
 }
 
-ScanCheck::ScanCheck(const OccupancyTree& grid, const octomap::point3d& origin,
-                     double max_range, std::string where)
+ScanCheck::ScanCheck(const OccupancyTree& grid, const octomap::point3d& origin, double max_range,
+                     std::string where)
     : grid_(grid),
       origin_(origin),
       max_range_(max_range),
@@ -81,8 +81,8 @@ void ScanCheck::check(std::size_t row, const octomap::point3d& p) const {
     for (int a = 0; a < 3; ++a) {
       if (!key_of(end(a), key[a])) {
         throw std::invalid_argument(at() + ": its ray, cut to max_range, ends at " +
-                                    point_text(end) + ", outside the map's extent: " +
-                                    extent_text());
+                                    point_text(end) +
+                                    ", outside the map's extent: " + extent_text());
       }
     }
   }
@@ -110,12 +110,12 @@ void ScanCheck::check(std::size_t row, const octomap::point3d& p) const {
   if (static_cast<std::size_t>(voxels) > max_ray_voxels()) {
     const double r = grid_.getResolution();
     const double safe = std::floor(static_cast<double>(max_ray_voxels()) * r / std::sqrt(3.0));
-    throw std::invalid_argument(
-        at() + " " + point_text(p) + ": its ray from the sensor origin " + point_text(origin_) +
-        " crosses about " + std::to_string(voxels) + " voxels, more than the " +
-        std::to_string(max_ray_voxels()) + " OctoMap traces in one ray; set max_range to at most " +
-        detail::shortest(safe) + " m (at resolution " + detail::shortest(r) +
-        " m) or use a coarser resolution");
+    throw std::invalid_argument(at() + " " + point_text(p) + ": its ray from the sensor origin " +
+                                point_text(origin_) + " crosses about " + std::to_string(voxels) +
+                                " voxels, more than the " + std::to_string(max_ray_voxels()) +
+                                " OctoMap traces in one ray; set max_range to at most " +
+                                detail::shortest(safe) + " m (at resolution " +
+                                detail::shortest(r) + " m) or use a coarser resolution");
   }
 }
 

@@ -111,7 +111,6 @@ bool grid_preserving(const double T[16], double res) {
   return true;
 }
 
-
 /// Votes of one source leaf, merged per target voxel before they go to the table (the cells
 /// of a leaf land in few target voxels).
 class LeafVotes {
@@ -229,10 +228,10 @@ std::unique_ptr<OccupancyMap> transform_map(const OccupancyMap& src, const doubl
     planned += n * n * n;
   }
   if (planned > kMaxSamples) {
-    throw std::invalid_argument(
-        "resampling to " + detail::shortest(resolution) + " m needs " +
-        detail::shortest(std::round(planned / 1e8) / 10) + " billion samples (at most " +
-        detail::shortest(kMaxSamples / 1e9) + " billion): choose a coarser resolution");
+    throw std::invalid_argument("resampling to " + detail::shortest(resolution) + " m needs " +
+                                detail::shortest(std::round(planned / 1e8) / 10) +
+                                " billion samples (at most " + detail::shortest(kMaxSamples / 1e9) +
+                                " billion): choose a coarser resolution");
   }
 
   // expected target voxels: about the source's finest voxels, rescaled

@@ -55,8 +55,7 @@ void visit(const Tree& t, const Node* n, const octomap::OcTreeKey& key, unsigned
     return;
   }
   // the iterator's child keys: the parent's key -/+ half the child's extent
-  const auto offset =
-      static_cast<octomap::key_type>((1u << (t.getTreeDepth() - 1)) >> (depth + 1));
+  const auto offset = static_cast<octomap::key_type>((1u << (t.getTreeDepth() - 1)) >> (depth + 1));
   octomap::OcTreeKey child;
   for (unsigned i = 0; i < 8; ++i) {
     if (!t.nodeChildExists(n, i)) continue;

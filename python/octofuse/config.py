@@ -11,10 +11,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -48,14 +49,16 @@ class AgentSpec:
     #: topic giving the robot's pose in the fixed frame (``nav_msgs/Odometry``, or
     #: ``geometry_msgs/`` ``PoseStamped``, ``PoseWithCovarianceStamped`` or
     #: ``TransformStamped``); when set, tf is not used for this agent.
-    pose_topic: Optional[str] = None
+    pose_topic: str | None = None
     #: static sensor offset on the robot: x y z qx qy qz qw (with ``pose_topic``)
-    sensor_offset: Optional[list[float]] = None
+    sensor_offset: list[float] | None = None
 
     def validate(self, where: str) -> None:
         if not self.name or "/" in self.name or self.name == "centralized":
-            raise ValueError(f"{where}.name = {self.name!r}: expected a name without '/' "
-                             "('centralized' is reserved)")
+            raise ValueError(
+                f"{where}.name = {self.name!r}: expected a name without '/' "
+                "('centralized' is reserved)"
+            )
         if not self.topic:
             raise ValueError(f"{where}.topic: expected the agent's scan topic")
         if self.sensor_offset is not None and len(self.sensor_offset) != 7:
@@ -75,16 +78,20 @@ class MapConfig:
         from . import _core  # the core's range of voxel sizes
 
         if not _core.MIN_RESOLUTION <= self.resolution <= _core.MAX_RESOLUTION:
-            raise ValueError(f"{where}.resolution = {self.resolution}: expected a voxel size "
-                             f"from {_core.MIN_RESOLUTION:g} to {_core.MAX_RESOLUTION:g} metres")
+            raise ValueError(
+                f"{where}.resolution = {self.resolution}: expected a voxel size "
+                f"from {_core.MIN_RESOLUTION:g} to {_core.MAX_RESOLUTION:g} metres"
+            )
         if not 0.5 < self.prob_hit < 1.0:
             raise ValueError(f"{where}.prob_hit = {self.prob_hit}: expected 0.5 < p < 1")
         if not 0.0 < self.prob_miss < 0.5:
             raise ValueError(f"{where}.prob_miss = {self.prob_miss}: expected 0 < p < 0.5")
         lo, hi = self.clamping
         if not 0.0 < lo < 0.5 < hi < 1.0:
-            raise ValueError(f"{where}.clamping = {list(self.clamping)}: expected two "
-                             "probabilities min < 0.5 < max")
+            raise ValueError(
+                f"{where}.clamping = {list(self.clamping)}: expected two "
+                "probabilities min < 0.5 < max"
+            )
 
 
 @dataclass
@@ -127,11 +134,13 @@ class BuildConfig:
         if not 1 <= self.batch_size <= 4096:
             raise ValueError(f"{where}.batch_size = {self.batch_size}: expected 1 to 4096")
         if self.insert_mode not in INSERT_MODES:
-            raise ValueError(f"{where}.insert_mode = {self.insert_mode!r}: expected 'exact' or "
-                             "'fast'")
+            raise ValueError(
+                f"{where}.insert_mode = {self.insert_mode!r}: expected 'exact' or 'fast'"
+            )
         if not 0 <= self.threads <= MAX_THREADS:
-            raise ValueError(f"{where}.threads = {self.threads}: expected 0 (one per core) "
-                             f"to {MAX_THREADS}")
+            raise ValueError(
+                f"{where}.threads = {self.threads}: expected 0 (one per core) to {MAX_THREADS}"
+            )
 
     @property
     def workers(self) -> int:
@@ -161,8 +170,10 @@ class RobustConfig:
             raise ValueError(f"{where}.time = {self.time}: expected seconds >= 0")
         for name in ("p_in", "success", "confidence"):
             if not 0.0 < getattr(self, name) < 1.0:
-                raise ValueError(f"{where}.{name} = {getattr(self, name)}: expected a "
-                                 "probability strictly between 0 and 1")
+                raise ValueError(
+                    f"{where}.{name} = {getattr(self, name)}: expected a "
+                    "probability strictly between 0 and 1"
+                )
         if not 1 <= self.iterations <= 100_000:
             raise ValueError(f"{where}.iterations = {self.iterations}: expected 1 to 100000")
 
@@ -179,8 +190,10 @@ class AgentFrame:
         if not self.name:
             raise ValueError(f"{where}.name: expected an agent's name")
         if len(self.pose) != 6 or not all(math.isfinite(v) for v in self.pose):
-            raise ValueError(f"{where}.pose = {self.pose}: expected 6 finite numbers x, y, z, "
-                             "roll, pitch, yaw (metres, radians)")
+            raise ValueError(
+                f"{where}.pose = {self.pose}: expected 6 finite numbers x, y, z, "
+                "roll, pitch, yaw (metres, radians)"
+            )
 
 
 #: alignment of a link on first contact (``FuseConfig.align``): none, x y z + yaw, or 6-DoF
@@ -235,33 +248,44 @@ class FuseConfig:
                 names.extend(RULES if x == "all" else [x] if x else [])
         bad = [r for r in names if r not in RULES and r not in EXACT_MODES]
         if bad:
-            raise ValueError(f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
-                             f"{', '.join(RULES)} (or all), and {' and '.join(EXACT_MODES)}")
+            raise ValueError(
+                f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
+                f"{', '.join(RULES)} (or all), and {' and '.join(EXACT_MODES)}"
+            )
         if not names:
             raise ValueError(f"{where}.rules: give at least one fusion rule")
         self.rules = list(dict.fromkeys(names))
         if self.unknown not in UNKNOWN_POLICIES:
-            raise ValueError(f"{where}.unknown = {self.unknown!r}: expected one of "
-                             f"{', '.join(UNKNOWN_POLICIES)}")
+            raise ValueError(
+                f"{where}.unknown = {self.unknown!r}: expected one of {', '.join(UNKNOWN_POLICIES)}"
+            )
         if self.directions not in ("both", "one"):
             raise ValueError(f"{where}.directions = {self.directions!r}: expected both or one")
         if not (math.isfinite(self.overconfidence_tol) and self.overconfidence_tol >= 0):
-            raise ValueError(f"{where}.overconfidence_tol = {self.overconfidence_tol}: "
-                             "expected a number >= 0")
+            raise ValueError(
+                f"{where}.overconfidence_tol = {self.overconfidence_tol}: expected a number >= 0"
+            )
         self.robust.validate(f"{where}.robust")
         if self.rules_per_pass < 0:
-            raise ValueError(f"{where}.rules_per_pass = {self.rules_per_pass}: expected 0 or more "
-                             "rules (0: every rule in one pass)")
+            raise ValueError(
+                f"{where}.rules_per_pass = {self.rules_per_pass}: expected 0 or more "
+                "rules (0: every rule in one pass)"
+            )
         if self.layers_max_bytes < 0:
-            raise ValueError(f"{where}.layers_max_bytes = {self.layers_max_bytes}: expected 0 "
-                             "(unlimited) or more bytes")
+            raise ValueError(
+                f"{where}.layers_max_bytes = {self.layers_max_bytes}: expected 0 "
+                "(unlimited) or more bytes"
+            )
         if not (math.isfinite(self.loss) and 0.0 <= self.loss < 1.0):
-            raise ValueError(f"{where}.loss = {self.loss}: expected a probability from 0 to "
-                             "below 1")
+            raise ValueError(
+                f"{where}.loss = {self.loss}: expected a probability from 0 to below 1"
+            )
         tree = str(self.spanning_tree).strip()
         if not tree or (tree not in SPANNING_TREES and not Path(tree).suffix):
-            raise ValueError(f"{where}.spanning_tree = {self.spanning_tree!r}: expected "
-                             f"{' or '.join(SPANNING_TREES)}, or a graph file with the tree's links")
+            raise ValueError(
+                f"{where}.spanning_tree = {self.spanning_tree!r}: expected "
+                f"{' or '.join(SPANNING_TREES)}, or a graph file with the tree's links"
+            )
         self.spanning_tree = tree
         self._validate_frames(where)
 
@@ -278,21 +302,25 @@ class FuseConfig:
                 raise ValueError(f"{where}.agent_frames: agent '{f.name}' is given twice")
             seen.add(f.name)
         if self.align not in ALIGN_MODES:
-            raise ValueError(f"{where}.align = {self.align!r}: expected one of "
-                             f"{', '.join(ALIGN_MODES)}")
+            raise ValueError(
+                f"{where}.align = {self.align!r}: expected one of {', '.join(ALIGN_MODES)}"
+            )
         moved = self.own_frames
         if not moved and self.align == "off":
             return
-        why = (f"agent '{moved[0]}' has a frame of its own" if moved
-               else f"align = {self.align}")
+        why = f"agent '{moved[0]}' has a frame of its own" if moved else f"align = {self.align}"
         for exact in EXACT_MODES:
             if exact in self.rules:
-                raise ValueError(f"{where}: the {exact} rule needs every agent in one frame "
-                                 f"(its arithmetic on resampled maps is not exact), but {why}")
+                raise ValueError(
+                    f"{where}: the {exact} rule needs every agent in one frame "
+                    f"(its arithmetic on resampled maps is not exact), but {why}"
+                )
         if self.robust.enabled and self.align != "off":
-            raise ValueError(f"{where}: robust fusion measures the maps' offsets itself (in "
-                             f"the common frame, each map moved by its agent's frame), but "
-                             f"align = {self.align}")
+            raise ValueError(
+                f"{where}: robust fusion measures the maps' offsets itself (in "
+                f"the common frame, each map moved by its agent's frame), but "
+                f"align = {self.align}"
+            )
 
 
 @dataclass
@@ -312,7 +340,7 @@ class RunConfig:
     #: file formats of the heat maps: ply, pcd
     formats: list[str] = field(default_factory=lambda: ["ply"])
     #: scene ground truth JSON (default: NAME_scene.json beside the first bag)
-    truth: Optional[str] = None
+    truth: str | None = None
 
     def validate(self, where: str) -> None:
         self.build.validate(f"{where}.build")
@@ -320,13 +348,16 @@ class RunConfig:
         if not 0 <= self.samples <= 10_000:
             raise ValueError(f"{where}.samples = {self.samples}: expected 0 to 10000")
         if self.export not in EXPORTS:
-            raise ValueError(f"{where}.export = {self.export!r}: expected one of "
-                             f"{', '.join(EXPORTS)}")
+            raise ValueError(
+                f"{where}.export = {self.export!r}: expected one of {', '.join(EXPORTS)}"
+            )
         names = [x.strip() for f in self.formats for x in str(f).split(",") if x.strip()]
         bad = [x for x in names if x not in HEATMAP_FORMATS]
         if bad or not names:
-            raise ValueError(f"{where}.formats = {self.formats!r}: expected one or more of "
-                             f"{', '.join(HEATMAP_FORMATS)}")
+            raise ValueError(
+                f"{where}.formats = {self.formats!r}: expected one or more of "
+                f"{', '.join(HEATMAP_FORMATS)}"
+            )
         self.formats = list(dict.fromkeys(names))
 
 
@@ -341,8 +372,10 @@ class PartitionConfig:
 
     def validate(self, where: str) -> None:
         if not 0 <= self.start < self.end:
-            raise ValueError(f"{where}: start {self.start} and end {self.end}: expected "
-                             "0 <= start < end (seconds)")
+            raise ValueError(
+                f"{where}: start {self.start} and end {self.end}: expected "
+                "0 <= start < end (seconds)"
+            )
         if not self.agents:
             raise ValueError(f"{where}.agents: name the agents cut off from the others")
 
@@ -363,8 +396,10 @@ class FaultConfig:
     def validate(self, where: str) -> None:
         for name in ("loss", "duplicate", "reorder"):
             if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"{where}.{name} = {getattr(self, name)}: expected a "
-                                 "probability from 0 to below 1")
+                raise ValueError(
+                    f"{where}.{name} = {getattr(self, name)}: expected a "
+                    "probability from 0 to below 1"
+                )
         if not 0.0 <= self.delay <= 60.0:
             raise ValueError(f"{where}.delay = {self.delay}: expected 0 to 60 seconds")
         for i, part in enumerate(self.partitions):
@@ -416,36 +451,47 @@ class LiveConfig:
 
     def validate(self, where: str) -> None:
         if not self.fleet or "/" in self.fleet or any(c in self.fleet for c in "*$?#"):
-            raise ValueError(f"{where}.fleet = {self.fleet!r}: expected a name without '/', "
-                             "'*', '$', '?' or '#'")
+            raise ValueError(
+                f"{where}.fleet = {self.fleet!r}: expected a name without '/', '*', '$', '?' or '#'"
+            )
         if not 1 <= self.base_port <= 65000:
             raise ValueError(f"{where}.base_port = {self.base_port}: expected 1 to 65000")
         if not (math.isfinite(self.speed) and 0 < self.speed <= 1000):
             raise ValueError(f"{where}.speed = {self.speed}: expected above 0, up to 1000")
         if not 0 <= self.checkpoint_period <= 86400:
-            raise ValueError(f"{where}.checkpoint_period = {self.checkpoint_period}: expected 0 "
-                             "(none) to 86400 seconds")
+            raise ValueError(
+                f"{where}.checkpoint_period = {self.checkpoint_period}: expected 0 "
+                "(none) to 86400 seconds"
+            )
         if not 1024 <= self.max_message_bytes <= 2**32 - 1:
-            raise ValueError(f"{where}.max_message_bytes = {self.max_message_bytes}: expected "
-                             "1024 to 4 GiB")
+            raise ValueError(
+                f"{where}.max_message_bytes = {self.max_message_bytes}: expected 1024 to 4 GiB"
+            )
         if not 256 <= self.max_chunk_bytes <= self.max_message_bytes:
-            raise ValueError(f"{where}.max_chunk_bytes = {self.max_chunk_bytes}: expected 256 "
-                             f"to max_message_bytes ({self.max_message_bytes})")
+            raise ValueError(
+                f"{where}.max_chunk_bytes = {self.max_chunk_bytes}: expected 256 "
+                f"to max_message_bytes ({self.max_message_bytes})"
+            )
         if not 0 < self.timeout <= 3600:
             raise ValueError(f"{where}.timeout = {self.timeout}: expected above 0, up to 3600 s")
         if not 0 <= self.map_period <= 3600:
-            raise ValueError(f"{where}.map_period = {self.map_period}: expected 0 (only at the "
-                             "end) to 3600 seconds")
+            raise ValueError(
+                f"{where}.map_period = {self.map_period}: expected 0 (only at the "
+                "end) to 3600 seconds"
+            )
         if not 0 <= self.settle_rounds <= 1000:
             raise ValueError(f"{where}.settle_rounds = {self.settle_rounds}: expected 0 to 1000")
         self.faults.validate(f"{where}.faults")
         if self.lockstep and self.faults.any:
-            raise ValueError(f"{where}: lockstep waits for every message of the schedule, which "
-                             "injected faults would lose; use fuse.loss for lost messages")
+            raise ValueError(
+                f"{where}: lockstep waits for every message of the schedule, which "
+                "injected faults would lose; use fuse.loss for lost messages"
+            )
         tls = [self.tls_root_ca, self.tls_certificate, self.tls_private_key]
         if any(tls) and not all(tls):
-            raise ValueError(f"{where}: TLS needs tls_root_ca, tls_certificate and "
-                             "tls_private_key together")
+            raise ValueError(
+                f"{where}: TLS needs tls_root_ca, tls_certificate and tls_private_key together"
+            )
         for name in ("tls_root_ca", "tls_certificate", "tls_private_key", "users_file"):
             path = getattr(self, name)
             if path and not Path(path).is_file():
@@ -468,11 +514,15 @@ class FleetConfig(RunConfig):
         super().validate(where)
         self.live.validate(f"{where}.live")
         if self.fuse.robust.enabled:
-            raise ValueError(f"{where}.fuse.robust: a live fleet has no place where every "
-                             "robot's map meets to vote; run robust fusion with `run`")
+            raise ValueError(
+                f"{where}.fuse.robust: a live fleet has no place where every "
+                "robot's map meets to vote; run robust fusion with `run`"
+            )
         if self.fuse.align != "off" or self.fuse.own_frames:
-            raise ValueError(f"{where}.fuse: a live fleet maps every robot in the common frame "
-                             "for now; agent frames and alignment run in `run` and the swarm")
+            raise ValueError(
+                f"{where}.fuse: a live fleet maps every robot in the common frame "
+                "for now; agent frames and alignment run in `run` and the swarm"
+            )
 
 
 # ------------------------------------------------------------------------------ plain data
@@ -512,21 +562,28 @@ def _build(cls, data: Any, where: str):
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(str(k) for k in set(data) - set(fields))
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; "
-                         f"valid keys are {', '.join(fields)}")
-    missing = [f.name for f in fields.values() if f.name not in data
-               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+        raise ValueError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(fields)}"
+        )
+    missing = [
+        f.name
+        for f in fields.values()
+        if f.name not in data
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
     if missing:
         raise ValueError(f"{where}: missing key(s) {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
-    return cls(**{name: _convert(hints[name], value, f"{where}.{name}")
-                  for name, value in data.items()})
+    return cls(
+        **{name: _convert(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    )
 
 
 def _convert(tp, value: Any, where: str):
     """``value`` as type ``tp`` (no lossy coercion: '2' is not an int)."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin is typing.Union:  # Optional[X]
+    if origin in (typing.Union, types.UnionType):  # X | None
         if value is None:
             return None
         return _convert(next(a for a in args if a is not type(None)), value, where)
@@ -585,13 +642,16 @@ def read_yaml(path: str | Path) -> dict:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise ValueError(f"config file '{p}' is not valid YAML{at}: "
-                         f"{getattr(e, 'problem', None) or 'syntax error'}") from None
+        raise ValueError(
+            f"config file '{p}' is not valid YAML{at}: "
+            f"{getattr(e, 'problem', None) or 'syntax error'}"
+        ) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ValueError(f"config file '{p}': expected a mapping of keys to values, "
-                         f"got {_kind(data)}")
+        raise ValueError(
+            f"config file '{p}': expected a mapping of keys to values, got {_kind(data)}"
+        )
     return data
 
 

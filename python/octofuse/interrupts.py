@@ -23,7 +23,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import sys
-from typing import Iterator
+from collections.abc import Iterator
 
 _interrupted = False
 _signal = signal.SIGINT  # the signal that interrupted

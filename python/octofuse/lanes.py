@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import threading
 from collections import deque
+from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import Future
-from typing import Callable, Hashable, Sequence
 
 
 class Lanes:
@@ -31,13 +31,16 @@ class Lanes:
         self._unfinished = 0
         self._error: BaseException | None = None
         self._closing = False
-        self._threads = [threading.Thread(target=self._work, name=f"octofuse-lane-{k}", daemon=True)
-                         for k in range(threads if threads > 1 else 0)]
+        self._threads = [
+            threading.Thread(target=self._work, name=f"octofuse-lane-{k}", daemon=True)
+            for k in range(threads if threads > 1 else 0)
+        ]
         for t in self._threads:
             t.start()
 
-    def submit(self, lane: Hashable, fn: Callable[[], object],
-               after: Sequence[Future] = ()) -> Future:
+    def submit(
+        self, lane: Hashable, fn: Callable[[], object], after: Sequence[Future] = ()
+    ) -> Future:
         """Run ``fn()`` after the lane's earlier tasks and the tasks ``after``; its future."""
         fut: Future = Future()
         if not self._threads:
@@ -76,7 +79,7 @@ class Lanes:
         for t in self._threads:
             t.join()
 
-    def __enter__(self) -> "Lanes":
+    def __enter__(self) -> Lanes:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

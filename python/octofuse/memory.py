@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
-from typing import Callable, Optional
+from collections.abc import Callable
 
 
 def return_freed_memory(pools: bool = True) -> None:
@@ -21,7 +21,7 @@ def return_freed_memory(pools: bool = True) -> None:
 
 
 @functools.cache
-def _malloc_trim() -> Optional[Callable[[int], int]]:
+def _malloc_trim() -> Callable[[int], int] | None:
     """glibc's ``malloc_trim``, or None where the C library has none."""
     try:
         return ctypes.CDLL(None).malloc_trim
@@ -42,4 +42,8 @@ def resident_memory() -> tuple[int, int, int]:
                     vals[key] = int(rest.split()[0]) * 1024
     except OSError:
         pass
-    return vals.get("RssAnon", 0) + vals.get("RssFile", 0), vals.get("VmRSS", 0), vals.get("VmHWM", 0)
+    return (
+        vals.get("RssAnon", 0) + vals.get("RssFile", 0),
+        vals.get("VmRSS", 0),
+        vals.get("VmHWM", 0),
+    )

@@ -38,14 +38,16 @@ Rule = _core.Rule
 UnknownPolicy = _core.UnknownPolicy
 
 
-def parse_rule(rule: "str | Rule") -> "Rule":
+def parse_rule(rule: str | Rule) -> Rule:
     """The core's :class:`Rule` for a rule name; ``ValueError`` listing the valid names."""
     return rule if isinstance(rule, Rule) else _core.rule_from_name(str(rule))
 
 
-def parse_unknown(policy: "str | UnknownPolicy") -> "UnknownPolicy":
+def parse_unknown(policy: str | UnknownPolicy) -> UnknownPolicy:
     """The core's policy for voxels one map knows, from ``"copy"`` or ``"prior"``."""
-    return policy if isinstance(policy, UnknownPolicy) else _core.unknown_policy_from_name(str(policy))
+    return (
+        policy if isinstance(policy, UnknownPolicy) else _core.unknown_policy_from_name(str(policy))
+    )
 
 
 def _pair(a, b) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +99,9 @@ def fuse_bernoulli(p_a, p_b, rule: str = "min-info-loss", prior: float = 0.5) ->
     return BernoulliFusion(p, w, loss)
 
 
-def fuse_logodds(l_a, l_b, rule: str = "min-info-loss", prior_logodds: float = 0.0) -> LogOddsFusion:
+def fuse_logodds(
+    l_a, l_b, rule: str = "min-info-loss", prior_logodds: float = 0.0
+) -> LogOddsFusion:
     """Fuse log-odds element-wise with a fusion rule (see :func:`fuse_bernoulli`).
 
     ``l_a``, ``l_b`` may be +-inf (certain); NaN and contradictory infinities raise

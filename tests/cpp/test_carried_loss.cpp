@@ -78,7 +78,8 @@ TEST(CarriedLoss, SameMapsAndLossTreesAsLossTreesAlone) {
         run_steps(carried, rule, pol, carried_foreign);
         for (std::size_t k = 0; k < plain.size(); ++k) {
           const OccupancyTree& t = carried[k].map.tree();
-          for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) carried_seen += it->carries_loss();
+          for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it)
+            carried_seen += it->carries_loss();
           if (k != 1) moved_aside += carried[k].loss.size();  // agent 1 settled for `foreign`
           std::vector<float> values, want_values;
           std::vector<std::uint8_t> depths, want_depths;
@@ -108,7 +109,8 @@ TEST(CarriedLoss, CopiesCarryNothingAndExpandedLeavesPassItOn) {
   fuse_into(m, other, Rule::Chernoff, UnknownPolicy::Copy, &loss);
   const OccupancyMap copy(m);
   std::size_t carried = 0;
-  for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it) carried += it->carries_loss();
+  for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it)
+    carried += it->carries_loss();
   EXPECT_GT(carried, 0u);
   EXPECT_EQ(copy.carried_loss(), nullptr);
   for (auto it = copy.tree().begin_tree(); it != copy.tree().end_tree(); ++it)

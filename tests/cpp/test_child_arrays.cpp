@@ -75,7 +75,8 @@ TEST(ChildArrays, PruningFreesTheArrayForTheNextOneOnTheThread) {
     EXPECT_EQ(t.size(), 1u);
     t.expandNode(root);
     EXPECT_EQ(root->children_array(), array);  // a freed block is the next one taken
-  }).join();
+  })
+      .join();
 }
 
 TEST(ChildArrays, CopiesHaveArraysOfTheirOwn) {

@@ -48,8 +48,8 @@ TEST(Fuse, EqualsPerVoxelRuleOnExpandedTrees) {
             loss = 0.0f;
           } else {
             const Fused f = fuse_logodds(static_cast<Rule>(r), la, lb);
-            want = static_cast<float>(std::clamp(f.l, double(a.clamp_min_logodds()),
-                                                 double(a.clamp_max_logodds())));
+            want = static_cast<float>(
+                std::clamp(f.l, double(a.clamp_min_logodds()), double(a.clamp_max_logodds())));
             loss = static_cast<float>(f.info_loss);
           }
           ASSERT_EQ(ef.at(k), want) << rule_name(static_cast<Rule>(r));

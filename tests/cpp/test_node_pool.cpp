@@ -204,10 +204,10 @@ TEST(NodePool, LeafWalkIsOctomapsLeafIterator) {
   for (unsigned seed = 0; seed < 20; ++seed) {
     const OccupancyMap m = random_map(seed, 0.5);
     std::vector<std::tuple<unsigned, unsigned, unsigned, unsigned, float>> walked, iterated;
-    detail::for_each_leaf(m.tree(), [&](const OccupancyNode& n, const octomap::OcTreeKey& k,
-                                        unsigned d) {
-      walked.emplace_back(k[0], k[1], k[2], d, n.getLogOdds());
-    });
+    detail::for_each_leaf(m.tree(),
+                          [&](const OccupancyNode& n, const octomap::OcTreeKey& k, unsigned d) {
+                            walked.emplace_back(k[0], k[1], k[2], d, n.getLogOdds());
+                          });
     for (auto it = m.tree().begin_leafs(); it != m.tree().end_leafs(); ++it) {
       const octomap::OcTreeKey& k = it.getKey();
       iterated.emplace_back(k[0], k[1], k[2], it.getDepth(), it->getLogOdds());

@@ -57,11 +57,13 @@ OccupancyMap offset_map(unsigned seed, unsigned offset, bool continuous) {
     t.setNodeValue(k, continuous ? u(rng) : values[v(rng)], true);
   }
   for (int i = 0; i < 12; ++i) {  // saturated 8^3 blocks prune to depth-13 leaves
-    const unsigned bx = base + 8 * (c(rng) / 8), by = base + 8 * (c(rng) / 8), bz = base + 8 * (c(rng) / 24);
+    const unsigned bx = base + 8 * (c(rng) / 8), by = base + 8 * (c(rng) / 8),
+                   bz = base + 8 * (c(rng) / 24);
     const float val = coin(rng) < 70 ? -2.0f : 3.5f;
     for (unsigned x = 0; x < 8; ++x)
       for (unsigned y = 0; y < 8; ++y)
-        for (unsigned z = 0; z < 8; ++z) t.setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
+        for (unsigned z = 0; z < 8; ++z)
+          t.setNodeValue(octomap::OcTreeKey(bx + x, by + y, bz + z), val, true);
   }
   t.updateInnerOccupancy();
   t.prune();
@@ -81,9 +83,11 @@ void expect_parallel_same(const OccupancyMap& a, const OccupancyMap& b, const Sc
         ScalarTree got_loss(a.params().resolution);
         if (loss0 != nullptr) accumulate_loss(got_loss, *loss0);
         const FuseIntoStats gs = fuse_into(got, b, rule, pol, &got_loss, threads);
-        ASSERT_EQ(node_differences(want.tree(), got.tree()), 0) << rule_name(rule) << " " << threads;
+        ASSERT_EQ(node_differences(want.tree(), got.tree()), 0)
+            << rule_name(rule) << " " << threads;
         ASSERT_EQ(node_differences(want_loss, got_loss), 0)
-            << rule_name(rule) << " " << kUnknownPolicyNames[static_cast<int>(pol)] << " " << threads;
+            << rule_name(rule) << " " << kUnknownPolicyNames[static_cast<int>(pol)] << " "
+            << threads;
         EXPECT_EQ(got.num_nodes(), want.num_nodes());
         EXPECT_EQ(got.num_nodes(), got.tree().calcNumNodes());
         EXPECT_EQ(got_loss.size(), got_loss.calcNumNodes());

@@ -23,8 +23,8 @@ std::size_t expect_same_ray(const octomap::OcTree& tree, const point3d& o, const
   for (const auto& k : ray) expected.push_back(morton(k));
   std::vector<std::uint64_t> got;
   std::uint64_t end_code = 0;  // the tracer always sets it
-  const bool ok =
-      trace_ray_codes(tree, o, e, [&got](std::uint64_t c) { got.push_back(c); }, &end_code);
+  const bool ok = trace_ray_codes(
+      tree, o, e, [&got](std::uint64_t c) { got.push_back(c); }, &end_code);
   EXPECT_EQ(ok, octomap_ok) << o << " -> " << e;
   octomap::OcTreeKey end_key;
   EXPECT_EQ(end_code,
@@ -71,15 +71,21 @@ TEST(RayCodes, RaysOnVoxelFacesAlongAxesAndDiagonals) {
     point3d e(on_grid(cell(rng), pick(rng) % 4), on_grid(cell(rng), pick(rng) % 4),
               on_grid(cell(rng), pick(rng) % 4));
     switch (pick(rng)) {  // axis-parallel, planar and exactly diagonal rays
-      case 0: e.y() = o.y(); e.z() = o.z(); break;
-      case 1: e.z() = o.z(); break;
+      case 0:
+        e.y() = o.y();
+        e.z() = o.z();
+        break;
+      case 1:
+        e.z() = o.z();
+        break;
       case 2: {
         const float d = e.x() - o.x();
         e.y() = o.y() + d;
         e.z() = o.z() - d;
         break;
       }
-      default: break;
+      default:
+        break;
     }
     expect_same_ray(tree, o, e);
   }
@@ -111,7 +117,7 @@ TEST(RayCodes, EndsWhereTheWalkReachesTheRaysLengthExactly) {
 
 TEST(RayCodes, EndpointsOutsideTheTreeAndInOneVoxel) {
   octomap::OcTree tree(0.05);
-  expect_same_ray(tree, point3d(0, 0, 0), point3d(5000.0f, 0, 0));    // outside: false
+  expect_same_ray(tree, point3d(0, 0, 0), point3d(5000.0f, 0, 0));  // outside: false
   expect_same_ray(tree, point3d(-5000.0f, 0, 0), point3d(1.0f, 0, 0));
   expect_same_ray(tree, point3d(0.01f, 0.01f, 0.01f), point3d(0.02f, 0.02f, 0.02f));  // one voxel
   expect_same_ray(tree, point3d(1.0f, 2.0f, 3.0f), point3d(1.0f, 2.0f, 3.0f));
@@ -141,7 +147,8 @@ TEST(RayCodes, MortonStepMovesOneAxisOnly) {
 TEST(RayCodes, SortCodesSortsLikeStdSort) {
   std::mt19937_64 rng(3);
   for (std::size_t n : {0u, 1u, 255u, 256u, 1000u, 70000u}) {
-    for (std::uint64_t spread : {std::uint64_t{1} << 48, std::uint64_t{1} << 20, std::uint64_t{300}}) {
+    for (std::uint64_t spread :
+         {std::uint64_t{1} << 48, std::uint64_t{1} << 20, std::uint64_t{300}}) {
       // codes of a narrow region (most bytes shared, the passes skipped) and of the whole range
       const std::uint64_t room = (std::uint64_t{1} << 48) - spread;
       const std::uint64_t base = room == 0 ? 0 : rng() % room;

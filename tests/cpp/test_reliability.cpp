@@ -93,7 +93,7 @@ TEST(ScanRays, RayLongerThanOctomapsKeyBufferIsRejected) {
     const std::string msg = invalid_argument_of([&] { m.insert_scan(pt, 1, origin, -1.0); });
     EXPECT_NE(msg.find("point row 0"), std::string::npos) << msg;
     EXPECT_NE(msg.find("max_range"), std::string::npos) << msg;
-    EXPECT_EQ(m.num_nodes(), 0u);  // nothing inserted
+    EXPECT_EQ(m.num_nodes(), 0u);         // nothing inserted
     m.insert_scan(pt, 1, origin, 100.0);  // cut to max_range: traced
     EXPECT_GT(m.num_leaves(), 0u);
   }

@@ -95,9 +95,9 @@ TEST(Rules, WeightedChernoffRootIsTheRootToRounding) {
   for (double a : values)
     for (double b : values) {
       if (std::fabs(a - b) < 1e-3) continue;
-      for (const auto& [ca, cb] : {std::pair{entropy_logodds(b), entropy_logodds(a)},
-                                   std::pair{kl_logodds(a, 0.0), kl_logodds(b, 0.0)},
-                                   std::pair{0.3, 2.0}}) {
+      for (const auto& [ca, cb] :
+           {std::pair{entropy_logodds(b), entropy_logodds(a)},
+            std::pair{kl_logodds(a, 0.0), kl_logodds(b, 0.0)}, std::pair{0.3, 2.0}}) {
         if (!(ca > 0 && cb > 0)) continue;
         const double w0 = detail::chernoff_weight_start(a, b);  // as the rules start
         const double w = detail::weighted_chernoff_weight(a, b, ca, cb, w0);

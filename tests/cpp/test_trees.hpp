@@ -26,8 +26,7 @@ std::map<Key, float> expand(const Tree& t) {
     for (int a = 0; a < 3; ++a) k0[a] = k[a] & ~(span - 1);
     for (unsigned x = 0; x < span; ++x)
       for (unsigned y = 0; y < span; ++y)
-        for (unsigned z = 0; z < span; ++z)
-          out[{k0[0] + x, k0[1] + y, k0[2] + z}] = it->getValue();
+        for (unsigned z = 0; z < span; ++z) out[{k0[0] + x, k0[1] + y, k0[2] + z}] = it->getValue();
   }
   return out;
 }
@@ -46,7 +45,8 @@ inline OccupancyMap random_map(unsigned seed, double coarse_fraction) {
   }
   for (int i = 0; i < 6; ++i) {  // uniform 4x4x4 blocks prune to depth-14 leaves
     if (coin(rng) >= coarse_fraction * 100) continue;
-    const unsigned bx = base + 4 * (c(rng) / 4), by = base + 4 * (c(rng) / 4), bz = base + 4 * (c(rng) / 4);
+    const unsigned bx = base + 4 * (c(rng) / 4), by = base + 4 * (c(rng) / 4),
+                   bz = base + 4 * (c(rng) / 4);
     const float val = values[v(rng)];
     for (unsigned x = 0; x < 4; ++x)
       for (unsigned y = 0; y < 4; ++y)

@@ -24,7 +24,7 @@ import re
 import shutil
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -107,10 +107,12 @@ class Scene:
             for box in self.obstacles:
                 blo, bhi = box._arrays()
                 t1, t2 = (blo - o) * inv, (bhi - o) * inv
-                near = np.where(d == 0, np.where((o >= blo) & (o <= bhi), -np.inf, np.inf),
-                                np.minimum(t1, t2)).max(axis=1)
-                far = np.where(d == 0, np.where((o >= blo) & (o <= bhi), np.inf, -np.inf),
-                               np.maximum(t1, t2)).min(axis=1)
+                near = np.where(
+                    d == 0, np.where((o >= blo) & (o <= bhi), -np.inf, np.inf), np.minimum(t1, t2)
+                ).max(axis=1)
+                far = np.where(
+                    d == 0, np.where((o >= blo) & (o <= bhi), np.inf, -np.inf), np.maximum(t1, t2)
+                ).min(axis=1)
                 hit = (near <= far) & (near > 0)
                 best = np.where(hit & (near < best), near, best)
         return best
@@ -135,7 +137,10 @@ class Scene:
 #: A 5.9 x 3.9 x 2.5 m room with a low box and a tall pillar; faces on 0.1 m voxel centres.
 ROOM = Scene(
     Box((-2.95, -1.95, -0.05), (2.95, 1.95, 2.45)),
-    (Box((0.75, 0.45, -0.05), (1.35, 1.05, 0.95)), Box((-1.65, -1.35, -0.05), (-1.05, -0.75, 1.85))),
+    (
+        Box((0.75, 0.45, -0.05), (1.35, 1.05, 0.95)),
+        Box((-1.65, -1.35, -0.05), (-1.05, -0.75, 1.85)),
+    ),
 )
 
 
@@ -156,7 +161,9 @@ class Robot:
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     odom: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount: tuple[float, float, float, float] = (0.1, 0.0, 0.65, 0.0)
-    sensor: str = "lidar"  #: "lidar" (PointCloud2 on /NAME/points) or "laser" (LaserScan on /NAME/scan)
+    sensor: str = (
+        "lidar"  #: "lidar" (PointCloud2 on /NAME/points) or "laser" (LaserScan on /NAME/scan)
+    )
 
     @property
     def odom_frame(self) -> str:
@@ -214,16 +221,35 @@ LAYOUTS = {
     "float32": Layout((("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4")), 16),
     "float64": Layout((("x", 0, "f8"), ("y", 8, "f8"), ("z", 16, "f8")), 24),
     # fields listed out of offset order, coordinates in reverse order in memory
-    "shuffled": Layout((("y", 8, "f4"), ("intensity", 0, "f4"), ("z", 4, "f4"), ("x", 12, "f4")), 16),
+    "shuffled": Layout(
+        (("y", 8, "f4"), ("intensity", 0, "f4"), ("z", 4, "f4"), ("x", 12, "f4")), 16
+    ),
     # a gap before x, padding after each point and each row
-    "padded": Layout((("x", 4, "f4"), ("y", 8, "f4"), ("z", 12, "f4")), 32, organized=True, row_pad=12),
-    "extra_fields": Layout((("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"),
-                            ("ring", 16, "u2"), ("time", 20, "f8")), 28),
+    "padded": Layout(
+        (("x", 4, "f4"), ("y", 8, "f4"), ("z", 12, "f4")), 32, organized=True, row_pad=12
+    ),
+    "extra_fields": Layout(
+        (
+            ("x", 0, "f4"),
+            ("y", 4, "f4"),
+            ("z", 8, "f4"),
+            ("intensity", 12, "f4"),
+            ("ring", 16, "u2"),
+            ("time", 20, "f8"),
+        ),
+        28,
+    ),
     "organized_nan": Layout((("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4")), 16, organized=True),
-    "bigendian": Layout((("x", 0, "f8"), ("y", 8, "f8"), ("z", 16, "f8"), ("ring", 24, "u2")), 28,
-                        bigendian=True),
-    "mixed_types": Layout((("ring", 0, "u2"), ("x", 2, "f8"), ("y", 10, "f4"), ("z", 14, "f8")), 22,
-                          bigendian=True, organized=True, row_pad=2),
+    "bigendian": Layout(
+        (("x", 0, "f8"), ("y", 8, "f8"), ("z", 16, "f8"), ("ring", 24, "u2")), 28, bigendian=True
+    ),
+    "mixed_types": Layout(
+        (("ring", 0, "u2"), ("x", 2, "f8"), ("y", 10, "f4"), ("z", 14, "f8")),
+        22,
+        bigendian=True,
+        organized=True,
+        row_pad=2,
+    ),
 }
 
 
@@ -242,12 +268,14 @@ def _encode_cloud(grid: np.ndarray, layout: Layout) -> tuple[bytes, int, int, np
         grid = grid[:, np.isfinite(grid[0]).all(axis=1)]
     height, width = grid.shape[:2]
     order = ">" if layout.bigendian else "<"
-    dtype = np.dtype({
-        "names": [f[0] for f in layout.fields],
-        "formats": [order + f[2] for f in layout.fields],
-        "offsets": [f[1] for f in layout.fields],
-        "itemsize": layout.point_step,
-    })
+    dtype = np.dtype(
+        {
+            "names": [f[0] for f in layout.fields],
+            "formats": [order + f[2] for f in layout.fields],
+            "offsets": [f[1] for f in layout.fields],
+            "itemsize": layout.point_step,
+        }
+    )
     rec = np.zeros((height, width), dtype=dtype)
     flat = grid.reshape(height, width, 3)
     for name, _off, fmt in layout.fields:
@@ -259,7 +287,7 @@ def _encode_cloud(grid: np.ndarray, layout: Layout) -> tuple[bytes, int, int, np
             rec[name] = np.arange(width)[None, :] % 16
     raw = rec.tobytes()
     row = width * layout.point_step
-    data = b"".join(raw[r * row:(r + 1) * row] + b"\xa5" * layout.row_pad for r in range(height))
+    data = b"".join(raw[r * row : (r + 1) * row] + b"\xa5" * layout.row_pad for r in range(height))
     if not all(axis in dtype.names for axis in "xyz"):  # a broken cloud
         return data, height, width, np.empty((0, 3))
     stored = np.empty((height * width, 3))
@@ -272,7 +300,7 @@ def _encode_cloud(grid: np.ndarray, layout: Layout) -> tuple[bytes, int, int, np
 # -- messages ---------------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=None)
+@cache
 def typestore(ros1: bool):
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
     if TF not in ts.types:  # the builtin ROS 1 store has no tf2_msgs
@@ -300,8 +328,9 @@ def _pose_msg(ts, m: np.ndarray):
 
 def tf_message(ts, stamp_ns: int, links: Iterable[tuple[str, str, np.ndarray]]):
     """TFMessage of (parent, child, 4x4 T_parent_child) links."""
-    return ts.types[TF](transforms=[transform_stamped(ts, stamp_ns, parent, child, m)
-                             for parent, child, m in links])
+    return ts.types[TF](
+        transforms=[transform_stamped(ts, stamp_ns, parent, child, m) for parent, child, m in links]
+    )
 
 
 def transform_stamped(ts, stamp_ns: int, parent: str, child: str, m: np.ndarray):
@@ -350,58 +379,103 @@ class Recording:
     # tf
     def tf(self, stamp_ns: int, links, *, static: bool = False, log_ns: int | None = None) -> None:
         links = list(links)
-        self.add("/tf_static" if static else "/tf", TF,
-                 stamp_ns + LATENCY_NS if log_ns is None else log_ns,
-                 lambda ts: tf_message(ts, stamp_ns, links))
+        self.add(
+            "/tf_static" if static else "/tf",
+            TF,
+            stamp_ns + LATENCY_NS if log_ns is None else log_ns,
+            lambda ts: tf_message(ts, stamp_ns, links),
+        )
 
     def robot_tf(self, robot: Robot, times_ns: Iterable[int], *, static_log_ns: int = T0) -> None:
         """The static links of ``robot`` once and its odom -> base_link samples at ``times_ns``."""
-        self.tf(static_log_ns, [("map", robot.odom_frame, robot.odom_matrix()),
-                                (robot.base_frame, robot.sensor_frame, robot.mount_matrix())],
-                static=True, log_ns=static_log_ns)
+        self.tf(
+            static_log_ns,
+            [
+                ("map", robot.odom_frame, robot.odom_matrix()),
+                (robot.base_frame, robot.sensor_frame, robot.mount_matrix()),
+            ],
+            static=True,
+            log_ns=static_log_ns,
+        )
         for t in times_ns:
             x, y, yaw = robot.base_in_odom(t)
             self.tf(t, [(robot.odom_frame, robot.base_frame, pose_matrix(x, y, 0.0, yaw))])
 
     # poses
-    def odometry(self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "odom",
-                 child: str = "base_link") -> None:
+    def odometry(
+        self,
+        topic: str,
+        stamp_ns: int,
+        pose: np.ndarray,
+        frame: str = "odom",
+        child: str = "base_link",
+    ) -> None:
         def build(ts):
             T = ts.types
             z3 = T["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.0)
             return T[ODOM](
-                header=header(ts, stamp_ns, frame), child_frame_id=child,
-                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=_pose_msg(ts, pose),
-                                                               covariance=np.zeros(36)),
+                header=header(ts, stamp_ns, frame),
+                child_frame_id=child,
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=_pose_msg(ts, pose), covariance=np.zeros(36)
+                ),
                 twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=T["geometry_msgs/msg/Twist"](linear=z3, angular=z3), covariance=np.zeros(36)),
+                    twist=T["geometry_msgs/msg/Twist"](linear=z3, angular=z3),
+                    covariance=np.zeros(36),
+                ),
             )
 
         self.add(topic, ODOM, stamp_ns + LATENCY_NS, build)
 
     def pose_stamped(self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "map") -> None:
-        self.add(topic, POSE, stamp_ns + LATENCY_NS,
-                 lambda ts: ts.types[POSE](header=header(ts, stamp_ns, frame), pose=_pose_msg(ts, pose)))
+        self.add(
+            topic,
+            POSE,
+            stamp_ns + LATENCY_NS,
+            lambda ts: ts.types[POSE](header=header(ts, stamp_ns, frame), pose=_pose_msg(ts, pose)),
+        )
 
-    def pose_with_covariance(self, topic: str, stamp_ns: int, pose: np.ndarray,
-                             frame: str = "map") -> None:
+    def pose_with_covariance(
+        self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "map"
+    ) -> None:
         def build(ts):
             T = ts.types
-            return T[POSE_COV](header=header(ts, stamp_ns, frame),
-                               pose=T["geometry_msgs/msg/PoseWithCovariance"](
-                                   pose=_pose_msg(ts, pose), covariance=np.zeros(36)))
+            return T[POSE_COV](
+                header=header(ts, stamp_ns, frame),
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=_pose_msg(ts, pose), covariance=np.zeros(36)
+                ),
+            )
 
         self.add(topic, POSE_COV, stamp_ns + LATENCY_NS, build)
 
-    def transform(self, topic: str, stamp_ns: int, pose: np.ndarray, frame: str = "map",
-                  child: str = "base_link") -> None:
-        self.add(topic, TRANSFORM, stamp_ns + LATENCY_NS,
-                 lambda ts: transform_stamped(ts, stamp_ns, frame, child, pose))
+    def transform(
+        self,
+        topic: str,
+        stamp_ns: int,
+        pose: np.ndarray,
+        frame: str = "map",
+        child: str = "base_link",
+    ) -> None:
+        self.add(
+            topic,
+            TRANSFORM,
+            stamp_ns + LATENCY_NS,
+            lambda ts: transform_stamped(ts, stamp_ns, frame, child, pose),
+        )
 
     # scans
-    def cloud(self, topic: str, frame: str, stamp_ns: int, pose: np.ndarray, *,
-              layout: str | Layout = "float64", sensor_range: float = 4.0,
-              directions: np.ndarray | None = None) -> Shot:
+    def cloud(
+        self,
+        topic: str,
+        frame: str,
+        stamp_ns: int,
+        pose: np.ndarray,
+        *,
+        layout: str | Layout = "float64",
+        sensor_range: float = 4.0,
+        directions: np.ndarray | None = None,
+    ) -> Shot:
         """A PointCloud2 of the scene seen from ``pose``; beams longer than ``sensor_range`` are NaN."""
         lay = LAYOUTS[layout] if isinstance(layout, str) else layout
         dirs = lidar_directions() if directions is None else directions
@@ -414,11 +488,17 @@ class Recording:
         def build(ts):
             pf = ts.types["sensor_msgs/msg/PointField"]
             return ts.types[PC2](
-                header=header(ts, stamp_ns, frame), height=height, width=width,
-                fields=[pf(name=n, offset=o, datatype=_DATATYPES[t], count=1) for n, o, t in lay.fields],
-                is_bigendian=lay.bigendian, point_step=lay.point_step,
+                header=header(ts, stamp_ns, frame),
+                height=height,
+                width=width,
+                fields=[
+                    pf(name=n, offset=o, datatype=_DATATYPES[t], count=1) for n, o, t in lay.fields
+                ],
+                is_bigendian=lay.bigendian,
+                point_step=lay.point_step,
                 row_step=width * lay.point_step + lay.row_pad,
-                data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=False,
+                data=np.frombuffer(data, dtype=np.uint8).copy(),
+                is_dense=False,
             )
 
         shot = Shot(topic, stamp_ns, stamp_ns + LATENCY_NS, pose, stored)
@@ -426,9 +506,19 @@ class Recording:
         self.shots.append(shot)
         return shot
 
-    def scan(self, topic: str, frame: str, stamp_ns: int, pose: np.ndarray, *, beams: int = 72,
-             range_max: float = 10.0, range_min: float = 0.1, nan_beams: Sequence[int] = (),
-             angle_min: float = -math.pi + 0.01) -> Shot:
+    def scan(
+        self,
+        topic: str,
+        frame: str,
+        stamp_ns: int,
+        pose: np.ndarray,
+        *,
+        beams: int = 72,
+        range_max: float = 10.0,
+        range_min: float = 0.1,
+        nan_beams: Sequence[int] = (),
+        angle_min: float = -math.pi + 0.01,
+    ) -> Shot:
         """A LaserScan of the scene in the sensor's xy plane; beams past ``range_max`` are +inf."""
         inc32 = np.float32(2 * math.pi / beams)
         amin32 = np.float32(angle_min)
@@ -441,20 +531,38 @@ class Recording:
         r64 = ranges.astype(np.float64)
         with np.errstate(invalid="ignore"):
             hit = np.isfinite(r64) & (r64 >= np.float32(range_min)) & (r64 <= np.float32(range_max))
-        pts = np.column_stack([r64[hit] * np.cos(angles[hit]), r64[hit] * np.sin(angles[hit]),
-                               np.zeros(int(hit.sum()))])
+        pts = np.column_stack(
+            [
+                r64[hit] * np.cos(angles[hit]),
+                r64[hit] * np.sin(angles[hit]),
+                np.zeros(int(hit.sum())),
+            ]
+        )
         none = np.isposinf(r64)
 
         def build(ts):
             return ts.types[SCAN](
-                header=header(ts, stamp_ns, frame), angle_min=float(amin32),
-                angle_max=float(amin32) + (beams - 1) * float(inc32), angle_increment=float(inc32),
-                time_increment=0.0, scan_time=0.1, range_min=range_min, range_max=range_max,
-                ranges=ranges, intensities=np.zeros(beams, dtype=np.float32),
+                header=header(ts, stamp_ns, frame),
+                angle_min=float(amin32),
+                angle_max=float(amin32) + (beams - 1) * float(inc32),
+                angle_increment=float(inc32),
+                time_increment=0.0,
+                scan_time=0.1,
+                range_min=range_min,
+                range_max=range_max,
+                ranges=ranges,
+                intensities=np.zeros(beams, dtype=np.float32),
             )
 
-        shot = Shot(topic, stamp_ns, stamp_ns + LATENCY_NS, pose, pts, local[none],
-                    float(np.float32(range_max)))
+        shot = Shot(
+            topic,
+            stamp_ns,
+            stamp_ns + LATENCY_NS,
+            pose,
+            pts,
+            local[none],
+            float(np.float32(range_max)),
+        )
         self.add(topic, SCAN, shot.log_ns, build)
         self.shots.append(shot)
         return shot
@@ -504,9 +612,13 @@ def write_bag(path: Path, kind: str, records) -> Path:
     return out
 
 
-def robot_recording(robots: Sequence[Robot], scan_times: dict[str, Sequence[int]],
-                    tf_times: dict[str, Sequence[int]] | None = None,
-                    rec: Recording | None = None, **scan_kw) -> Recording:
+def robot_recording(
+    robots: Sequence[Robot],
+    scan_times: dict[str, Sequence[int]],
+    tf_times: dict[str, Sequence[int]] | None = None,
+    rec: Recording | None = None,
+    **scan_kw,
+) -> Recording:
     """tf of every robot (2 Hz from T0 to the last scan, unless given) and its scans."""
     rec = rec or Recording()
     for robot in robots:
@@ -524,8 +636,12 @@ def robot_recording(robots: Sequence[Robot], scan_times: dict[str, Sequence[int]
 # -- reference maps and checks ----------------------------------------------------------------
 
 
-def reference_map(shots: Iterable[Shot], resolution: float = 0.1, max_range: float = -1.0,
-                  poses: Callable[[Shot], np.ndarray] | None = None) -> octofuse.OccupancyMap:
+def reference_map(
+    shots: Iterable[Shot],
+    resolution: float = 0.1,
+    max_range: float = -1.0,
+    poses: Callable[[Shot], np.ndarray] | None = None,
+) -> octofuse.OccupancyMap:
     """Insert ``shots`` in log-time order with ``insert_scan_from_sensor`` (no-return beams skipped)."""
     m = octofuse.OccupancyMap(resolution)
     for s in sorted(shots, key=lambda s: s.log_ns):
@@ -534,13 +650,18 @@ def reference_map(shots: Iterable[Shot], resolution: float = 0.1, max_range: flo
     return m
 
 
-def reference_maps(shots: Sequence[Shot], agents: dict[str, str], resolution: float = 0.1,
-                   max_range: float = -1.0) -> dict[str, octofuse.OccupancyMap]:
+def reference_maps(
+    shots: Sequence[Shot], agents: dict[str, str], resolution: float = 0.1, max_range: float = -1.0
+) -> dict[str, octofuse.OccupancyMap]:
     """``agents`` = {name: topic}: one map per agent and ``"centralized"`` (all their shots)."""
-    out = {name: reference_map([s for s in shots if s.topic == topic], resolution, max_range)
-           for name, topic in agents.items()}
+    out = {
+        name: reference_map([s for s in shots if s.topic == topic], resolution, max_range)
+        for name, topic in agents.items()
+    }
     topics = set(agents.values())
-    out["centralized"] = reference_map([s for s in shots if s.topic in topics], resolution, max_range)
+    out["centralized"] = reference_map(
+        [s for s in shots if s.topic in topics], resolution, max_range
+    )
     return out
 
 
@@ -550,7 +671,9 @@ def sorted_leaves(m: octofuse.OccupancyMap):
     return lv.centers[order], lv.sizes[order], lv.values[order]
 
 
-def assert_same_map(got: octofuse.OccupancyMap, want: octofuse.OccupancyMap, what: str = "map") -> None:
+def assert_same_map(
+    got: octofuse.OccupancyMap, want: octofuse.OccupancyMap, what: str = "map"
+) -> None:
     """Leaf by leaf: same voxels, sizes and log-odds (bit for bit)."""
     assert got.resolution == want.resolution, what
     gc, gs, gv = sorted_leaves(got)
@@ -565,8 +688,12 @@ def assert_same_map(got: octofuse.OccupancyMap, want: octofuse.OccupancyMap, wha
 def maps_differ(a: octofuse.OccupancyMap, b: octofuse.OccupancyMap) -> bool:
     ac, as_, av = sorted_leaves(a)
     bc, bs, bv = sorted_leaves(b)
-    return not (len(ac) == len(bc) and np.array_equal(ac, bc) and np.array_equal(as_, bs)
-                and np.array_equal(av, bv))
+    return not (
+        len(ac) == len(bc)
+        and np.array_equal(ac, bc)
+        and np.array_equal(as_, bs)
+        and np.array_equal(av, bv)
+    )
 
 
 def finest_voxels(m: octofuse.OccupancyMap) -> tuple[np.ndarray, np.ndarray]:
@@ -574,8 +701,9 @@ def finest_voxels(m: octofuse.OccupancyMap) -> tuple[np.ndarray, np.ndarray]:
     lv = m.leaves()
     res = m.resolution
     centers, values = [lv.centers[lv.depths == 16]], [lv.values[lv.depths == 16]]
-    for c, size, v in zip(lv.centers[lv.depths < 16], lv.sizes[lv.depths < 16],
-                          lv.values[lv.depths < 16]):
+    for c, size, v in zip(
+        lv.centers[lv.depths < 16], lv.sizes[lv.depths < 16], lv.values[lv.depths < 16]
+    ):
         n = int(round(size / res))
         g = (np.arange(n) + 0.5) * res - size / 2
         sub = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3) + c
@@ -661,8 +789,9 @@ def run_keeping_result(*args):
         return add(self, res)
 
     def keep(res, *a, **kw):
-        kept["res"] = dataclasses.replace(res, **{k: getattr(res, k) or per
-                                                  for k, per in maps.items()})
+        kept["res"] = dataclasses.replace(
+            res, **{k: getattr(res, k) or per for k, per in maps.items()}
+        )
         return write(res, *a, **kw)
 
     with pytest.MonkeyPatch.context() as mp:
@@ -691,12 +820,15 @@ def team(n: int = 4, names: Sequence[str] = ("a", "b", "c", "d")) -> list[Robot]
     return [Robot(names[i], start=TEAM[i][0], velocity=TEAM[i][1]) for i in range(n)]
 
 
-def team_times(robots: Sequence[Robot], n_scans: int = 4, step_s: float = 0.5,
-               first_s: float = 0.25) -> dict[str, list[int]]:
+def team_times(
+    robots: Sequence[Robot], n_scans: int = 4, step_s: float = 0.5, first_s: float = 0.25
+) -> dict[str, list[int]]:
     """``n_scans`` stamps per robot, ``step_s`` apart; robot i starts at ``first_s + 0.05 i`` s
     after :data:`T0`, so no two scans share a stamp and none falls on a 2 Hz tf sample."""
-    return {r.name: [T0 + int(round((first_s + 0.05 * i + step_s * k) * S)) for k in range(n_scans)]
-            for i, r in enumerate(robots)}
+    return {
+        r.name: [T0 + int(round((first_s + 0.05 * i + step_s * k) * S)) for k in range(n_scans)]
+        for i, r in enumerate(robots)
+    }
 
 
 def team_agents(robots: Sequence[Robot]) -> dict[str, str]:

@@ -59,7 +59,7 @@ def map_with_values(src: Path, dst: Path, values) -> Path:
     n = (len(raw) - start) // 5
     for k, v in enumerate(values):
         i = start + 5 * (k % n)
-        raw[i:i + 4] = struct.pack("<f", v)
+        raw[i : i + 4] = struct.pack("<f", v)
     dst.write_bytes(bytes(raw))
     return dst
 

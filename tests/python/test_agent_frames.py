@@ -17,11 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import assert_same_map, run_cli  # noqa: E402
 from conftest import expand, random_map  # noqa: E402
-from test_frames import SENSORS, room_map  # noqa: E402
-
 from octofuse import OccupancyMap  # noqa: E402
-from octofuse.config import (AgentFrame, FuseConfig, RobustConfig, RunConfig,  # noqa: E402
-                             from_dict)
+from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig, from_dict  # noqa: E402
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
@@ -29,6 +26,7 @@ from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.maps.compare import compare  # noqa: E402
 from octofuse.maps.frames import invert, pose_matrix  # noqa: E402
+from test_frames import SENSORS, room_map  # noqa: E402
 
 GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
 LAB = ["--duration", "30", "--rate", "1", "--robots", "4"]  # about 2 s per run
@@ -40,8 +38,11 @@ TURN = SHIFT + ["--bias-yaw", "3"]
 
 def lab_bag(folder: Path, name: str, bias=()) -> Path:
     out = folder / f"{name}.bag"
-    subprocess.run([sys.executable, str(GENERATOR), *LAB, *bias, "--out", str(out)], check=True,
-                   stdout=subprocess.DEVNULL)
+    subprocess.run(
+        [sys.executable, str(GENERATOR), *LAB, *bias, "--out", str(out)],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
     return out
 
 
@@ -59,8 +60,11 @@ def bias_frame(bag: Path) -> list[float]:
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     d = tmp_path_factory.mktemp("lab")
-    return {"true": lab_bag(d, "lab"), "shift": lab_bag(d, "shift", SHIFT),
-            "turn": lab_bag(d, "turn", TURN)}
+    return {
+        "true": lab_bag(d, "lab"),
+        "shift": lab_bag(d, "shift", SHIFT),
+        "turn": lab_bag(d, "turn", TURN),
+    }
 
 
 def run_lab(bag: Path, **fuse) -> object:
@@ -87,10 +91,19 @@ def kl_in_common(res, truth: OccupancyMap, maps: dict) -> dict[str, float]:
 def test_identity_frames_give_the_same_run_bit_for_bit(tmp_path):
     bag = bf.team_bag(tmp_path, 3, 4)
     bcfg = make_build_config(bag, resolution=0.1, threads=1)
-    plain = simulate(bcfg, FuseConfig(rules=[RULE], topology="line", schedule="periodic:0.5"),
-                     samples=3)
-    same = simulate(bcfg, FuseConfig(rules=[RULE], topology="line", schedule="periodic:0.5",
-                                     agent_frames=[AgentFrame("b", [0.0] * 6)]), samples=3)
+    plain = simulate(
+        bcfg, FuseConfig(rules=[RULE], topology="line", schedule="periodic:0.5"), samples=3
+    )
+    same = simulate(
+        bcfg,
+        FuseConfig(
+            rules=[RULE],
+            topology="line",
+            schedule="periodic:0.5",
+            agent_frames=[AgentFrame("b", [0.0] * 6)],
+        ),
+        samples=3,
+    )
     assert same.frames == {} and same.alignment == []
     assert_same_map(same.central, plain.central, "centralized")
     for a in plain.agents:
@@ -103,8 +116,10 @@ def test_identity_frames_give_the_same_run_bit_for_bit(tmp_path):
 def test_a_frame_pair_moves_a_message_by_whole_voxels_exactly():
     res = 0.1
     m = random_map(3, 4, res)
-    frames = AgentFrames(["a", "b", "c"], {"a": pose_matrix(3 * res, -2 * res, res),
-                                           "b": pose_matrix(-res, res, 0.0)})
+    frames = AgentFrames(
+        ["a", "b", "c"],
+        {"a": pose_matrix(3 * res, -2 * res, res), "b": pose_matrix(-res, res, 0.0)},
+    )
     moved = frames.to_receiver("a", "b", m, res)  # T_b^-1 T_a: (4, -3, 1) voxels
     want = {(k[0] + 4, k[1] - 3, k[2] + 1): v for k, v in expand(m.leaves(), res).items()}
     assert expand(moved.leaves(), res) == want and len(want) > 1000
@@ -132,7 +147,8 @@ def test_a_known_frame_undoes_a_biased_robot(lab, unbiased):
     # the scores are taken in the common frame: they equal the unbiased run's
     for a in framed.agents:
         assert framed.scores[RULE][a].kl_mean == pytest.approx(
-            unbiased.scores[RULE][a].kl_mean, rel=0.02, abs=1e-4)
+            unbiased.scores[RULE][a].kl_mean, rel=0.02, abs=1e-4
+        )
 
 
 def test_a_known_turned_frame_moves_the_robots_own_map_into_place(lab, unbiased):
@@ -146,8 +162,10 @@ def test_a_known_turned_frame_moves_the_robots_own_map_into_place(lab, unbiased)
     worse = compare(truth, biased.local["robot3"], 0.1).kl_mean
     assert got < want + 0.25 * (worse - want), (want, got, worse)
     assert framed.scores[LOCAL]["robot3"].kl_mean == pytest.approx(got, rel=0.05)
-    assert compare(truth, framed.central, 0.1).kl_mean < 0.5 * compare(truth, biased.central,
-                                                                         0.1).kl_mean
+    assert (
+        compare(truth, framed.central, 0.1).kl_mean
+        < 0.5 * compare(truth, biased.central, 0.1).kl_mean
+    )
     # messages moved between the frames by point sampling: the fused maps come close to the
     # unbiased run's and are far better than without the frame
     want = kl_in_common(unbiased, truth, unbiased.fused[RULE])
@@ -181,7 +199,9 @@ def test_alignment_recovers_the_frames_and_the_scores(room_maps):
     frame = [AgentFrame("b", [0.7, -0.4, 0.0, 0.0, 0.0, math.radians(20)])]
     aligned = fuse_room(room_maps, align="planar", agent_frames=frame)
     assert [(d["sender"], d["receiver"], d["aligned"]) for d in aligned.alignment] == [
-        ("a", "b", True), ("b", "a", True)]
+        ("a", "b", True),
+        ("b", "a", True),
+    ]
     for d in aligned.alignment:
         assert d["error_m"] < RES and d["error_deg"] < 1.0, d
         assert d["attempts"] == 2 and d["fitness"] > 0.5  # an estimate and its check
@@ -189,8 +209,10 @@ def test_alignment_recovers_the_frames_and_the_scores(room_maps):
     assert math.degrees(est[("b", "a")]["yaw"]) == pytest.approx(20, abs=1)
     known = fuse_room(room_maps, agent_frames=frame)
     blind = fuse_room(room_maps)  # b's map fused as if it were in a's frame
-    kl = {k: r.scores[RULE]["a"].kl_mean for k, r in
-          (("aligned", aligned), ("known", known), ("blind", blind))}
+    kl = {
+        k: r.scores[RULE]["a"].kl_mean
+        for k, r in (("aligned", aligned), ("known", known), ("blind", blind))
+    }
     assert kl["aligned"] < 0.75 * kl["blind"] and kl["aligned"] < 1.05 * kl["known"], kl
 
 
@@ -213,15 +235,35 @@ def test_a_link_that_cannot_register_fuses_nothing_and_tries_again():
 def test_a_run_records_the_alignment_in_the_summary_and_report(tmp_path, capsys):
     bag = bf.team_bag(tmp_path, 2, 4)
     out = tmp_path / "o"
-    code, said, err = run_cli(capsys, "run", bag, "--resolution", "0.1", "--topology", "line",
-                              "--schedule", "periodic:0.5", "--align", "planar", "--agent-frame",
-                              "b=0.2,0,0,0,0,0.1", "--samples", "0", "--export-agents", "none",
-                              "--out", out)
+    code, said, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--resolution",
+        "0.1",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:0.5",
+        "--align",
+        "planar",
+        "--agent-frame",
+        "b=0.2,0,0,0,0,0.1",
+        "--samples",
+        "0",
+        "--export-agents",
+        "none",
+        "--out",
+        out,
+    )
     assert code == 0, err
     lines = [x for x in said.splitlines() if x.startswith("align")]  # every link on the terminal
     assert {x.split(":")[0] for x in lines} == {"align a -> b", "align b -> a", "alignment"}
     assert all("confirmed by" in x or "refused, not fused" in x for x in lines[:-1])
-    assert "registration(s)" in lines[-1] and "alignment registrations (wall)" in (out / "report.md").read_text()
+    assert (
+        "registration(s)" in lines[-1]
+        and "alignment registrations (wall)" in (out / "report.md").read_text()
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["fuse"]["align"] == "planar"
     assert summary["agent_frames"]["b"]["x"] == pytest.approx(0.2)
@@ -243,9 +285,15 @@ def test_transform_error_is_the_relative_motion():
 def test_robust_fusion_votes_on_the_maps_in_the_common_frame(lab, bias):
     """robot3's biased poses: without its frame its map is off by the bias and voted out; with
     it, its map moved into the common frame agrees with its neighbours' and it is kept."""
+
     def vote(**fuse):
-        fcfg = FuseConfig(rules=[RULE], topology="max-robust:3", schedule="periodic:10",
-                          robust=RobustConfig(enabled=True, time=20.0), **fuse)
+        fcfg = FuseConfig(
+            rules=[RULE],
+            topology="max-robust:3",
+            schedule="periodic:10",
+            robust=RobustConfig(enabled=True, time=20.0),
+            **fuse,
+        )
         res = simulate(make_build_config(lab[bias], threads=2), fcfg, samples=0)
         return res, res.robust.measurements[res.agents.index("robot3")]
 
@@ -261,20 +309,32 @@ def small_bag(tmp_path_factory):
     return bf.team_bag(tmp_path_factory.mktemp("bag"), 2, 2)
 
 
-@pytest.mark.parametrize("flags, needle", [
-    (["--agent-frame", "zz=1,0,0,0,0,0"], "unknown agent 'zz' (agents: a, b)"),
-    (["--agent-frame", "a=1,nan,0,0,0,0"], "frame 'a' '1,nan,0,0,0,0': values must be finite"),
-    (["--agent-frame", "a=1,0,0"], "expected 6 numbers x,y,z,roll,pitch,yaw (metres, radians), got 3"),
-    (["--agent-frame", "a=1,0,0,0,0,0", "--agent-frame", "a=2,0,0,0,0,0"], "agent 'a' is given twice"),
-    (["--agent-frame", "a=1,0,0,0,0,0", "--rules", "channel-filter"],
-     "the channel-filter rule needs every agent in one frame"),
-    (["--align", "planar", "--rules", "channel-filter"], "but align = planar"),
-    (["--align", "planar", "--robust"], "robust fusion measures the maps' offsets itself"),
-])
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--agent-frame", "zz=1,0,0,0,0,0"], "unknown agent 'zz' (agents: a, b)"),
+        (["--agent-frame", "a=1,nan,0,0,0,0"], "frame 'a' '1,nan,0,0,0,0': values must be finite"),
+        (
+            ["--agent-frame", "a=1,0,0"],
+            "expected 6 numbers x,y,z,roll,pitch,yaw (metres, radians), got 3",
+        ),
+        (
+            ["--agent-frame", "a=1,0,0,0,0,0", "--agent-frame", "a=2,0,0,0,0,0"],
+            "agent 'a' is given twice",
+        ),
+        (
+            ["--agent-frame", "a=1,0,0,0,0,0", "--rules", "channel-filter"],
+            "the channel-filter rule needs every agent in one frame",
+        ),
+        (["--align", "planar", "--rules", "channel-filter"], "but align = planar"),
+        (["--align", "planar", "--robust"], "robust fusion measures the maps' offsets itself"),
+    ],
+)
 def test_bad_frames_are_one_line_and_exit_1(small_bag, tmp_path, capsys, flags, needle):
     out = tmp_path / "o"
-    code, text, err = run_cli(capsys, "run", small_bag, "--resolution", "0.2", "--topology", "line",
-                              *flags, "--out", out)
+    code, text, err = run_cli(
+        capsys, "run", small_bag, "--resolution", "0.2", "--topology", "line", *flags, "--out", out
+    )
     assert code == 1, (text, err)
     assert err.startswith("error: ") and needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
@@ -283,15 +343,17 @@ def test_bad_frames_are_one_line_and_exit_1(small_bag, tmp_path, capsys, flags, 
 def test_fuse_refuses_a_frame_for_an_unknown_map(small_bag, tmp_path, capsys):
     maps = tmp_path / "maps"
     assert run_cli(capsys, "build", small_bag, "--resolution", "0.2", "--out", maps)[0] == 0
-    code, _, err = run_cli(capsys, "fuse", maps, "--agent-frame", "c=0,0,0,0,0,1", "--out",
-                           tmp_path / "o")
+    code, _, err = run_cli(
+        capsys, "fuse", maps, "--agent-frame", "c=0,0,0,0,0,1", "--out", tmp_path / "o"
+    )
     assert code == 1 and "unknown agent 'c' (agents: a, b)" in err, err
 
 
 def test_a_config_file_pose_of_the_wrong_length_names_the_key():
     with pytest.raises(ValueError, match=r"cfg.fuse.agent_frames\[0\].pose = \[1.0, 2.0\]"):
-        from_dict(RunConfig, {"fuse": {"agent_frames": [{"name": "a", "pose": [1.0, 2.0]}]}},
-                  where="cfg")
+        from_dict(
+            RunConfig, {"fuse": {"agent_frames": [{"name": "a", "pose": [1.0, 2.0]}]}}, where="cfg"
+        )
     with pytest.raises(ValueError, match="cfg.fuse.align = 'yes'"):
         from_dict(FuseConfig, {"align": "yes"}, where="cfg.fuse")
 
@@ -354,9 +416,13 @@ def test_only_the_links_own_estimates_confirm_and_wrong_pairs_are_never_fused(mo
     assert not frames.aligned("a", "b") and not frames.aligned("b", "a")
 
     # every estimate half a metre or more from every other
-    frames, stub = _frames_with(monkeypatch, {
-        ("b", "a"): [pose_matrix(1.0 + k, 2.0, 0.0, 0, 0, 0.3) for k in range(9)],
-        ("a", "b"): [invert(pose_matrix(1.5 + k, 2.0, 0.0, 0, 0, 0.3)) for k in range(9)]})
+    frames, stub = _frames_with(
+        monkeypatch,
+        {
+            ("b", "a"): [pose_matrix(1.0 + k, 2.0, 0.0, 0, 0, 0.3) for k in range(9)],
+            ("a", "b"): [invert(pose_matrix(1.5 + k, 2.0, 0.0, 0, 0, 0.3)) for k in range(9)],
+        },
+    )
     for k in range(40):  # attempts are bounded: the link is refused for the run
         frames.align_links([("b", "a", False, k), ("a", "b", False, k)], {"a": "a", "b": "b"})
     from octofuse.fusion.agent_frames import MAX_ATTEMPTS, alignment_lines
@@ -366,4 +432,6 @@ def test_only_the_links_own_estimates_confirm_and_wrong_pairs_are_never_fused(mo
     assert sorted({c[2] for c in stub.calls}) == list(range(MAX_ATTEMPTS))  # a new seed each time
     lines = alignment_lines(frames.report())
     assert lines[0].startswith("align a -> b: refused, not fused") and "disagree" in lines[0]
-    assert lines[-1].startswith(f"alignment: 0 of 2 links aligned; {2 * MAX_ATTEMPTS} registration(s)")
+    assert lines[-1].startswith(
+        f"alignment: 0 of 2 links aligned; {2 * MAX_ATTEMPTS} registration(s)"
+    )

@@ -20,11 +20,10 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import KINDS, LAYOUTS, S, T0, Recording, Robot, run_cli  # noqa: E402
-
+from bagfactory import KINDS, LAYOUTS, T0, Recording, Robot, S, run_cli  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
-from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.config import AgentSpec, BuildConfig, MapConfig, RunConfig, load_yaml  # noqa: E402
+from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.scans.tf_bags import POSE_TYPES  # noqa: E402
 
 RES = "0.1"
@@ -33,16 +32,25 @@ REPO = Path(__file__).resolve().parents[2]
 
 def lidar_robot(**kw) -> Robot:
     """Drives +x through the room's west half while turning left; map -> odom is not identity."""
-    args = dict(start=(-1.9, 0.13, 0.1), velocity=(0.6, 0.05, 0.3), odom=(0.2, 0.1, 0.05),
-                mount=(0.1, 0.05, 0.65, 0.1))
+    args = dict(
+        start=(-1.9, 0.13, 0.1),
+        velocity=(0.6, 0.05, 0.3),
+        odom=(0.2, 0.1, 0.05),
+        mount=(0.1, 0.05, 0.65, 0.1),
+    )
     args.update(kw)
     return Robot("r1", **args)
 
 
 def laser_robot(**kw) -> Robot:
     """A LaserScan robot in the east half, backing up while turning right."""
-    args = dict(start=(1.9, -1.1, 2.0), velocity=(-0.3, 0.2, -0.2), odom=(-0.1, 0.05, -0.1),
-                mount=(0.1, 0.0, 0.55, 0.2), sensor="laser")
+    args = dict(
+        start=(1.9, -1.1, 2.0),
+        velocity=(-0.3, 0.2, -0.2),
+        odom=(-0.1, 0.05, -0.1),
+        mount=(0.1, 0.0, 0.55, 0.2),
+        sensor="laser",
+    )
     args.update(kw)
     return Robot("r2", **args)
 
@@ -56,14 +64,16 @@ AGENTS2 = {"r1": "/r1/points", "r2": "/r2/scan"}
 
 
 def two_robots(**scan_kw) -> Recording:
-    return bf.robot_recording([lidar_robot(), laser_robot()],
-                              {"r1": times(0.25), "r2": times(0.125)}, **scan_kw)
+    return bf.robot_recording(
+        [lidar_robot(), laser_robot()], {"r1": times(0.25), "r2": times(0.125)}, **scan_kw
+    )
 
 
 def build_cli(capsys, bags, out, *extra):
     bags = bags if isinstance(bags, (list, tuple)) else [bags]
-    code, stdout, err = run_cli(capsys, "build", *bags, "--fixed-frame", "map", "--resolution", RES,
-                                "--out", out, *extra)
+    code, stdout, err = run_cli(
+        capsys, "build", *bags, "--fixed-frame", "map", "--resolution", RES, "--out", out, *extra
+    )
     assert code == 0, err
     assert "Traceback" not in err
     return stdout
@@ -89,7 +99,12 @@ def test_every_bag_format_gives_the_reference_maps(tmp_path, capsys, kind):
     bag = rec.write(tmp_path / "run", kind)
     out = tmp_path / "maps"
     stdout = build_cli(capsys, bag, out)
-    assert sorted(p.name for p in out.iterdir()) == [".octofuse-output", "centralized.ot", "r1.ot", "r2.ot"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".octofuse-output",
+        "centralized.ot",
+        "r1.ot",
+        "r2.ot",
+    ]
     assert "wrote 3 maps" in stdout
     assert table_row(stdout, "r1", "/r1/points") == (4, 0)
     assert table_row(stdout, "r2", "/r2/scan") == (4, 0)
@@ -126,7 +141,10 @@ def test_one_bag_per_robot_merged_in_time_order(tmp_path, capsys):
     # the scans interleave across the bags; inserted robot by robot the result differs
     stamps = [s.stamp_ns for s in sorted(shots, key=lambda s: s.log_ns)]
     assert [next(s.topic for s in shots if s.stamp_ns == t) for t in stamps[:3]] == [
-        "/r2/scan", "/r1/points", "/r3/points"]
+        "/r2/scan",
+        "/r1/points",
+        "/r3/points",
+    ]
     bf.assert_same_map(got["centralized"], want["centralized"], "centralized")
     by_robot = OccupancyMap(0.1)
     for s in shots:  # r1's scans, then r2's, then r3's
@@ -253,13 +271,16 @@ def test_scan_with_empty_frame_id_is_skipped_and_counted(tmp_path, capsys):
 
 
 POSE_WRITERS = {  # each pose message type --pose reads, and how a recording writes it
-    "nav_msgs/msg/Odometry": lambda rec, t, pose: rec.odometry("/r1/pose", t, pose, frame="map",
-                                                               child="r1/base_link"),
+    "nav_msgs/msg/Odometry": lambda rec, t, pose: rec.odometry(
+        "/r1/pose", t, pose, frame="map", child="r1/base_link"
+    ),
     "geometry_msgs/msg/PoseStamped": lambda rec, t, pose: rec.pose_stamped("/r1/pose", t, pose),
-    "geometry_msgs/msg/PoseWithCovarianceStamped":
-        lambda rec, t, pose: rec.pose_with_covariance("/r1/pose", t, pose),
-    "geometry_msgs/msg/TransformStamped":
-        lambda rec, t, pose: rec.transform("/r1/pose", t, pose, child="r1/base_link"),
+    "geometry_msgs/msg/PoseWithCovarianceStamped": lambda rec, t, pose: rec.pose_with_covariance(
+        "/r1/pose", t, pose
+    ),
+    "geometry_msgs/msg/TransformStamped": lambda rec, t, pose: rec.transform(
+        "/r1/pose", t, pose, child="r1/base_link"
+    ),
 }
 
 
@@ -281,8 +302,17 @@ def test_pose_topic_instead_of_tf(tmp_path, capsys, msgtype):
     x, y, z, yaw = robot.mount
     offset = ",".join(f"{v:.17g}" for v in (x, y, z, *bf.yaw_quaternion(yaw)))
     out = tmp_path / "maps"
-    stdout = build_cli(capsys, bag, out, "--agent", "front=/r1/points", "--pose", f"front={topic}",
-                       "--sensor-offset", f"front={offset}")
+    stdout = build_cli(
+        capsys,
+        bag,
+        out,
+        "--agent",
+        "front=/r1/points",
+        "--pose",
+        f"front={topic}",
+        "--sensor-offset",
+        f"front={offset}",
+    )
     assert table_row(stdout, "front", "/r1/points") == (4, 0)
     got = load_maps(out)
     assert sorted(got) == ["centralized", "front"]
@@ -304,7 +334,9 @@ def test_every_nth_scan(tmp_path, capsys):
     stdout = build_cli(capsys, bag, out, "--every", "2")
     assert table_row(stdout, "r1", "/r1/points") == (2, 0)
     assert table_row(stdout, "r2", "/r2/scan") == (2, 0)
-    kept = [s for topic in AGENTS2.values() for s in [x for x in rec.shots if x.topic == topic][::2]]
+    kept = [
+        s for topic in AGENTS2.values() for s in [x for x in rec.shots if x.topic == topic][::2]
+    ]
     got = load_maps(out)
     for name, want in bf.reference_maps(kept, AGENTS2).items():
         bf.assert_same_map(got[name], want, name)
@@ -337,14 +369,23 @@ def test_config_file_and_dump_config(tmp_path, capsys):
     deep.mkdir(parents=True)
     bag = rec.write(deep / "run", "ros1")
     cfg_file = tmp_path / "octofuse.yaml"
-    cfg_file.write_text(yaml.safe_dump({"build": {
-        "bags": str(bag),  # one bag needs no list
-        "agents": [{"name": "cloud", "topic": "/r1/points"}, {"name": "laser", "topic": "/r2/scan"}],
-        "fixed_frame": "map",
-        "map": {"resolution": 0.1},
-        "max_range": 3.0,
-        "scan_stride": 2,
-    }}))
+    cfg_file.write_text(
+        yaml.safe_dump(
+            {
+                "build": {
+                    "bags": str(bag),  # one bag needs no list
+                    "agents": [
+                        {"name": "cloud", "topic": "/r1/points"},
+                        {"name": "laser", "topic": "/r2/scan"},
+                    ],
+                    "fixed_frame": "map",
+                    "map": {"resolution": 0.1},
+                    "max_range": 3.0,
+                    "scan_stride": 2,
+                }
+            }
+        )
+    )
     out = tmp_path / "maps"
     code, stdout, err = run_cli(capsys, "build", "--config", cfg_file, "--out", out)
     assert code == 0, err
@@ -356,13 +397,29 @@ def test_config_file_and_dump_config(tmp_path, capsys):
         bf.assert_same_map(got[name], want[name], name)
 
     # --dump-config: defaults + file + flags (flags win); it loads back to the same config
-    code, dumped, err = run_cli(capsys, "build", "--config", cfg_file, "--every", "1",
-                                "--no-return", "free", "--dump-config")
+    code, dumped, err = run_cli(
+        capsys,
+        "build",
+        "--config",
+        cfg_file,
+        "--every",
+        "1",
+        "--no-return",
+        "free",
+        "--dump-config",
+    )
     assert code == 0 and err == ""
-    expected = RunConfig(build=BuildConfig(
-        bags=[str(bag)], agents=[AgentSpec("cloud", "/r1/points"), AgentSpec("laser", "/r2/scan")],
-        fixed_frame="map", map=MapConfig(resolution=0.1), max_range=3.0, no_return="free",
-        scan_stride=1))
+    expected = RunConfig(
+        build=BuildConfig(
+            bags=[str(bag)],
+            agents=[AgentSpec("cloud", "/r1/points"), AgentSpec("laser", "/r2/scan")],
+            fixed_frame="map",
+            map=MapConfig(resolution=0.1),
+            max_range=3.0,
+            no_return="free",
+            scan_stride=1,
+        )
+    )
     dump_file = tmp_path / "dumped.yaml"
     dump_file.write_text(dumped)
     assert load_yaml(dump_file) == expected
@@ -373,8 +430,19 @@ def test_config_file_and_dump_config(tmp_path, capsys):
     code, _, err = run_cli(capsys, "build", "--config", dump_file, "--out", out2)
     assert code == 0, err
     flags = tmp_path / "maps3"
-    build_cli(capsys, bag, flags, "--agent", "cloud=/r1/points", "--agent", "laser=/r2/scan",
-              "--max-range", "3", "--no-return", "free")
+    build_cli(
+        capsys,
+        bag,
+        flags,
+        "--agent",
+        "cloud=/r1/points",
+        "--agent",
+        "laser=/r2/scan",
+        "--max-range",
+        "3",
+        "--no-return",
+        "free",
+    )
     for name in ("cloud", "laser", "centralized"):
         assert (out2 / f"{name}.ot").read_bytes() == (flags / f"{name}.ot").read_bytes()
 
@@ -382,8 +450,12 @@ def test_config_file_and_dump_config(tmp_path, capsys):
 def test_build_maps_api(tmp_path):
     rec = two_robots()
     bag = rec.write(tmp_path / "run", "mcap")
-    maps = build_maps(bag, agents=["cloud=/r1/points", AgentSpec("laser", "/r2/scan")],
-                      fixed_frame="map", resolution=0.1)
+    maps = build_maps(
+        bag,
+        agents=["cloud=/r1/points", AgentSpec("laser", "/r2/scan")],
+        fixed_frame="map",
+        resolution=0.1,
+    )
     assert sorted(maps) == ["centralized", "cloud", "laser"]
     assert all(isinstance(m, OccupancyMap) and m.resolution == 0.1 for m in maps.values())
     want = bf.reference_maps(rec.shots, {"cloud": "/r1/points", "laser": "/r2/scan"})
@@ -393,8 +465,11 @@ def test_build_maps_api(tmp_path):
     maps = build_maps([str(bag)], fixed_frame="map", resolution=0.1, max_range=2.0, scan_stride=2)
     assert sorted(maps) == ["centralized", "r1", "r2"]
     kept = [s for t in AGENTS2.values() for s in [x for x in rec.shots if x.topic == t][::2]]
-    bf.assert_same_map(maps["centralized"],
-                       bf.reference_maps(kept, AGENTS2, max_range=2.0)["centralized"], "options")
+    bf.assert_same_map(
+        maps["centralized"],
+        bf.reference_maps(kept, AGENTS2, max_range=2.0)["centralized"],
+        "options",
+    )
 
 
 # -- a real process ---------------------------------------------------------------------------
@@ -412,17 +487,39 @@ def test_command_line_process(tmp_path):
     bag = rec.write(tmp_path / "run", "ros1")
     out = tmp_path / "maps"
     env = {k: v for k, v in os.environ.items() if k not in ("FORCE_COLOR", "COLUMNS")}
-    ok = subprocess.run([*octofuse_command(), "build", str(bag), "--fixed-frame", "map",
-                         "--resolution", RES, "--out", str(out)],
-                        capture_output=True, text=True, timeout=120, env=env)
+    ok = subprocess.run(
+        [
+            *octofuse_command(),
+            "build",
+            str(bag),
+            "--fixed-frame",
+            "map",
+            "--resolution",
+            RES,
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert ok.returncode == 0, ok.stderr
     assert "Traceback" not in ok.stderr and ok.stderr.strip() == ""
     assert "wrote 3 maps" in ok.stdout
-    bf.assert_same_map(OccupancyMap.load(out / "centralized.ot"),
-                       bf.reference_maps(rec.shots, AGENTS2)["centralized"], "centralized")
+    bf.assert_same_map(
+        OccupancyMap.load(out / "centralized.ot"),
+        bf.reference_maps(rec.shots, AGENTS2)["centralized"],
+        "centralized",
+    )
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    bad = subprocess.run([*octofuse_command(), "build", str(bag), "--fixed-frame", "world",
-                          "--out", str(out)], capture_output=True, text=True, timeout=120, env=env)
+    bad = subprocess.run(
+        [*octofuse_command(), "build", str(bag), "--fixed-frame", "world", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert bad.returncode == 1
     assert "Traceback" not in bad.stderr
     lines = bf.strip_ansi(bad.stderr).strip().splitlines()

@@ -14,7 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import PC2, S, T0, Recording, Robot, run_cli  # noqa: E402
+from bagfactory import PC2, T0, Recording, Robot, S, run_cli  # noqa: E402
 
 
 def scene_recording(bad_message: bool = False) -> Recording:
@@ -75,38 +75,57 @@ def case_truncated_mcap(good, tmp):
 def case_undecodable_message(good, tmp):
     # found only while the scans are inserted: the build fails half-way
     bag = scene_recording(bad_message=True).write(tmp / "garbage", "ros1")
-    return [bag], ["garbage.bag", "cannot deserialize a sensor_msgs/msg/PointCloud2 message on "
-                                  "'/r1/points'"]
+    return [bag], [
+        "garbage.bag",
+        "cannot deserialize a sensor_msgs/msg/PointCloud2 message on '/r1/points'",
+    ]
 
 
 def case_unknown_agent_topic(good, tmp):
-    return ([good["bags"]["ros1"], "--agent", "a=/r9/points"],
-            ["'/r9/points' not found in", "run_ros1.bag", "the bags contain:",
-             "/r1/points (sensor_msgs/msg/PointCloud2, 4 msgs)", "/tf (tf2_msgs/msg/TFMessage"])
+    return (
+        [good["bags"]["ros1"], "--agent", "a=/r9/points"],
+        [
+            "'/r9/points' not found in",
+            "run_ros1.bag",
+            "the bags contain:",
+            "/r1/points (sensor_msgs/msg/PointCloud2, 4 msgs)",
+            "/tf (tf2_msgs/msg/TFMessage",
+        ],
+    )
 
 
 def case_unknown_pose_topic(good, tmp):
-    return ([good["bags"]["ros1"], "--agent", "a=/r1/points", "--pose", "a=/r1/odom"],
-            ["'/r1/odom' not found in", "the bags contain:", "/r1/points"])
+    return (
+        [good["bags"]["ros1"], "--agent", "a=/r1/points", "--pose", "a=/r1/odom"],
+        ["'/r1/odom' not found in", "the bags contain:", "/r1/points"],
+    )
 
 
 def case_agent_topic_of_wrong_type(good, tmp):
-    return ([good["bags"]["mcap"], "--agent", "a=/tf"],
-            ["'/tf'", "tf2_msgs/msg/TFMessage", "expected", "sensor_msgs/msg/LaserScan"])
+    return (
+        [good["bags"]["mcap"], "--agent", "a=/tf"],
+        ["'/tf'", "tf2_msgs/msg/TFMessage", "expected", "sensor_msgs/msg/LaserScan"],
+    )
 
 
 def case_missing_fixed_frame(good, tmp):
-    return ([good["bags"]["mcap"], "--fixed-frame", "world"],
-            ["fixed frame 'world' is not in the bags' transforms; "
-             "frames present: map, r1/base_link, r1/lidar, r1/odom"])
+    return (
+        [good["bags"]["mcap"], "--fixed-frame", "world"],
+        [
+            "fixed frame 'world' is not in the bags' transforms; "
+            "frames present: map, r1/base_link, r1/lidar, r1/odom"
+        ],
+    )
 
 
 def case_no_transforms_at_all(good, tmp):
     rec = Recording()
     rec.cloud("/lidar/points", "lidar", T0, bf.pose_matrix(0.23, 0.17, 1.05, 0.0))
     bag = rec.write(tmp / "no_tf", "mcap")
-    return [bag], ["fixed frame 'map' is not in the bags' transforms; frames present: none "
-                   "(no /tf, /tf_static or pose topic)"]
+    return [bag], [
+        "fixed frame 'map' is not in the bags' transforms; frames present: none "
+        "(no /tf, /tf_static or pose topic)"
+    ]
 
 
 def case_no_scan_topic(good, tmp):
@@ -117,8 +136,10 @@ def case_no_scan_topic(good, tmp):
 
 
 def case_topic_given_to_two_agents(good, tmp):
-    return ([good["bags"]["ros1"], "--agent", "a=/r1/points", "--agent", "b=/r1/points"],
-            ["topic(s) given to more than one agent: /r1/points"])
+    return (
+        [good["bags"]["ros1"], "--agent", "a=/r1/points", "--agent", "b=/r1/points"],
+        ["topic(s) given to more than one agent: /r1/points"],
+    )
 
 
 def case_cloud_without_xyz_fields(good, tmp):
@@ -128,8 +149,10 @@ def case_cloud_without_xyz_fields(good, tmp):
     broken = bf.Layout((("a", 0, "f4"), ("b", 4, "f4"), ("c", 8, "f4")), 12)
     rec.robot_scan(robot, T0 + S // 2, layout=broken)
     bag = rec.write(tmp / "abc", "mcap")
-    return [bag], ["cannot decode the message on '/r1/points' stamped 100500000000 ns",
-                   "no x/y/z field(s); fields present: 'a', 'b', 'c'"]
+    return [bag], [
+        "cannot decode the message on '/r1/points' stamped 100500000000 ns",
+        "no x/y/z field(s); fields present: 'a', 'b', 'c'",
+    ]
 
 
 def case_config_bags_not_a_list(good, tmp):
@@ -177,7 +200,8 @@ def test_bad_input_is_one_clear_line(good, tmp_path, capsys, case):
 
 def test_failed_build_creates_no_output_folder(good, tmp_path, capsys):
     out = tmp_path / "new" / "maps"
-    code, _, err = run_cli(capsys, "build", good["bags"]["mcap"], "--fixed-frame", "world",
-                           "--out", out)
+    code, _, err = run_cli(
+        capsys, "build", good["bags"]["mcap"], "--fixed-frame", "world", "--out", out
+    )
     assert code == 1 and "frames present" in err
     assert not out.parent.exists()

@@ -21,7 +21,6 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
-
 from octofuse import OccupancyMap  # noqa: E402
 
 
@@ -35,12 +34,14 @@ def real_bag(shared_real: Path, name: str) -> Path:
 def test_intel_four_agents(shared_real, tmp_path, capsys):
     bag = real_bag(shared_real, "intel_4agents.bag")
     out = tmp_path / "maps"
-    code, stdout, err = run_cli(capsys, "build", bag, "--fixed-frame", "map", "--resolution", "0.1",
-                                "--out", out)
+    code, stdout, err = run_cli(
+        capsys, "build", bag, "--fixed-frame", "map", "--resolution", "0.1", "--out", out
+    )
     assert code == 0, err
     names = [f"robot{k}" for k in range(1, 5)]
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [".octofuse-output", *(f"{n}.ot" for n in [*names, "centralized"])])
+        [".octofuse-output", *(f"{n}.ot" for n in [*names, "centralized"])]
+    )
     used = {n: int(re.search(rf"{n}\W+/{n}/scan\W+(\d+)\W+0\W", stdout).group(1)) for n in names}
     assert sum(used.values()) == 910 and min(used.values()) >= 220
     assert re.search(r"centralized\W+\(all\)\W+910\W+0\W", stdout)
@@ -63,27 +64,53 @@ def test_intel_four_agents(shared_real, tmp_path, capsys):
 def test_luminar_cloud_has_no_pose(shared_real, tmp_path, capsys):
     bag = real_bag(shared_real, "luminar_pointcloud2.bag")
     out = tmp_path / "maps"
-    code, stdout, err = run_cli(capsys, "build", bag, "--fixed-frame", "luminar_lidar",
-                                "--out", out)
+    code, stdout, err = run_cli(
+        capsys, "build", bag, "--fixed-frame", "luminar_lidar", "--out", out
+    )
     assert code == 1
     assert err.strip().splitlines() == [
         "error: fixed frame 'luminar_lidar' is not in the bags' transforms; frames present: "
-        "none (no /tf, /tf_static or pose topic)"]
+        "none (no /tf, /tf_static or pose topic)"
+    ]
     assert not out.exists()
 
     # the ground-truth Odometry places the simulator's LaserScan ...
-    code, stdout, err = run_cli(capsys, "build", bag, "--agent", "base=/base_scan", "--pose",
-                                "base=/base_pose_ground_truth", "--fixed-frame", "odom",
-                                "--resolution", "0.1", "--out", tmp_path / "base")
+    code, stdout, err = run_cli(
+        capsys,
+        "build",
+        bag,
+        "--agent",
+        "base=/base_scan",
+        "--pose",
+        "base=/base_pose_ground_truth",
+        "--fixed-frame",
+        "odom",
+        "--resolution",
+        "0.1",
+        "--out",
+        tmp_path / "base",
+    )
     assert code == 0, err
     assert re.search(r"base\W+/base_scan\W+5\W+0\W", stdout)
     assert OccupancyMap.load(tmp_path / "base" / "base.ot").num_leaves > 500
 
     # ... but its clock is not the lidar's: each cloud is after its last sample, and a
     # build that places no scan at all is an error that says why (and writes nothing)
-    code, stdout, err = run_cli(capsys, "build", bag, "--agent", "lidar=/luminar_pointcloud",
-                                "--pose", "lidar=/base_pose_ground_truth", "--fixed-frame", "odom",
-                                "--resolution", "0.1", "--out", tmp_path / "lidar")
+    code, stdout, err = run_cli(
+        capsys,
+        "build",
+        bag,
+        "--agent",
+        "lidar=/luminar_pointcloud",
+        "--pose",
+        "lidar=/base_pose_ground_truth",
+        "--fixed-frame",
+        "odom",
+        "--resolution",
+        "0.1",
+        "--out",
+        tmp_path / "lidar",
+    )
     assert code == 1
     assert len(err.strip().splitlines()) == 1
     assert "no scan" in err and "lidar: 5 after the last transform" in err

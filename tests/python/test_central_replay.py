@@ -65,8 +65,12 @@ def test_passes_with_an_agent_in_its_own_frame_give_the_run_in_one_pass(tmp_path
     bag = bf.team_bag(tmp_path, 3, 4)
     bcfg = make_build_config(bag, resolution=0.1, threads=1)
     rules = ["naive-bayes", "min-info-loss"]
-    cfg = dict(rules=rules, topology="line", schedule="periodic:0.5",
-               agent_frames=[AgentFrame("b", [0.2, 0.0, 0.0, 0.0, 0.0, 0.0])])
+    cfg = dict(
+        rules=rules,
+        topology="line",
+        schedule="periodic:0.5",
+        agent_frames=[AgentFrame("b", [0.2, 0.0, 0.0, 0.0, 0.0, 0.0])],
+    )
     one = simulate(bcfg, FuseConfig(**cfg), samples=3)
     parts = list(simulate_in_rule_groups(bcfg, FuseConfig(**cfg, rules_per_pass=1), samples=3))
     assert all(p.central is parts[0].central for p in parts)  # mapped once

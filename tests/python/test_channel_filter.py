@@ -17,14 +17,21 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import voxel_keys  # noqa: E402
-
 import octofuse  # noqa: E402
+from bagfactory import voxel_keys  # noqa: E402
 from octofuse import OccupancyMap, fuse_into  # noqa: E402
-from octofuse.config import CHANNEL_FILTER as CF, FuseConfig  # noqa: E402
+from octofuse.config import CHANNEL_FILTER as CF  # noqa: E402
+from octofuse.config import FuseConfig
 from octofuse.fusion.agent import Agent, MapMessage  # noqa: E402
-from octofuse.fusion.channel_filter import (add_into, clamped, negated, open_map,  # noqa: E402
-                                            spanning_tree, subtract_into, unclamped_copy)
+from octofuse.fusion.channel_filter import (  # noqa: E402
+    add_into,
+    clamped,
+    negated,
+    open_map,
+    spanning_tree,
+    subtract_into,
+    unclamped_copy,
+)
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.schedule import drop_messages, periodic  # noqa: E402
@@ -50,8 +57,9 @@ def assert_values(got: OccupancyMap, want: OccupancyMap, what: str) -> None:
     extra = (np.isin(keys, kg) != np.isin(keys, kw)) & ((a != 0) | (b != 0))
     assert not extra.any(), f"{what}: {int(extra.sum())} voxels known to one map only"
     err = np.abs(a - b)
-    assert err.max(initial=0.0) <= TOL * max(1.0, np.abs(b).max(initial=0.0)), \
+    assert err.max(initial=0.0) <= TOL * max(1.0, np.abs(b).max(initial=0.0)), (
         f"{what}: max |difference| {err.max():.3g}"
+    )
 
 
 def empty_open(res: float = RES) -> OccupancyMap:
@@ -184,8 +192,9 @@ def test_subtracting_is_adding_a_negated_copy_bit_for_bit(prefixes):
 
 @pytest.mark.parametrize("topology,delta", [("line", False), ("star", True)])
 def test_tree_agents_hold_exactly_the_scans_that_reached_them(team_bag, prefixes, topology, delta):
-    res, check = run_checked(team_bag, prefixes, FuseConfig(topology=topology, schedule=PERIOD,
-                                                             delta=delta))
+    res, check = run_checked(
+        team_bag, prefixes, FuseConfig(topology=topology, schedule=PERIOD, delta=delta)
+    )
     full = 0
     for a in res.agents:  # at the end: own scans since the last exchange too
         know = {**check.know[a], a: len(prefixes[a]) - 1}
@@ -209,8 +218,11 @@ def test_tree_agents_hold_exactly_the_scans_that_reached_them(team_bag, prefixes
 def test_a_spanning_tree_file(team_bag, prefixes, tmp_path):
     tree = tmp_path / "tree.txt"
     tree.write_text("a b\nb c\nb d\n")
-    run_checked(team_bag, prefixes, FuseConfig(topology="complete", schedule=PERIOD,
-                                               spanning_tree=str(tree)))
+    run_checked(
+        team_bag,
+        prefixes,
+        FuseConfig(topology="complete", schedule=PERIOD, spanning_tree=str(tree)),
+    )
     bad = tmp_path / "bad.txt"
     bad.write_text("a b\nb c\nc a\nc d\n")
     g = make_graph("complete", 4, names=list("abcd"))
@@ -234,8 +246,9 @@ def test_loops_run_the_filter_on_a_spanning_tree(team_bag, prefixes):
     assert res.tree == tree
     # the WEP rule used every link, the filter only the tree's
     assert res.traffic["min-info-loss"].messages > res.traffic[CF].messages
-    text = " ".join(findings(mean_scores(res.scores), {"tree_links": 3, "graph_links": 4,
-                                                       "floor_kl": 0.0}))
+    text = " ".join(
+        findings(mean_scores(res.scores), {"tree_links": 3, "graph_links": 4, "floor_kl": 0.0})
+    )
     assert "channel filter on a spanning tree (3 of 4 links)" in text
     assert "`min-info-loss` KL" in text
 
@@ -315,9 +328,12 @@ def test_lost_messages_are_the_same_for_every_rule():
 
 @pytest.mark.parametrize("delta", [False, True])
 def test_lossy_links_stay_exact(team_bag, prefixes, delta):
-    res, check = run_checked(team_bag, prefixes, FuseConfig(
-        topology="line", schedule="periodic:0.2", delta=delta, loss=0.35, seed=3),
-        rules=(CF, "min-info-loss", "naive-bayes"))
+    res, check = run_checked(
+        team_bag,
+        prefixes,
+        FuseConfig(topology="line", schedule="periodic:0.2", delta=delta, loss=0.35, seed=3),
+        rules=(CF, "min-info-loss", "naive-bayes"),
+    )
     lost = {r: res.traffic[r].lost for r in res.rules}
     assert lost[CF] > 0 and len(set(lost.values())) == 1  # every rule lost the same messages
     for r in res.rules:
@@ -328,8 +344,12 @@ def test_lossy_links_stay_exact(team_bag, prefixes, delta):
 def test_finished_maps_in_rounds_sum_exactly(prefixes):
     maps = {a: clamped(p[-1]) for a, p in prefixes.items()}
     central = clamped(prefixes["a"][-1])
-    res = fuse_finished(maps, central, FuseConfig(topology="star", schedule="rounds:2",
-                                                  rules=[CF, "chernoff"]), threads=1)
+    res = fuse_finished(
+        maps,
+        central,
+        FuseConfig(topology="star", schedule="rounds:2", rules=[CF, "chernoff"]),
+        threads=1,
+    )
     want = empty_open()
     for m in maps.values():
         add_into(want, unclamped_copy(m))

@@ -15,7 +15,6 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
-
 from octofuse.cli import cli  # noqa: E402
 from octofuse.outputs.staging import MARKER  # noqa: E402
 
@@ -26,8 +25,9 @@ ENV = {k: v for k, v in os.environ.items() if k not in ("FORCE_COLOR", "COLUMNS"
 
 def python_c(script: str, timeout: float = 120) -> subprocess.CompletedProcess:
     """``script`` run by a fresh Python (as a user's shell would start it), its output as text."""
-    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=timeout, env=ENV)
+    return subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=timeout, env=ENV
+    )
 
 
 def assert_interrupted(p: subprocess.CompletedProcess) -> None:
@@ -38,25 +38,46 @@ def assert_interrupted(p: subprocess.CompletedProcess) -> None:
 def octofuse(*args, cwd=None) -> subprocess.CompletedProcess:
     """The installed console script, as a user runs it."""
     assert OCTOFUSE.is_file(), f"the octofuse command is not installed at {OCTOFUSE}"
-    return subprocess.run([str(OCTOFUSE), *map(str, args)], capture_output=True, text=True,
-                          timeout=120, env=ENV, cwd=cwd)
+    return subprocess.run(
+        [str(OCTOFUSE), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=ENV,
+        cwd=cwd,
+    )
 
 
 # -- usage errors ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("args, usage, needle", [
-    (["build", "--foo"], "octofuse build", "No such option '--foo'"),
-    (["launch"], "octofuse", "No such command 'launch'"),
-    (["fuse"], "octofuse fuse", "Missing argument 'MAPS_DIR'"),
-    (["run", "--every", "two"], "octofuse run", "Invalid value for '--every': 'two'"),
-    (["build", "x.bag", "--every", "0"], "octofuse build", "Invalid value for '--every': 0"),
-    (["fuse", "x", "--rounds", "-1"], "octofuse fuse", "Invalid value for '--rounds': -1"),
-    (["run", "x.bag", "--directions", "sideways"], "octofuse run",
-     "Invalid value for '--directions': 'sideways'"),
-    ([], "octofuse", "Commands:"),
-], ids=["unknown_option", "unknown_command", "missing_argument", "every_not_a_number",
-        "every_zero", "negative_rounds", "bad_choice", "bare"])
+@pytest.mark.parametrize(
+    "args, usage, needle",
+    [
+        (["build", "--foo"], "octofuse build", "No such option '--foo'"),
+        (["launch"], "octofuse", "No such command 'launch'"),
+        (["fuse"], "octofuse fuse", "Missing argument 'MAPS_DIR'"),
+        (["run", "--every", "two"], "octofuse run", "Invalid value for '--every': 'two'"),
+        (["build", "x.bag", "--every", "0"], "octofuse build", "Invalid value for '--every': 0"),
+        (["fuse", "x", "--rounds", "-1"], "octofuse fuse", "Invalid value for '--rounds': -1"),
+        (
+            ["run", "x.bag", "--directions", "sideways"],
+            "octofuse run",
+            "Invalid value for '--directions': 'sideways'",
+        ),
+        ([], "octofuse", "Commands:"),
+    ],
+    ids=[
+        "unknown_option",
+        "unknown_command",
+        "missing_argument",
+        "every_not_a_number",
+        "every_zero",
+        "negative_rounds",
+        "bad_choice",
+        "bare",
+    ],
+)
 def test_usage_errors_exit_2_with_clicks_message(tmp_path, args, usage, needle):
     p = octofuse(*args, cwd=tmp_path)
     assert p.returncode == 2, (p.stdout, p.stderr)
@@ -134,8 +155,9 @@ def bag(tmp_path_factory):
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def no_leftovers(parent: Path, keep: set[str]) -> bool:
@@ -182,17 +204,30 @@ def test_a_folder_octofuse_did_not_write_is_refused(bag, tmp_path, capsys, comma
     before = snapshot(out)
     if command == "fuse":  # a folder of maps to fuse
         assert build(capsys, bag, tmp_path / "maps")[0] == 0
-    args = {"build": [bag, "--resolution", RES],
-            "run": [bag, "--resolution", RES, "--topology", "line", "--schedule", "periodic:1"],
-            "bench": [bag, "--resolution", RES, "--topologies", "line", "--schedule", "periodic:1",
-                      "--executor", "serial"],
-            "fuse": [tmp_path / "maps", "--topology", "line"]}[command]
+    args = {
+        "build": [bag, "--resolution", RES],
+        "run": [bag, "--resolution", RES, "--topology", "line", "--schedule", "periodic:1"],
+        "bench": [
+            bag,
+            "--resolution",
+            RES,
+            "--topologies",
+            "line",
+            "--schedule",
+            "periodic:1",
+            "--executor",
+            "serial",
+        ],
+        "fuse": [tmp_path / "maps", "--topology", "line"],
+    }[command]
     code, text, err = run_cli(capsys, command, *args, "--out", out)
     assert code == 1, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err
-    assert lines[0] == (f"error: --out '{out}' is a folder that octofuse did not write; refusing "
-                        "to replace it (give a new or empty folder)")
+    assert lines[0] == (
+        f"error: --out '{out}' is a folder that octofuse did not write; refusing "
+        "to replace it (give a new or empty folder)"
+    )
     assert snapshot(out) == before
     assert "wrote" not in text and "done in" not in text
 
@@ -209,13 +244,30 @@ def test_a_file_as_out_is_refused(bag, tmp_path, capsys):
 def previous(bag, tmp_path, capsys):
     """A run's outputs and a build's maps, written by octofuse: what failures must keep."""
     run_out, maps = tmp_path / "run", tmp_path / "maps"
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
-                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
-                           "--out", run_out)
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--samples",
+        "0",
+        "--out",
+        run_out,
+    )
     assert code == 0, err
     assert build(capsys, bag, maps)[0] == 0
-    return {"run": run_out, "maps": maps,
-            "before": {"run": snapshot(run_out), "maps": snapshot(maps)}}
+    return {
+        "run": run_out,
+        "maps": maps,
+        "before": {"run": snapshot(run_out), "maps": snapshot(maps)},
+    }
 
 
 def failing_commands(bag, tmp, previous):
@@ -227,17 +279,24 @@ def failing_commands(bag, tmp, previous):
         (["build", bag, "--fixed-frame", "world", "--out", maps], 1, "fixed frame 'world'"),
         (["run", bag, "--topology", "hexagon", *line, "--out", run], 1, "unknown topology"),
         (["run", bag, "--topology", "max-robust:3", *line, "--out", run], 1, "K=3 with n=2"),
-        (["run", bag, "--topology", "line", "--export-agents", "z", *line, "--out", run], 1,
-         "unknown agent(s) z"),
-        (["bench", bag, "--topologies", "line,hexagon", *line, "--out", run], 1,
-         "unknown topology"),
+        (
+            ["run", bag, "--topology", "line", "--export-agents", "z", *line, "--out", run],
+            1,
+            "unknown agent(s) z",
+        ),
+        (
+            ["bench", bag, "--topologies", "line,hexagon", *line, "--out", run],
+            1,
+            "unknown topology",
+        ),
         (["fuse", maps, "--topology", "max-robust:3", "--out", run], 1, "K=3 with n=2"),
         (["run", bag, "--every", "0", "--out", run], 2, "Invalid value for '--every'"),
     ]
 
 
-def test_a_failing_command_leaves_the_previous_outputs_byte_identical(bag, tmp_path, capsys,
-                                                                      previous):
+def test_a_failing_command_leaves_the_previous_outputs_byte_identical(
+    bag, tmp_path, capsys, previous
+):
     for args, want, needle in failing_commands(bag, tmp_path, previous):
         code, text, err = run_cli(capsys, *args)
         assert code == want, (args, err)
@@ -247,8 +306,9 @@ def test_a_failing_command_leaves_the_previous_outputs_byte_identical(bag, tmp_p
         assert no_leftovers(tmp_path, {"run", "maps"}), (args, sorted(os.listdir(tmp_path)))
 
 
-def test_an_interrupted_write_leaves_the_previous_outputs(bag, tmp_path, capsys, previous,
-                                                          monkeypatch):
+def test_an_interrupted_write_leaves_the_previous_outputs(
+    bag, tmp_path, capsys, previous, monkeypatch
+):
     import octofuse.outputs.report
 
     def interrupted(res, out, *args, **kw):
@@ -256,9 +316,23 @@ def test_an_interrupted_write_leaves_the_previous_outputs(bag, tmp_path, capsys,
         raise KeyboardInterrupt
 
     monkeypatch.setattr(octofuse.outputs.report, "write_outputs", interrupted)
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
-                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
-                           "--out", previous["run"])
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--samples",
+        "0",
+        "--out",
+        previous["run"],
+    )
     assert code == 130 and err.strip() == "error: interrupted"
     assert snapshot(previous["run"]) == previous["before"]["run"]
     assert no_leftovers(tmp_path, {"run", "maps"})
@@ -278,8 +352,9 @@ def ctrl_c(monkeypatch):
     return lambda frame=None: interrupts._on_sigint(signal.SIGINT, frame)
 
 
-def test_an_error_after_a_ctrl_c_is_the_interruption(bag, tmp_path, capsys, previous,
-                                                     monkeypatch, ctrl_c):
+def test_an_error_after_a_ctrl_c_is_the_interruption(
+    bag, tmp_path, capsys, previous, monkeypatch, ctrl_c
+):
     """A library that turns the KeyboardInterrupt into an error of its own (Matplotlib's
     compiled code: "Invalid bounding box") ends the command as interrupted."""
     import octofuse.outputs.report
@@ -292,16 +367,31 @@ def test_an_error_after_a_ctrl_c_is_the_interruption(bag, tmp_path, capsys, prev
             raise ValueError("Invalid bounding box") from None
 
     monkeypatch.setattr(octofuse.outputs.report, "write_outputs", interrupted_in_a_library)
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", "--topology", "line",
-                           "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
-                           "--out", previous["run"])
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--samples",
+        "0",
+        "--out",
+        previous["run"],
+    )
     assert (code, err.strip()) == (130, "error: interrupted")
     assert snapshot(previous["run"]) == previous["before"]["run"]
     assert no_leftovers(tmp_path, {"run", "maps"})
 
 
-def test_a_ctrl_c_once_the_outputs_are_in_place_ends_nothing(bag, tmp_path, capsys, previous,
-                                                            monkeypatch, ctrl_c):
+def test_a_ctrl_c_once_the_outputs_are_in_place_ends_nothing(
+    bag, tmp_path, capsys, previous, monkeypatch, ctrl_c
+):
     """The command is done once its outputs replaced the old ones: a Ctrl-C as it prints its
     table neither ends it with 130 (which says the old outputs were kept) nor cuts it short."""
     import octofuse.outputs.tables
@@ -313,9 +403,23 @@ def test_a_ctrl_c_once_the_outputs_are_in_place_ends_nothing(bag, tmp_path, caps
         return table(*args, **kw)
 
     monkeypatch.setattr(octofuse.outputs.tables, "scores_table", interrupted_table)
-    code, text, err = run_cli(capsys, "run", bag, "--rules", "naive-bayes", "--topology", "line",
-                              "--schedule", "periodic:1", "--resolution", RES, "--samples", "0",
-                              "--out", previous["run"])
+    code, text, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "naive-bayes",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--samples",
+        "0",
+        "--out",
+        previous["run"],
+    )
     assert code == 0 and err == "", err
     assert "naive-bayes" in text and "report:" in text
     assert snapshot(previous["run"]) != previous["before"]["run"]
@@ -363,14 +467,31 @@ def test_a_ctrl_c_in_the_import_systems_bookkeeping_is_only_remembered(ctrl_c):
 def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
     assert (previous["run"] / MARKER).read_text() == "written by octofuse run\n"
     out = tmp_path / "fused"
-    code, _, err = run_cli(capsys, "fuse", previous["maps"], "--topology", "line", "--rounds", "1",
-                           "--out", out)
+    code, _, err = run_cli(
+        capsys, "fuse", previous["maps"], "--topology", "line", "--rounds", "1", "--out", out
+    )
     assert code == 0, err
     assert (out / MARKER).read_text() == "written by octofuse fuse\n"
     # a run's folder may be replaced by another command's outputs: octofuse wrote it
-    code, _, err = run_cli(capsys, "bench", bag, "--rules", "chernoff", "--topologies", "line",
-                           "--schedule", "periodic:1", "--resolution", RES, "--every", "2",
-                           "--executor", "serial", "--out", previous["run"])
+    code, _, err = run_cli(
+        capsys,
+        "bench",
+        bag,
+        "--rules",
+        "chernoff",
+        "--topologies",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--every",
+        "2",
+        "--executor",
+        "serial",
+        "--out",
+        previous["run"],
+    )
     assert code == 0, err
     assert (previous["run"] / MARKER).read_text() == "written by octofuse bench\n"
     assert not (previous["run"] / "report.md").exists()
@@ -382,48 +503,61 @@ def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
 
 def test_import_octofuse_loads_no_heavy_module():
     heavy = ["rosbags", "open3d", "matplotlib", "click"]
-    code = ("import sys, octofuse, octofuse.config\n"
-            "assert octofuse.OccupancyMap and octofuse.RULES\n"
-            f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
-            "octofuse.simulate\n"  # a lazy name: loads the pipeline
-            f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n")
+    code = (
+        "import sys, octofuse, octofuse.config\n"
+        "assert octofuse.OccupancyMap and octofuse.RULES\n"
+        f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
+        "octofuse.simulate\n"  # a lazy name: loads the pipeline
+        f"print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
+    )
     p = python_c(code)
     assert p.returncode == 0, p.stderr
     light, after = p.stdout.splitlines()
     assert light == "[]"
     assert after == "['rosbags']"  # the check above can see a module that was imported
     # nothing but the package itself: the program can catch an interruption while it imports
-    p = python_c("import sys, octofuse.program\n"
-                 "print(sorted(m for m in sys.modules if m.startswith(('octofuse.', 'numpy'))))")
+    p = python_c(
+        "import sys, octofuse.program\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('octofuse.', 'numpy'))))"
+    )
     assert p.stdout.strip() == "['octofuse.program']", p.stdout + p.stderr
 
 
 def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
     """An interruption while the program imports the command line (a quarter of a second)
     ends as one while the command runs: one line, exit code 130, no traceback."""
-    script = ("import sys, octofuse.program\n"
-              "class Interrupt:  # Ctrl-C as the command line is imported\n"
-              "    def find_spec(self, name, path=None, target=None):\n"
-              "        if name == 'octofuse.cli':\n"
-              "            raise KeyboardInterrupt\n"
-              "sys.meta_path.insert(0, Interrupt())\n"
-              "octofuse.program.run()\n")
+    script = (
+        "import sys, octofuse.program\n"
+        "class Interrupt:  # Ctrl-C as the command line is imported\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'octofuse.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupt())\n"
+        "octofuse.program.run()\n"
+    )
     assert_interrupted(python_c(script))
 
 
 def test_python_m_octofuse_is_the_program():
     """``python -m octofuse`` runs the program: its usage, and a Ctrl-C while it imports the
     command line ends as the program's does."""
-    p = subprocess.run([sys.executable, "-m", "octofuse", "--help"], capture_output=True,
-                       text=True, timeout=120, env=ENV)
+    p = subprocess.run(
+        [sys.executable, "-m", "octofuse", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=ENV,
+    )
     assert p.returncode == 0 and "Usage: octofuse" in p.stdout, p.stdout + p.stderr
-    script = ("import runpy, sys\n"
-              "class Interrupt:  # Ctrl-C as the command line is imported\n"
-              "    def find_spec(self, name, path=None, target=None):\n"
-              "        if name == 'octofuse.cli':\n"
-              "            raise KeyboardInterrupt\n"
-              "sys.meta_path.insert(0, Interrupt())\n"
-              "runpy.run_module('octofuse', run_name='__main__')\n")
+    script = (
+        "import runpy, sys\n"
+        "class Interrupt:  # Ctrl-C as the command line is imported\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'octofuse.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupt())\n"
+        "runpy.run_module('octofuse', run_name='__main__')\n"
+    )
     assert_interrupted(python_c(script))
 
 
@@ -436,19 +570,21 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     out.mkdir()
     (out / MARKER).write_text("written by octofuse run\n")  # an earlier run's outputs
     (out / "previous.txt").write_text("kept")
-    script = ("import os, signal, sys, time, octofuse.program\n"
-              "class Swallow:  # Ctrl-C while a module is imported, swallowed there\n"
-              "    def find_spec(self, name, path=None, target=None):\n"
-              "        if name == 'octofuse.fusion.simulate':\n"
-              "            try:\n"
-              "                os.kill(os.getpid(), signal.SIGINT)\n"
-              "                time.sleep(5)\n"
-              "            except KeyboardInterrupt:\n"
-              "                pass\n"
-              "sys.meta_path.insert(0, Swallow())\n"
-              f"sys.argv = ['octofuse', 'run', {str(lab8)!r}, '--rule', 'naive-bayes', "
-              f"'--topology', 'ring', '--every', '50', '--samples', '2', '--out', {str(out)!r}]\n"
-              "octofuse.program.run()\n")
+    script = (
+        "import os, signal, sys, time, octofuse.program\n"
+        "class Swallow:  # Ctrl-C while a module is imported, swallowed there\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'octofuse.fusion.simulate':\n"
+        "            try:\n"
+        "                os.kill(os.getpid(), signal.SIGINT)\n"
+        "                time.sleep(5)\n"
+        "            except KeyboardInterrupt:\n"
+        "                pass\n"
+        "sys.meta_path.insert(0, Swallow())\n"
+        f"sys.argv = ['octofuse', 'run', {str(lab8)!r}, '--rule', 'naive-bayes', "
+        f"'--topology', 'ring', '--every', '50', '--samples', '2', '--out', {str(out)!r}]\n"
+        "octofuse.program.run()\n"
+    )
     assert_interrupted(python_c(script, timeout=300))
     assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
 
@@ -459,32 +595,34 @@ def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
     libraries are imported) or in a weak-reference callback leaves the object to complain as
     it is freed ("Exception ignored in ..."): once interrupted, the run ends with its one
     line."""
-    script = ("import os, signal, sys, time, weakref\n"
-              "from octofuse.interrupts import interrupted, remember_interrupts\n"
-              "remember_interrupts()\n"
-              "def ctrl_c():\n"
-              "    os.kill(os.getpid(), signal.SIGINT)\n"
-              "    time.sleep(5)\n"
-              "class Half:\n"
-              "    def __init__(self):\n"
-              "        ctrl_c()\n"
-              "        self.expr = None\n"
-              "    def __del__(self):\n"
-              "        self.expr  # AttributeError: never set\n"
-              "class Target:\n"
-              "    pass\n"
-              "try:\n"
-              f"    if {where!r} == 'half-built':\n"
-              "        Half()\n"
-              "    else:\n"
-              "        t = Target()\n"
-              "        r = weakref.ref(t, lambda _: ctrl_c())\n"
-              "        del t  # the KeyboardInterrupt is raised in the callback, and swallowed\n"
-              "except KeyboardInterrupt:\n"
-              "    pass\n"
-              "if interrupted():\n"
-              "    sys.stderr.write('error: interrupted\\n')\n"
-              "    sys.exit(130)\n")
+    script = (
+        "import os, signal, sys, time, weakref\n"
+        "from octofuse.interrupts import interrupted, remember_interrupts\n"
+        "remember_interrupts()\n"
+        "def ctrl_c():\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(5)\n"
+        "class Half:\n"
+        "    def __init__(self):\n"
+        "        ctrl_c()\n"
+        "        self.expr = None\n"
+        "    def __del__(self):\n"
+        "        self.expr  # AttributeError: never set\n"
+        "class Target:\n"
+        "    pass\n"
+        "try:\n"
+        f"    if {where!r} == 'half-built':\n"
+        "        Half()\n"
+        "    else:\n"
+        "        t = Target()\n"
+        "        r = weakref.ref(t, lambda _: ctrl_c())\n"
+        "        del t  # the KeyboardInterrupt is raised in the callback, and swallowed\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        "if interrupted():\n"
+        "    sys.stderr.write('error: interrupted\\n')\n"
+        "    sys.exit(130)\n"
+    )
     assert_interrupted(python_c(script))
 
 
@@ -492,30 +630,36 @@ def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
 def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
     """Once the command is over (done, or interrupted and reported), a Ctrl-C while the
     interpreter exits is ignored: no traceback, no death by signal, the command's code."""
-    script = ("import atexit, os, signal\n"
-              "import octofuse.cli as c\n"
-              f"c.main = lambda: {code}\n"
-              "atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))\n"
-              "c.entry()\n")
+    script = (
+        "import atexit, os, signal\n"
+        "import octofuse.cli as c\n"
+        f"c.main = lambda: {code}\n"
+        "atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))\n"
+        "c.entry()\n"
+    )
     out = python_c(script)
     assert (out.returncode, out.stderr) == (code, "")
     installed = OCTOFUSE.read_text()
     assert "from octofuse.program import run" in installed, installed
 
 
-@pytest.mark.parametrize("args, message", [
-    (["run", "x.bag", "--rule", "chernoff,,min-info-loss"], "has an empty item"),
-    (["run", "x.bag", "--rule", "chernoff,bogus"], "unknown 'bogus'; expected one or more of"),
-    (["run", "x.bag", "--export-agents", ","], "',' has an empty item"),
-    (["bench", "x.bag", "--topologies", "ring,ring"], "names 'ring' twice"),
-    (["bench", "x.bag", "--seeds", ","], "has an empty item"),
-    (["bench", "x.bag", "--seeds", "1,x"], "expected SEED[,SEED...]"),
-    (["bench", "x.bag", "--schedules", ""], "'' has an empty item"),
-    (["search", "--rules", "", "--out", "o"], "'' has an empty item"),
-    (["track", "--families", "expoly,foo", "--out", "o"], "unknown 'foo'"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "x.bag", "--rule", "chernoff,,min-info-loss"], "has an empty item"),
+        (["run", "x.bag", "--rule", "chernoff,bogus"], "unknown 'bogus'; expected one or more of"),
+        (["run", "x.bag", "--export-agents", ","], "',' has an empty item"),
+        (["bench", "x.bag", "--topologies", "ring,ring"], "names 'ring' twice"),
+        (["bench", "x.bag", "--seeds", ","], "has an empty item"),
+        (["bench", "x.bag", "--seeds", "1,x"], "expected SEED[,SEED...]"),
+        (["bench", "x.bag", "--schedules", ""], "'' has an empty item"),
+        (["search", "--rules", "", "--out", "o"], "'' has an empty item"),
+        (["track", "--families", "expoly,foo", "--out", "o"], "unknown 'foo'"),
+    ],
+)
 def test_list_values_are_refused_with_an_empty_item_a_repeat_or_a_stranger(
-        capsys, tmp_path, monkeypatch, args, message):
+    capsys, tmp_path, monkeypatch, args, message
+):
     monkeypatch.chdir(tmp_path)
     code, _, err = run_cli(capsys, *args)
     assert code == 2 and message in err
@@ -526,4 +670,7 @@ def test_rule_help_lists_the_rules():
     from click.testing import CliRunner
 
     text = CliRunner().invoke(cli, ["run", "--help"], terminal_width=200).output
-    assert "one or more of: naive-bayes, bhattacharyya" in text and "channel-filter, source-layers]" in text
+    assert (
+        "one or more of: naive-bayes, bhattacharyya" in text
+        and "channel-filter, source-layers]" in text
+    )

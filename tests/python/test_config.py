@@ -14,7 +14,6 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
-
 from octofuse.config import BuildConfig, FuseConfig, RunConfig, dump_yaml, load_yaml  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
@@ -49,19 +48,73 @@ def dump(capsys, *args) -> str:
 
 def command_args(command: str, bag: Path, maps_dir: Path, out: Path) -> list:
     """Non-default flags for every command with a configuration."""
-    build = ["--resolution", RES, "--every", "2", "--max-range", "3.5", "--threads", "2",
-             "--agent", "a=/a/points", "--agent", "b=/b/points"]
+    build = [
+        "--resolution",
+        RES,
+        "--every",
+        "2",
+        "--max-range",
+        "3.5",
+        "--threads",
+        "2",
+        "--agent",
+        "a=/a/points",
+        "--agent",
+        "b=/b/points",
+    ]
     exchange = ["--schedule", "periodic:0.7", "--delta", "--unknown", "prior", "--seed", "7"]
     return {
         "build": ["build", bag, *build, "--no-return", "free", "--out", out],
-        "run": ["run", bag, *build, *exchange, "--rules", "chernoff,naive-bayes", "--topology",
-                "line", "--samples", "3", "--export-agents", "first", "--agent-frame",
-                "b=0.2,-0.1,0,0,0,0.5", "--align", "planar", "--out", out],
-        "bench": ["bench", bag, *build, *exchange, "--rules", "chernoff", "--executor", "serial",
-                  "--out", out],
-        "fuse": ["fuse", maps_dir, "--rules", "chernoff", "--topology", "complete", "--rounds", "2",
-                 "--directions", "one", "--threads", "1", "--agent-frame", "a=1,2,0.5,0,0.1,-3",
-                 "--out", out],
+        "run": [
+            "run",
+            bag,
+            *build,
+            *exchange,
+            "--rules",
+            "chernoff,naive-bayes",
+            "--topology",
+            "line",
+            "--samples",
+            "3",
+            "--export-agents",
+            "first",
+            "--agent-frame",
+            "b=0.2,-0.1,0,0,0,0.5",
+            "--align",
+            "planar",
+            "--out",
+            out,
+        ],
+        "bench": [
+            "bench",
+            bag,
+            *build,
+            *exchange,
+            "--rules",
+            "chernoff",
+            "--executor",
+            "serial",
+            "--out",
+            out,
+        ],
+        "fuse": [
+            "fuse",
+            maps_dir,
+            "--rules",
+            "chernoff",
+            "--topology",
+            "complete",
+            "--rounds",
+            "2",
+            "--directions",
+            "one",
+            "--threads",
+            "1",
+            "--agent-frame",
+            "a=1,2,0.5,0,0.1,-3",
+            "--out",
+            out,
+        ],
     }[command]
 
 
@@ -104,8 +157,20 @@ def test_a_dumped_config_fed_back_dumps_the_same(bag, maps_dir, tmp_path, capsys
 def test_flags_given_win_over_the_config_file(bag, tmp_path, capsys):
     conf = tmp_path / "run.yaml"
     conf.write_text(dump(capsys, *command_args("run", bag, bag, tmp_path / "o")))
-    cfg = yaml.safe_load(dump(capsys, "run", "--config", conf, "--rules", "min-entropy",
-                              "--every", "3", "--out", tmp_path / "p"))
+    cfg = yaml.safe_load(
+        dump(
+            capsys,
+            "run",
+            "--config",
+            conf,
+            "--rules",
+            "min-entropy",
+            "--every",
+            "3",
+            "--out",
+            tmp_path / "p",
+        )
+    )
     assert cfg["fuse"]["rules"] == ["min-entropy"] and cfg["build"]["scan_stride"] == 3
     assert cfg["out"] == str(tmp_path / "p")
     assert cfg["fuse"]["schedule"] == "periodic:0.7"  # from the file
@@ -113,9 +178,27 @@ def test_flags_given_win_over_the_config_file(bag, tmp_path, capsys):
 
 def test_the_api_runs_a_dumped_config_to_the_cli_scores(bag, tmp_path, capsys):
     out = tmp_path / "o"
-    text = dump(capsys, "run", bag, "--rules", "chernoff,naive-bayes", "--topology", "line",
-                "--schedule", "periodic:1", "--resolution", RES, "--every", "2", "--samples", "2",
-                "--export-agents", "none", "--out", out)
+    text = dump(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff,naive-bayes",
+        "--topology",
+        "line",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--every",
+        "2",
+        "--samples",
+        "2",
+        "--export-agents",
+        "none",
+        "--out",
+        out,
+    )
     conf = tmp_path / "run.yaml"
     conf.write_text(text)
     code, _, err = run_cli(capsys, "run", "--config", conf)
@@ -134,29 +217,43 @@ def test_the_api_runs_a_dumped_config_to_the_cli_scores(bag, tmp_path, capsys):
     for rule, per_agent in res.scores.items():
         for agent, score in per_agent.items():
             assert summary["scores"][rule][agent] == json.loads(json.dumps(score.to_dict())), (
-                rule, agent)
+                rule,
+                agent,
+            )
     # the two rules differ, so equal scores above are not a coincidence of identical maps
-    assert (summary["scores"]["chernoff"]["a"]["kl_mean"]
-            != summary["scores"]["naive-bayes"]["a"]["kl_mean"])
+    assert (
+        summary["scores"]["chernoff"]["a"]["kl_mean"]
+        != summary["scores"]["naive-bayes"]["a"]["kl_mean"]
+    )
     assert [(s["t"], s["rule"], s["agent"], s["kl"]) for s in summary["timeline"]] == [
-        (s["t"], s["rule"], s["agent"], s["kl"]) for s in res.timeline]
+        (s["t"], s["rule"], s["agent"], s["kl"]) for s in res.timeline
+    ]
 
 
 # -- a bad value in a config file ---------------------------------------------------------------
 
 
 CASES = {  # name: (YAML text, what the error line holds besides the file name)
-    "stride_as_text": ("build:\n  scan_stride: '2'\n",
-                       ["build.scan_stride", "expected a whole number", "'2'"]),
-    "range_as_word": ("build:\n  max_range: far\n", ["build.max_range", "expected a number", "far"]),
-    "clamping_as_number": ("build:\n  map:\n    clamping: 5\n",
-                           ["build.map.clamping", "expected a list of 2 numbers"]),
+    "stride_as_text": (
+        "build:\n  scan_stride: '2'\n",
+        ["build.scan_stride", "expected a whole number", "'2'"],
+    ),
+    "range_as_word": (
+        "build:\n  max_range: far\n",
+        ["build.max_range", "expected a number", "far"],
+    ),
+    "clamping_as_number": (
+        "build:\n  map:\n    clamping: 5\n",
+        ["build.map.clamping", "expected a list of 2 numbers"],
+    ),
     "frame_as_number": ("build:\n  fixed_frame: 5\n", ["build.fixed_frame", "expected text"]),
     "rules_as_number": ("fuse:\n  rules: 5\n", ["fuse.rules", "expected a list"]),
     "threads_as_word": ("build:\n  threads: two\n", ["build.threads", "expected a whole number"]),
     "threads_negative": ("build:\n  threads: -1\n", ["build.threads = -1", "expected 0"]),
-    "resolution_as_list": ("build:\n  map:\n    resolution: [1, 2]\n",
-                           ["build.map.resolution", "expected a number", "[1, 2]"]),
+    "resolution_as_list": (
+        "build:\n  map:\n    resolution: [1, 2]\n",
+        ["build.map.resolution", "expected a number", "[1, 2]"],
+    ),
     "agent_without_topic": ("build:\n  agents:\n  - name: a\n", ["build.agents[0]", "topic"]),
     "invalid_yaml": ("build:\n  bags: [a.bag\n  every: 2\n", ["not valid YAML", "at line 3"]),
     "not_a_mapping": ("- build\n- run\n", ["expected a mapping", "list"]),
@@ -225,8 +322,11 @@ def test_the_voxel_sizes_a_config_takes_are_the_cores():
         assert from_dict(MapConfig, {"resolution": ok}).resolution == ok
         OccupancyMap(ok)  # and the core builds the map
     for bad in (_core.MIN_RESOLUTION / 2, _core.MAX_RESOLUTION * 2):
-        with pytest.raises(ValueError, match=r"map.resolution = .*: expected a voxel size from "
-                                             r"0.0001 to 1000 metres"):
+        with pytest.raises(
+            ValueError,
+            match=r"map.resolution = .*: expected a voxel size from "
+            r"0.0001 to 1000 metres",
+        ):
             from_dict(MapConfig, {"resolution": bad}, where="map")
         with pytest.raises(ValueError):
             OccupancyMap(bad)

@@ -26,8 +26,19 @@ RATE = 5.0
 
 
 def run_generator(out: Path, *extra: str) -> dict[str, Any]:
-    cmd = [sys.executable, str(GENERATOR), "--out", str(out), "--robots", str(ROBOTS),
-           "--duration", str(DURATION), "--rate", str(RATE), *extra]
+    cmd = [
+        sys.executable,
+        str(GENERATOR),
+        "--out",
+        str(out),
+        "--robots",
+        str(ROBOTS),
+        "--duration",
+        str(DURATION),
+        "--rate",
+        str(RATE),
+        *extra,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=False)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == "", proc.stderr  # no warnings either
@@ -58,11 +69,14 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """(..., 4) quaternions x, y, z, w -> (..., 3, 3) rotation matrices."""
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -86,17 +100,27 @@ class TfBuffer:
         for _, msg in bag["messages"]["/tf"]:
             for tf in msg.transforms:
                 t, r = tf.transform.translation, tf.transform.rotation
-                dyn.setdefault(tf.child_frame_id, []).append((stamp_ns(tf.header), [t.x, t.y, t.z],
-                                                              [r.x, r.y, r.z, r.w]))
+                dyn.setdefault(tf.child_frame_id, []).append(
+                    (stamp_ns(tf.header), [t.x, t.y, t.z], [r.x, r.y, r.z, r.w])
+                )
                 self.parent[tf.child_frame_id] = tf.header.frame_id
-        self.dyn = {k: (np.array([v[0] for v in vs]), np.array([v[1] for v in vs]), np.array([v[2] for v in vs]))
-                    for k, vs in dyn.items()}
+        self.dyn = {
+            k: (
+                np.array([v[0] for v in vs]),
+                np.array([v[1] for v in vs]),
+                np.array([v[2] for v in vs]),
+            )
+            for k, vs in dyn.items()
+        }
         self.static: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
         for _, msg in bag["messages"]["/tf_static"]:
             for tf in msg.transforms:
                 t, r = tf.transform.translation, tf.transform.rotation
-                self.static[tf.child_frame_id] = (tf.header.frame_id, np.array([t.x, t.y, t.z]),
-                                                  np.array([r.x, r.y, r.z, r.w]))
+                self.static[tf.child_frame_id] = (
+                    tf.header.frame_id,
+                    np.array([t.x, t.y, t.z]),
+                    np.array([r.x, r.y, r.z, r.w]),
+                )
 
     def laser_in_map(self, laser: str, times_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rotation (N, 3, 3) and origin (N, 3) of a laser frame in map at the given times."""
@@ -121,7 +145,9 @@ def scan_points(msg: Any, tfbuf: TfBuffer) -> tuple[np.ndarray, np.ndarray]:
     times = stamp_ns(msg.header) + np.round(np.arange(n) * msg.time_increment * 1e9)
     ok = np.isfinite(ranges)
     rot, org = tfbuf.laser_in_map(msg.header.frame_id, times[ok])
-    local = np.column_stack([np.cos(ang[ok]), np.sin(ang[ok]), np.zeros(ok.sum())]) * ranges[ok, None]
+    local = (
+        np.column_stack([np.cos(ang[ok]), np.sin(ang[ok]), np.zeros(ok.sum())]) * ranges[ok, None]
+    )
     return org + np.einsum("nij,nj->ni", rot, local), ranges[ok]
 
 
@@ -254,13 +280,22 @@ def test_robots_stay_in_the_room_and_off_the_boxes(dataset: dict[str, Any]) -> N
     bag, scene = dataset["a"]["bag"], dataset["a"]["scene"]
     sx, sy = scene["room"]["size"]
     assert (sx, sy) == (15.0, 8.0)
-    xy = np.array([[tf.transform.translation.x, tf.transform.translation.y]
-                   for _, msg in bag["messages"]["/tf"] for tf in msg.transforms])
+    xy = np.array(
+        [
+            [tf.transform.translation.x, tf.transform.translation.y]
+            for _, msg in bag["messages"]["/tf"]
+            for tf in msg.transforms
+        ]
+    )
     assert np.all((xy > 0.3) & (xy < [sx - 0.3, sy - 0.3]))
     for b in scene["boxes"]:
         if b["kind"] == "obstacle":
-            inside = ((xy[:, 0] > b["min"][0] - 0.25) & (xy[:, 0] < b["max"][0] + 0.25)
-                      & (xy[:, 1] > b["min"][1] - 0.25) & (xy[:, 1] < b["max"][1] + 0.25))
+            inside = (
+                (xy[:, 0] > b["min"][0] - 0.25)
+                & (xy[:, 0] < b["max"][0] + 0.25)
+                & (xy[:, 1] > b["min"][1] - 0.25)
+                & (xy[:, 1] < b["max"][1] + 0.25)
+            )
             assert not inside.any(), b["name"]
 
 

@@ -51,6 +51,7 @@ def test_a_failed_drawing_raises_its_own_error_in_either_process(kind, cores):
     """The caller gets the drawing's error as it is, whichever process drew: its kind decides
     what the command line makes of it (a bug's TypeError an internal error, a file's
     PermissionError bad input); from a child, its traceback comes along as a note."""
+
     def draw():
         raise kind("no axes to draw")
 
@@ -129,14 +130,15 @@ def test_the_child_leaves_the_callers_exit_and_buffers_alone(tmp_path):
     import subprocess
     import sys
 
-    code = ("import atexit, sys; from octofuse.outputs.aside import drawn_aside\n"
-            "atexit.register(lambda: print('exit handler'))\n"
-            "sys.stdout.write('buffered ')\n"
-            f"with drawn_aside(lambda: open({str(tmp_path / 'f')!r}, 'w').write('x'), 'f'):\n"
-            "    pass\n"
-            "print('done')")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
+    code = (
+        "import atexit, sys; from octofuse.outputs.aside import drawn_aside\n"
+        "atexit.register(lambda: print('exit handler'))\n"
+        "sys.stdout.write('buffered ')\n"
+        f"with drawn_aside(lambda: open({str(tmp_path / 'f')!r}, 'w').write('x'), 'f'):\n"
+        "    pass\n"
+        "print('done')"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["buffered", "done", "exit", "handler"]
     assert (tmp_path / "f").read_text() == "x"

@@ -28,7 +28,9 @@ def on_grid(unnormalised):
 
 def _poly(b, x, y):
     c = b.coefficients
-    return sum(c[i, j] * x**i * y**j for i in range(c.shape[0]) for j in range(c.shape[0]) if c[i, j])
+    return sum(
+        c[i, j] * x**i * y**j for i in range(c.shape[0]) for j in range(c.shape[0]) if c[i, j]
+    )
 
 
 def grid_moments(p):
@@ -48,7 +50,9 @@ CRESCENT = RING_B.multiply(BLOB)
 def test_protocol():
     assert isinstance(RING_A, Belief) and isinstance(BLOB.to_gaussian(), Belief)
     assert RING_A.dim == 2 and RING_A.degree == 4 and BLOB.degree == 2
-    assert RING_A.message_bytes == 112 and BLOB.message_bytes == 40 == BLOB.to_gaussian().message_bytes
+    assert (
+        RING_A.message_bytes == 112 and BLOB.message_bytes == 40 == BLOB.to_gaussian().message_bytes
+    )
 
 
 @pytest.mark.parametrize("belief", [RING_A, RING_B, CRESCENT, BLOB])
@@ -63,7 +67,9 @@ def test_moments_and_pdf_against_grid(belief):
 
 
 def test_multiply_is_the_normalised_pointwise_product():
-    np.testing.assert_allclose(CRESCENT.pdf(PTS), on_grid(RING_B.pdf(PTS) * BLOB.pdf(PTS)), rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(
+        CRESCENT.pdf(PTS), on_grid(RING_B.pdf(PTS) * BLOB.pdf(PTS)), rtol=1e-6, atol=1e-12
+    )
 
 
 def test_divide_inverts_multiply():
@@ -109,7 +115,9 @@ def test_degree_two_is_gaussian_covariance_intersection(ma, ca, mb, cb, w):
     np.testing.assert_allclose(mean, ci.mean, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(cov, ci.cov, rtol=1e-9, atol=1e-12)
     assert fused.renyi2_entropy() == pytest.approx(ci.renyi2_entropy(), abs=1e-9)
-    assert fused.log_normaliser() == pytest.approx(fused.grid().log_norm, abs=1e-6)  # closed form vs grid
+    assert fused.log_normaliser() == pytest.approx(
+        fused.grid().log_norm, abs=1e-6
+    )  # closed form vs grid
 
 
 @settings(max_examples=20, deadline=None)
@@ -140,7 +148,9 @@ def test_univariate_prediction_formula():
     a, F, Bu = np.array([0.3, -1.0, 2.0, 0.5, 0.25]), 1.7, -0.6
     x = np.linspace(-3, 3, 13)
     direct = np.polynomial.polynomial.polyval((x - Bu) / F, a)
-    np.testing.assert_allclose(np.polynomial.polynomial.polyval(x, predict_coefficients_1d(a, F, Bu)), direct)
+    np.testing.assert_allclose(
+        np.polynomial.polynomial.polyval(x, predict_coefficients_1d(a, F, Bu)), direct
+    )
 
 
 def exact_convolution(belief, Q):
@@ -191,7 +201,9 @@ def test_bracketing_handles_a_unimodal_non_convex_cost():
 
 
 def test_moment_fit_recovers_a_mildly_non_gaussian_belief():
-    target = ExPoly2D.from_gaussian([1, 0], [[2, 0.5], [0.5, 1]]).multiply(ExPoly2D.range_likelihood([0, 0], 2, 0.3))
+    target = ExPoly2D.from_gaussian([1, 0], [[2, 0.5], [0.5, 1]]).multiply(
+        ExPoly2D.range_likelihood([0, 0], 2, 0.3)
+    )
     fit = fit_moments(target.raw_moments(monomials(4)))
     assert fit.converged
     c, ref = fit.belief.coefficients.copy(), target.coefficients.copy()
@@ -208,8 +220,14 @@ def test_moment_fit_reports_a_stall_instead_of_failing():
     "coefficients, match",
     [
         ([[0, 0, -1], [0, 0, 0], [1, 0, 0]], "not elliptic"),  # x^2 - y^2
-        ([[0, 0, 1, 0, 0], [0] * 5, [0] * 5, [0] * 5, [1, 0, 0, 0, 0]], "not elliptic"),  # x^4 + y^2
-        ([[0, 0, 0, 0, -1], [0] * 5, [0] * 5, [0] * 5, [1, 0, 0, 0, 0]], "not elliptic"),  # x^4 - y^4
+        (
+            [[0, 0, 1, 0, 0], [0] * 5, [0] * 5, [0] * 5, [1, 0, 0, 0, 0]],
+            "not elliptic",
+        ),  # x^4 + y^2
+        (
+            [[0, 0, 0, 0, -1], [0] * 5, [0] * 5, [0] * 5, [1, 0, 0, 0, 0]],
+            "not elliptic",
+        ),  # x^4 - y^4
         ([[0, 0, 1], [0, 0, 0], [np.nan, 0, 0]], "x^2 y^0 is nan"),
         ([[0, 0, 1], [0, np.inf, 0], [1, 0, 0]], "x^1 y^1 is inf"),
         ([[0, 0, 1], [0, 0, 1], [1, 0, 0]], "above 2"),

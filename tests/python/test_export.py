@@ -6,11 +6,11 @@ import matplotlib
 import numpy as np
 import open3d as o3d
 import pytest
-from conftest import random_map
 
 import octofuse
-from octofuse.outputs import export
+from conftest import random_map
 from octofuse.cli import main
+from octofuse.outputs import export
 from octofuse.outputs.clouds import read_cloud
 from octofuse.outputs.export import write_heatmap, write_map_cloud
 
@@ -88,8 +88,9 @@ def test_heatmap_opens_in_open3d_with_its_fields(loss, tmp_path, suffix):
     pcd = o3d.t.io.read_point_cloud(str(p))
     np.testing.assert_array_equal(pcd.point["positions"].numpy(), lv.centers.astype(np.float32))
     np.testing.assert_array_equal(pcd.point["info_loss"].numpy().ravel(), lv.values)
-    np.testing.assert_array_equal(pcd.point["voxel_size"].numpy().ravel(),
-                                  lv.sizes.astype(np.float32))
+    np.testing.assert_array_equal(
+        pcd.point["voxel_size"].numpy().ravel(), lv.sizes.astype(np.float32)
+    )
     legacy = o3d.io.read_point_cloud(str(p))  # the classic reader: positions and colours
     assert len(legacy.points) == loss.num_leaves and legacy.has_colors()
     np.testing.assert_allclose(np.asarray(legacy.colors), read_cloud(p)["colors"], atol=1e-6)
@@ -127,8 +128,12 @@ def test_heatmap_colour_range_and_filter(loss, tmp_path):
 
 def test_heatmap_all_zero_loss_takes_the_bottom_colour(tmp_path):
     n = 5
-    lv = octofuse.Leaves(np.arange(3 * n, dtype=float).reshape(n, 3), np.full(n, 0.1),
-                         np.zeros(n, np.float32), np.full(n, 16, np.uint8))
+    lv = octofuse.Leaves(
+        np.arange(3 * n, dtype=float).reshape(n, 3),
+        np.full(n, 0.1),
+        np.zeros(n, np.float32),
+        np.full(n, 16, np.uint8),
+    )
     c = read_cloud(write_heatmap(lv, tmp_path / "z.ply"))
     assert np.all(lut_index(c["colors"], "inferno") == 0)
 
@@ -156,8 +161,9 @@ def test_heatmap_refuses_bad_input(loss, tmp_path):
 
 @pytest.mark.parametrize("suffix", SUFFIXES)
 @pytest.mark.parametrize("how", ["fails", "raises"])
-def test_a_failed_write_leaves_the_existing_file_untouched(loss, tmp_path, monkeypatch,
-                                                           suffix, how):
+def test_a_failed_write_leaves_the_existing_file_untouched(
+    loss, tmp_path, monkeypatch, suffix, how
+):
     p = write_heatmap(loss, tmp_path / f"h{suffix}")
     before = p.read_bytes()
 
@@ -188,8 +194,9 @@ def test_map_cloud_has_the_occupied_voxels_coloured_by_height(maps, tmp_path, su
     np.testing.assert_array_equal(c["positions"], lv.centers[occ].astype(np.float32))
     np.testing.assert_array_equal(c["log_odds"], lv.values[occ])
     assert np.all(c["log_odds"] > 0) and np.all(c["occupancy"] > 0.5)
-    np.testing.assert_allclose(c["occupancy"], 1 / (1 + np.exp(-lv.values[occ].astype(float))),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        c["occupancy"], 1 / (1 + np.exp(-lv.values[occ].astype(float))), rtol=1e-6
+    )
     np.testing.assert_array_equal(c["voxel_size"], lv.sizes[occ].astype(np.float32))
     z = lv.centers[occ, 2]
     idx = lut_index(c["colors"], "viridis")
@@ -280,23 +287,32 @@ def test_export_command(maps, files, tmp_path, capsys):
     assert line == f"wrote {out}: {n:,} points (occupied voxels coloured by height)"
     assert len(read_cloud(out)["positions"]) == n
     out = tmp_path / "all.pcd"
-    assert main(["export", str(files / "a.ot"), "--out", str(out), "--all-voxels",
-                 "--cmap", "plasma"]) == 0
+    assert (
+        main(["export", str(files / "a.ot"), "--out", str(out), "--all-voxels", "--cmap", "plasma"])
+        == 0
+    )
     assert f"{maps[0].num_leaves:,} points" in capsys.readouterr().out
     lut_index(read_cloud(out)["colors"], "plasma")
     assert main(["export", str(files / "loss.npz"), "--out", str(tmp_path / "l.pcd")]) == 0
     assert "information-loss heat map" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("args, message", [
-    (["a.ot", "--out", "OUT/a.xyz"], "cannot export to"),
-    (["missing.ot", "--out", "OUT/a.ply"], "does not exist"),
-    (["loss.npz", "--out", "OUT/a.bt"], "not an occupancy map"),
-    (["a.ot", "--out", "OUT/a.ply", "--cmap", "nope"], "unknown colour map"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["a.ot", "--out", "OUT/a.xyz"], "cannot export to"),
+        (["missing.ot", "--out", "OUT/a.ply"], "does not exist"),
+        (["loss.npz", "--out", "OUT/a.bt"], "not an occupancy map"),
+        (["a.ot", "--out", "OUT/a.ply", "--cmap", "nope"], "unknown colour map"),
+    ],
+)
 def test_export_command_errors(files, tmp_path, capsys, args, message):
-    argv = [a.replace("OUT", str(tmp_path)) if "OUT" in a else
-            (str(files / a) if a.endswith((".ot", ".npz")) else a) for a in args]
+    argv = [
+        a.replace("OUT", str(tmp_path))
+        if "OUT" in a
+        else (str(files / a) if a.endswith((".ot", ".npz")) else a)
+        for a in args
+    ]
     assert main(["export", *argv]) == 1
     cap = capsys.readouterr()
     lines = cap.err.strip().splitlines()
@@ -347,14 +363,21 @@ def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
     import subprocess
     import sys
 
-    code = ("import sys; from octofuse.outputs.libraries import import_output_libraries\n"
-            "t = import_output_libraries(); assert t.name == 'octofuse-imports'\n"
-            "t.join(120)\n"
-            "import matplotlib\n"
-            "print('open3d' in sys.modules, 'matplotlib.pyplot' in sys.modules, "
-            "matplotlib.get_backend().lower())")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180,
-                         env={**os.environ, "MPLBACKEND": ""})
+    code = (
+        "import sys; from octofuse.outputs.libraries import import_output_libraries\n"
+        "t = import_output_libraries(); assert t.name == 'octofuse-imports'\n"
+        "t.join(120)\n"
+        "import matplotlib\n"
+        "print('open3d' in sys.modules, 'matplotlib.pyplot' in sys.modules, "
+        "matplotlib.get_backend().lower())"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env={**os.environ, "MPLBACKEND": ""},
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "True", "agg"]
 
@@ -384,10 +407,13 @@ def test_an_interpreter_leaving_while_the_libraries_import_exits_as_asked():
     import sys
 
     for delay in (0.1, 0.2, 0.3, 0.4):
-        code = ("import time; from octofuse.outputs.libraries import import_output_libraries\n"
-                f"import_output_libraries(); time.sleep({delay}); raise SystemExit(3)")
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             timeout=180)
+        code = (
+            "import time; from octofuse.outputs.libraries import import_output_libraries\n"
+            f"import_output_libraries(); time.sleep({delay}); raise SystemExit(3)"
+        )
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=180
+        )
         assert out.returncode == 3, (delay, out.returncode, out.stderr[-500:])
 
 
@@ -396,8 +422,11 @@ def test_the_imports_ahead_begin_no_library_once_interrupted(monkeypatch):
     waits for it."""
     from octofuse.outputs import libraries
 
-    for flags, expected in (([False, False], ["pyplot", "open3d"]), ([False, True], ["pyplot"]),
-                            ([True], [])):
+    for flags, expected in (
+        ([False, False], ["pyplot", "open3d"]),
+        ([False, True], ["pyplot"]),
+        ([True], []),
+    ):
         calls, asked = [], iter(flags)
         monkeypatch.setattr(libraries, "pyplot", lambda: calls.append("pyplot"))
         monkeypatch.setattr(libraries, "open3d", lambda: calls.append("open3d"))
@@ -406,13 +435,26 @@ def test_the_imports_ahead_begin_no_library_once_interrupted(monkeypatch):
         assert calls == expected
 
 
-@pytest.mark.parametrize("key,value", [("values", np.inf), ("values", 1e300), ("values", np.nan),
-                                       ("values", -1.0), ("sizes", 0.0), ("centers", np.nan)])
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("values", np.inf),
+        ("values", 1e300),
+        ("values", np.nan),
+        ("values", -1.0),
+        ("sizes", 0.0),
+        ("centers", np.nan),
+    ],
+)
 def test_loss_files_with_impossible_values_are_refused_naming_the_array(tmp_path, key, value):
     from octofuse.maps.infoloss import read_info_loss
 
-    arrays = {"centers": np.zeros((2, 3)), "sizes": np.full(2, 0.1), "values": np.array([0.5, 0.2]),
-              "depths": np.full(2, 16, np.uint8)}
+    arrays = {
+        "centers": np.zeros((2, 3)),
+        "sizes": np.full(2, 0.1),
+        "values": np.array([0.5, 0.2]),
+        "depths": np.full(2, 16, np.uint8),
+    }
     arrays[key] = arrays[key].astype(np.float64)
     arrays[key][1] = value
     p = tmp_path / "loss.npz"

@@ -47,8 +47,9 @@ def plain_insert(m: OccupancyMap, points, origin, max_range=-1.0) -> None:
     m._m.insert_scan(pts, np.asarray(origin, dtype=np.float64).reshape(-1), float(max_range), False)
 
 
-def random_scans(seed: int, n_scans: int, dtype=np.float64, spread: float = 1.0,
-                 points: int = 300, ranges=None):
+def random_scans(
+    seed: int, n_scans: int, dtype=np.float64, spread: float = 1.0, points: int = 300, ranges=None
+):
     """Scans from origins within ``spread`` of the map origin, their points at random
     directions and at distances from ``ranges`` (default: uniform in 0.2-3 m)."""
     rng = np.random.default_rng(seed)
@@ -57,15 +58,20 @@ def random_scans(seed: int, n_scans: int, dtype=np.float64, spread: float = 1.0,
         origin = rng.uniform(-spread, spread, 3)
         d = rng.normal(size=(points, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        r = (rng.uniform(0.2, 3.0, (points, 1)) if ranges is None
-             else rng.choice(ranges, (points, 1)))
+        r = (
+            rng.uniform(0.2, 3.0, (points, 1))
+            if ranges is None
+            else rng.choice(ranges, (points, 1))
+        )
         out.append(((origin + d * r).astype(dtype), origin))
     return out
 
 
 def warehouse_scans(n_scans: int = 6, az_step: float = 2.0):
     """Map-frame scans of the generated warehouse (the generator's own ray casting)."""
-    spec = importlib.util.spec_from_file_location("generate_warehouse", ROOT / "data" / "generate_warehouse.py")
+    spec = importlib.util.spec_from_file_location(
+        "generate_warehouse", ROOT / "data" / "generate_warehouse.py"
+    )
     gw = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gw)
     rng = np.random.default_rng(3)
@@ -73,8 +79,14 @@ def warehouse_scans(n_scans: int = 6, az_step: float = 2.0):
     n_az = int(round(360.0 / az_step))
     az = np.deg2rad(np.arange(n_az) * az_step)
     el = np.deg2rad(np.linspace(-15, 15, 16))
-    d = np.stack([np.outer(np.cos(el), np.cos(az)), np.outer(np.cos(el), np.sin(az)),
-                  np.outer(np.sin(el), np.ones_like(az))], axis=-1).reshape(-1, 3)
+    d = np.stack(
+        [
+            np.outer(np.cos(el), np.cos(az)),
+            np.outer(np.cos(el), np.sin(az)),
+            np.outer(np.sin(el), np.ones_like(az)),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
     out = []
     for k in range(n_scans):
         origin = np.array([3.0 + 1.3 * k, 6.0, 0.6])
@@ -124,7 +136,9 @@ def test_insert_scans_equals_scan_by_scan():
         batch.insert_scans(mixed, max_range=2.0, threads=threads)
         for pts, where in mixed:
             if np.shape(where) == (4, 4):
-                plain._m.insert_scan(np.ascontiguousarray(pts), np.ascontiguousarray(where), 2.0, True)
+                plain._m.insert_scan(
+                    np.ascontiguousarray(pts), np.ascontiguousarray(where), 2.0, True
+                )
             else:
                 plain_insert(plain, pts, where, 2.0)
         assert_same_map(batch, plain)
@@ -156,11 +170,16 @@ def test_scans_walked_together_equal_scan_by_scan_at_the_clamping_thresholds():
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n_scans=st.integers(2, 12),
-       clamping=st.sampled_from([(0.1192, 0.971), (0.3, 0.7), (0.45, 0.55)]),
-       hit=st.floats(0.55, 0.95), miss=st.floats(0.1, 0.45))
-def test_scans_walked_together_equal_scan_by_scan_for_any_sensor_model(seed, n_scans, clamping,
-                                                                        hit, miss):
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_scans=st.integers(2, 12),
+    clamping=st.sampled_from([(0.1192, 0.971), (0.3, 0.7), (0.45, 0.55)]),
+    hit=st.floats(0.55, 0.95),
+    miss=st.floats(0.1, 0.45),
+)
+def test_scans_walked_together_equal_scan_by_scan_for_any_sensor_model(
+    seed, n_scans, clamping, hit, miss
+):
     """Random scans from nearby origins into maps of any sensor model and clamping: the scans
     walked together (insert_scans) give insertPointCloud's tree scan by scan, bit for bit."""
     scans = random_scans(seed, n_scans, spread=0.2, points=60, ranges=[0.5, 0.9, 1.3])
@@ -177,8 +196,11 @@ def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
     from octofuse.maps.ray_batches import insert_batch
 
     scans = random_scans(6, 12)
-    kinds = [lambda: OccupancyMap(0.1), lambda: OccupancyMap(0.1).open_clamping(),
-             lambda: OccupancyMap(0.1, prob_hit=0.9, prob_miss=0.3, clamping=(0.05, 0.99))]
+    kinds = [
+        lambda: OccupancyMap(0.1),
+        lambda: OccupancyMap(0.1).open_clamping(),
+        lambda: OccupancyMap(0.1, prob_hit=0.9, prob_miss=0.3, clamping=(0.05, 0.99)),
+    ]
     poses = np.stack([np.eye(4)] * len(scans))
     poses[:, :3, 3] = [origin for _, origin in scans]
     points = [np.ascontiguousarray(pts - origin) for pts, origin in scans]
@@ -190,7 +212,9 @@ def test_one_batch_feeds_maps_of_every_clamping_and_sensor_model():
         assert got.to_bytes() == alone.to_bytes()
     assert together[0].to_bytes() != together[1].to_bytes() != together[2].to_bytes()
     with pytest.raises(ValueError, match="different resolutions"):
-        insert_batch(points[:1], poses[:1], np.full(1, -1.0), [[OccupancyMap(0.1), OccupancyMap(0.2)]], 1)
+        insert_batch(
+            points[:1], poses[:1], np.full(1, -1.0), [[OccupancyMap(0.1), OccupancyMap(0.2)]], 1
+        )
 
 
 def test_rays_traced_once_feed_maps_apart_as_one_batch():
@@ -205,12 +229,16 @@ def test_rays_traced_once_feed_maps_apart_as_one_batch():
     ranges = np.full(len(scans), 2.5)
     # scan k goes into map k % 3 and into the last map
     together = [OccupancyMap(0.1) for _ in range(4)]
-    insert_batch(points, poses, ranges, [[together[k % 3], together[3]] for k in range(len(scans))], 2)
+    insert_batch(
+        points, poses, ranges, [[together[k % 3], together[3]] for k in range(len(scans))], 2
+    )
     apart = [OccupancyMap(0.1) for _ in range(4)]
     rays = trace_rays(apart[0], points, poses, ranges, 2)
     assert rays.scans == len(scans) and rays.nbytes > 0
     for group in ([0, 1], [2, 3]):
-        apply_rays(rays, [[apart[i] for i in group if i in (k % 3, 3)] for k in range(len(scans))], 1)
+        apply_rays(
+            rays, [[apart[i] for i in group if i in (k % 3, 3)] for k in range(len(scans))], 1
+        )
     for got, want in zip(apart, together):
         assert got.to_bytes() == want.to_bytes()
     before = apart[0].to_bytes()
@@ -250,15 +278,22 @@ def random_map(seed: int, offset: float) -> OccupancyMap:
     return m
 
 
-@pytest.mark.parametrize("rule", ["naive-bayes", "min-info-loss", "chernoff", "entropy-weighted-chernoff"])
+@pytest.mark.parametrize(
+    "rule", ["naive-bayes", "min-info-loss", "chernoff", "entropy-weighted-chernoff"]
+)
 @pytest.mark.parametrize("unknown", ["copy", "prior"])
 def test_parallel_fuse_into_equals_one_thread(rule, unknown):
-    for a0, b0 in ((random_map(1, 0.0), random_map(2, 0.4)), (random_map(3, 40.0), random_map(4, 40.7))):
+    for a0, b0 in (
+        (random_map(1, 0.0), random_map(2, 0.4)),
+        (random_map(3, 40.0), random_map(4, 40.7)),
+    ):
         one, two = OccupancyMap.from_bytes(a0.to_bytes()), OccupancyMap.from_bytes(a0.to_bytes())
         l1, l2 = _core._ScalarTree(0.1), _core._ScalarTree(0.1)
         f1 = _core._fuse_into(one._m, b0._m, _rule(rule), _unknown(unknown), l1, threads=1)
         f2 = _core._fuse_into(two._m, b0._m, _rule(rule), _unknown(unknown), l2, threads=2)
-        assert f1[:2] == f2[:2] and f1[2] == pytest.approx(f2[2], rel=1e-12)  # sums in another order
+        assert f1[:2] == f2[:2] and f1[2] == pytest.approx(
+            f2[2], rel=1e-12
+        )  # sums in another order
         assert_same_map(one, two)
         assert_same_map(one, fuse_maps(a0, b0, rule, unknown).map)
         np.testing.assert_array_equal(l1.leaves()["values"], l2.leaves()["values"])
@@ -267,11 +302,13 @@ def test_parallel_fuse_into_equals_one_thread(rule, unknown):
 
 def _rule(name):
     from octofuse.rules import parse_rule
+
     return parse_rule(name)
 
 
 def _unknown(name):
     from octofuse.rules import parse_unknown
+
     return parse_unknown(name)
 
 
@@ -300,13 +337,16 @@ def test_public_fuse_into_on_threads_equals_one_thread(threads):
 
 # -- clamped copies ------------------------------------------------------------------------
 
+
 def _holding(data: bytes) -> OccupancyMap:
     """A map of 0.1 m voxels at the default clamping holding exactly the node data ``data``,
     values past the clamping included (reading node data clamps those, an .ot stream keeps
     what it holds): as a map whose values were fused unclamped."""
     wide = OccupancyMap.from_tree_data(data, 0.1, clamping=(1e-6, 1 - 1e-6)).to_bytes()
-    default = wide.replace(b"clamping_thres_min 1e-06 clamping_thres_max 0.999999",
-                           b"clamping_thres_min 0.1192 clamping_thres_max 0.971")
+    default = wide.replace(
+        b"clamping_thres_min 1e-06 clamping_thres_max 0.999999",
+        b"clamping_thres_min 0.1192 clamping_thres_max 0.971",
+    )
     assert default != wide
     return OccupancyMap.from_bytes(default)
 
@@ -325,7 +365,7 @@ def assert_same_stream(a: OccupancyMap, b: OccupancyMap) -> None:
 
 def test_clamped_copy_equals_copy_and_clamp_on_open_maps():
     maps = [OccupancyMap(0.1).open_clamping(), OccupancyMap(0.05).open_clamping()]
-    for k, pts_origin in enumerate(random_scans(7, 12) + warehouse_scans(3)):
+    for pts_origin in random_scans(7, 12) + warehouse_scans(3):
         pts, origin = pts_origin
         for m in maps:  # every scan 3 times: values well past the thresholds
             for _ in range(3):
@@ -345,8 +385,9 @@ VALUES = [-9.0, LO - 0.5, LO, -1.0, 0.0, 0.4, HI, HI + 0.5, 7.0, 12.0]
 def _stream(value: float, children) -> bytes:
     """OctoMap's node data of one node and its subtree: value, child mask, children."""
     mask = sum(1 << i for i, c in enumerate(children) if c is not None)
-    return (np.float32(value).tobytes() + bytes([mask])
-            + b"".join(c for c in children if c is not None))
+    return (
+        np.float32(value).tobytes() + bytes([mask]) + b"".join(c for c in children if c is not None)
+    )
 
 
 def _chain(depth: int, below: bytes) -> bytes:
@@ -365,7 +406,9 @@ def test_clamped_copy_keeps_prune_stopping_at_a_level_that_prunes_nothing():
     assert want.num_nodes == m.num_nodes  # not collapsed
     assert_same_stream(m.clamped_copy(), want)
     # with one finest node that collapses as well, prune() goes on and collapses both levels
-    finest = _stream(0.0, [_stream(v, [None] * 8) for v in (5.0, 6.0, 7.0, 8.0, 4.0, 4.0, 4.0, 4.0)])
+    finest = _stream(
+        0.0, [_stream(v, [None] * 8) for v in (5.0, 6.0, 7.0, 8.0, 4.0, 4.0, 4.0, 4.0)]
+    )
     leaves[1] = finest
     m = _holding(_chain(14, _stream(0.0, leaves)))
     want = _plain_clamped(m)
@@ -383,9 +426,9 @@ def _subtrees(height: int):
         return leaf
     child = _subtrees(height - 1)
     masks = st.one_of(st.just(0xFF), st.integers(1, 0xFF))
-    inner = masks.flatmap(lambda mask: st.tuples(*[
-        child if mask >> i & 1 else st.none() for i in range(8)])).map(
-        lambda kids: _stream(0.0, list(kids)))
+    inner = masks.flatmap(
+        lambda mask: st.tuples(*[child if mask >> i & 1 else st.none() for i in range(8)])
+    ).map(lambda kids: _stream(0.0, list(kids)))
     return st.one_of(leaf, inner, inner)
 
 
@@ -408,17 +451,18 @@ def _loss_bits(loss: InfoLossMap):
     return values.view(np.uint32).tolist(), depths.tolist()
 
 
-@pytest.mark.parametrize("rule", ["naive-bayes", "min-info-loss", "min-entropy", "chernoff",
-                                  "kld-weighted-chernoff"])
+@pytest.mark.parametrize(
+    "rule", ["naive-bayes", "min-info-loss", "min-entropy", "chernoff", "kld-weighted-chernoff"]
+)
 @pytest.mark.parametrize("unknown", ["copy", "prior"])
 def test_loss_map_carried_by_its_map_equals_one_that_is_not(rule, unknown):
     """Maps that keep their losses in their nodes (``InfoLossMap.carried_by``) against maps
     with loss maps of their own, through exchanges, fusions on one and two threads and
     insertions: the same maps, and the same loss maps read before and after settling."""
+
     def run(carried: bool):
         maps = [random_map(s, o) for s, o in ((5, 0.0), (6, 0.3), (7, -0.2))]
-        losses = [InfoLossMap.carried_by(m) if carried else InfoLossMap(m.resolution)
-                  for m in maps]
+        losses = [InfoLossMap.carried_by(m) if carried else InfoLossMap(m.resolution) for m in maps]
         exchange_maps(maps[0], maps[1], rule, unknown, losses[0], losses[1])
         maps[2].insert_scans(random_scans(8, 6))
         fuse_into(maps[2], maps[0], rule, unknown, losses[2], threads=2)
@@ -432,8 +476,11 @@ def test_loss_map_carried_by_its_map_equals_one_that_is_not(rule, unknown):
     for m, pm, loss, pl in zip(maps, plain_maps, losses, plain_losses):
         read = _loss_bits(loss)  # read as settled, without settling
         assert read == _loss_bits(pl)
-        assert (loss.voxels_fused, loss.voxels_copied, loss.loss_sum) == \
-            (pl.voxels_fused, pl.voxels_copied, pl.loss_sum)
+        assert (loss.voxels_fused, loss.voxels_copied, loss.loss_sum) == (
+            pl.voxels_fused,
+            pl.voxels_copied,
+            pl.loss_sum,
+        )
         assert loss.num_leaves == pl.num_leaves  # settles
         assert _loss_bits(loss) == read
         assert_same_map(m, pm)

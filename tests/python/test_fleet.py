@@ -27,7 +27,6 @@ pytest.importorskip("zenoh")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli, voxel_keys  # noqa: E402
-
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FleetConfig, dump_yaml, from_dict  # noqa: E402
 from octofuse.fusion.channel_filter import add_into, clamped, open_map  # noqa: E402
@@ -46,13 +45,29 @@ def bag(tmp_path_factory):
 
 
 def test_a_lockstep_fleet_equals_run(bag, tmp_path, capsys):
-    options = [*SCHEDULE, "--rule", "chernoff,channel-filter,source-layers", "--delta",
-               "--loss", "0.25"]
-    code, _, err = run_cli(capsys, "run", bag, *options, "--samples", "0", "--out",
-                           tmp_path / "run")
+    options = [
+        *SCHEDULE,
+        "--rule",
+        "chernoff,channel-filter,source-layers",
+        "--delta",
+        "--loss",
+        "0.25",
+    ]
+    code, _, err = run_cli(
+        capsys, "run", bag, *options, "--samples", "0", "--out", tmp_path / "run"
+    )
     assert code == 0, err
-    code, text, err = run_cli(capsys, "fleet", bag, *options, "--lockstep", "--base-port",
-                              "17447", "--out", tmp_path / "fleet")
+    code, text, err = run_cli(
+        capsys,
+        "fleet",
+        bag,
+        *options,
+        "--lockstep",
+        "--base-port",
+        "17447",
+        "--out",
+        tmp_path / "fleet",
+    )
     assert code == 0, err
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     fleet = json.loads((tmp_path / "fleet" / "summary.json").read_text())
@@ -60,7 +75,14 @@ def test_a_lockstep_fleet_equals_run(bag, tmp_path, capsys):
         for a in ("a", "b", "c"):
             got = (tmp_path / "fleet" / rule / f"{a}.ot").read_bytes()
             assert got == (tmp_path / "run" / rule / f"{a}.ot").read_bytes(), (rule, a)
-        for key in ("kl_mean", "overconfidence", "agreement", "coverage", "loss_mean", "bytes_sent"):
+        for key in (
+            "kl_mean",
+            "overconfidence",
+            "agreement",
+            "coverage",
+            "loss_mean",
+            "bytes_sent",
+        ):
             assert fleet["mean"][rule][key] == run["mean"][rule][key], (rule, key)
     assert "octofuse fleet" in text
 
@@ -95,12 +117,27 @@ def assert_same_values(got: OccupancyMap, want: OccupancyMap, what: str) -> None
 def fleet_config(bag, tmp_path, **live) -> tuple[FleetConfig, Path]:
     from octofuse.live.fleet import resolved
 
-    cfg = from_dict(FleetConfig, {
-        "build": {"bags": [str(bag)], "map": {"resolution": float(RES)}},
-        "fuse": {"rules": ["channel-filter"], "topology": "line", "schedule": "periodic:0.2",
-                 "delta": True},
-        "live": {"speed": 2.0, "checkpoint_period": 0.4, "settle_rounds": 3,
-                 "base_port": 18447, "timeout": 60, **live}}, where="test")
+    cfg = from_dict(
+        FleetConfig,
+        {
+            "build": {"bags": [str(bag)], "map": {"resolution": float(RES)}},
+            "fuse": {
+                "rules": ["channel-filter"],
+                "topology": "line",
+                "schedule": "periodic:0.2",
+                "delta": True,
+            },
+            "live": {
+                "speed": 2.0,
+                "checkpoint_period": 0.4,
+                "settle_rounds": 3,
+                "base_port": 18447,
+                "timeout": 60,
+                **live,
+            },
+        },
+        where="test",
+    )
     cfg = resolved(cfg)
     path = tmp_path / "fleet.yaml"
     path.write_text(dump_yaml(cfg))
@@ -108,8 +145,17 @@ def fleet_config(bag, tmp_path, **live) -> tuple[FleetConfig, Path]:
 
 
 def start_agent(path: Path, name: str, out: Path, fresh: bool = True) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "octofuse", "agent", name, "--fleet", str(path), "--out",
-           str(out)] + (["--fresh"] if fresh else [])
+    cmd = [
+        sys.executable,
+        "-m",
+        "octofuse",
+        "agent",
+        name,
+        "--fleet",
+        str(path),
+        "--out",
+        str(out),
+    ] + (["--fresh"] if fresh else [])
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
 
@@ -120,19 +166,22 @@ def finish(procs: dict) -> None:
 
 
 @pytest.mark.slow
-def test_through_loss_duplicates_reordering_and_delay_the_channel_filter_stays_exact(
-        bag, tmp_path):
+def test_through_loss_duplicates_reordering_and_delay_the_channel_filter_stays_exact(bag, tmp_path):
     # small chunks: a message is several, each lost, repeated, held back or late on its own
-    cfg, path = fleet_config(bag, tmp_path, max_chunk_bytes=2048,
-                             faults={"loss": 0.3, "duplicate": 0.2, "reorder": 0.2,
-                                     "delay": 0.2, "seed": 4})
+    cfg, path = fleet_config(
+        bag,
+        tmp_path,
+        max_chunk_bytes=2048,
+        faults={"loss": 0.3, "duplicate": 0.2, "reorder": 0.2, "delay": 0.2, "seed": 4},
+    )
     out = tmp_path / "agents"
     finish({a.name: start_agent(path, a.name, out) for a in cfg.build.agents})
     want = exact_sum(bag)
     faults = {"lost": 0, "duplicated": 0, "reordered": 0, "delayed": 0}
     for a in cfg.build.agents:
-        assert_same_values(OccupancyMap.load(out / "channel-filter" / a.name / "fused.ot"), want,
-                           a.name)
+        assert_same_values(
+            OccupancyMap.load(out / "channel-filter" / a.name / "fused.ot"), want, a.name
+        )
         counts = json.loads((out / "channel-filter" / a.name / "counts.json").read_text())
         assert counts["chunks_refused"] == 0
         for k in faults:
@@ -199,18 +248,60 @@ def test_an_agent_fuses_only_well_formed_messages_of_its_neighbours(bag, tmp_pat
 
 def self_signed(folder: Path) -> dict:
     """A certificate authority and a certificate for localhost signed by it (openssl)."""
+
     def run(*args):
         subprocess.run(["openssl", *args], cwd=folder, check=True, capture_output=True)
 
-    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem",
-        "-days", "2", "-subj", "/CN=octofuse test authority")
-    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "key.pem", "-out", "req.csr",
-        "-subj", "/CN=localhost")
+    run(
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=octofuse test authority",
+    )
+    run(
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "key.pem",
+        "-out",
+        "req.csr",
+        "-subj",
+        "/CN=localhost",
+    )
     (folder / "ext.cnf").write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
-    run("x509", "-req", "-in", "req.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-        "-CAcreateserial", "-out", "cert.pem", "-days", "2", "-extfile", "ext.cnf")
-    return {"tls_root_ca": str(folder / "ca.pem"), "tls_certificate": str(folder / "cert.pem"),
-            "tls_private_key": str(folder / "key.pem")}
+    run(
+        "x509",
+        "-req",
+        "-in",
+        "req.csr",
+        "-CA",
+        "ca.pem",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-out",
+        "cert.pem",
+        "-days",
+        "2",
+        "-extfile",
+        "ext.cnf",
+    )
+    return {
+        "tls_root_ca": str(folder / "ca.pem"),
+        "tls_certificate": str(folder / "cert.pem"),
+        "tls_private_key": str(folder / "key.pem"),
+    }
 
 
 def test_agents_meet_over_tls_and_a_peer_without_it_does_not_get_in(tmp_path):
@@ -223,8 +314,17 @@ def test_agents_meet_over_tls_and_a_peer_without_it_does_not_get_in(tmp_path):
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed (make test installs it)")
     port = free_base_port(19447, 3)
-    live = from_dict(LiveConfig, {"fleet": "tls", "host": "localhost", "base_port": port,
-                                  "timeout": 20, **self_signed(tmp_path)}, where="test")
+    live = from_dict(
+        LiveConfig,
+        {
+            "fleet": "tls",
+            "host": "localhost",
+            "base_port": port,
+            "timeout": 20,
+            **self_signed(tmp_path),
+        },
+        where="test",
+    )
     a = ZenohTransport(live, "chernoff", "a", endpoint(live, 0), [])
     b = ZenohTransport(live, "chernoff", "b", endpoint(live, 1), [endpoint(live, 0)])
     plain = replace(live, tls_root_ca="", tls_certificate="", tls_private_key="")
@@ -253,8 +353,9 @@ def test_faults_lose_duplicate_reorder_and_cut_off_as_configured():
     from octofuse.live.faults import FaultyLinks
 
     sent = []
-    faults = FaultConfig(loss=0.2, duplicate=0.1, reorder=0.1, seed=1,
-                         partitions=[PartitionConfig(1.0, 2.0, ["a"])])
+    faults = FaultConfig(
+        loss=0.2, duplicate=0.1, reorder=0.1, seed=1, partitions=[PartitionConfig(1.0, 2.0, ["a"])]
+    )
     clock = [0.0]
     links = FaultyLinks(faults, "a", 0, lambda to, f: sent.append((to, f)), lambda: clock[0])
     frames = [bytes([k % 256, k // 256]) for k in range(2000)]
@@ -266,7 +367,8 @@ def test_faults_lose_duplicate_reorder_and_cut_off_as_configured():
     assert 0.15 < c["lost"] / len(frames) < 0.25 and c["duplicated"] > 100 and c["reordered"] > 100
     order = [frames.index(f) for _, f in sent]
     assert order != sorted(order) and set(order) == set(range(2000)) - {
-        k for k in range(2000) if frames[k] not in {f for _, f in sent}}
+        k for k in range(2000) if frames[k] not in {f for _, f in sent}
+    }
     clock[0] = 1.5  # a's partition: nothing leaves a, b's side is cut off
     sent.clear()
     links.send("b", b"x")
@@ -322,12 +424,37 @@ def test_agents_map_what_a_ros2_bridge_publishes_as_the_bag_would_give_it(bag, t
     path.write_text(dump_yaml(cfg))
     out = tmp_path / "agents"
     names = [a.name for a in cfg.build.agents]
-    procs = {n: subprocess.Popen(
-        [sys.executable, "-m", "octofuse", "agent", n, "--fleet", str(path), "--out", str(out),
-         "--from-zenoh", "pointcloud2", "--insert-mode", "exact", "--duration", "5"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for n in names}
-    bridge = ZenohTransport(cfg.live, "chernoff", "bridge", endpoint(cfg.live, 9),
-                            [endpoint(cfg.live, k) for k in range(len(names))])
+    procs = {
+        n: subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "octofuse",
+                "agent",
+                n,
+                "--fleet",
+                str(path),
+                "--out",
+                str(out),
+                "--from-zenoh",
+                "pointcloud2",
+                "--insert-mode",
+                "exact",
+                "--duration",
+                "5",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        for n in names
+    }
+    bridge = ZenohTransport(
+        cfg.live,
+        "chernoff",
+        "bridge",
+        endpoint(cfg.live, 9),
+        [endpoint(cfg.live, k) for k in range(len(names))],
+    )
     try:
         bridge.wait_for(names, 60)
         with AnyReader([Path(bag)]) as reader:

@@ -5,12 +5,20 @@ import math
 
 import numpy as np
 import pytest
+
 from bagfactory import ROOM, lidar_directions
 from conftest import finest_voxels
-
 from octofuse import OccupancyMap
-from octofuse.maps.frames import (check_rigid, common_resolution, fuse_map_files, invert,
-                                  matrix_pose, parse_frame, pose_matrix, prepare_maps)
+from octofuse.maps.frames import (
+    check_rigid,
+    common_resolution,
+    fuse_map_files,
+    invert,
+    matrix_pose,
+    parse_frame,
+    pose_matrix,
+    prepare_maps,
+)
 from octofuse.maps.tree_fusion import fuse_maps
 
 RES = 0.1
@@ -94,7 +102,10 @@ def test_inverse_right_angle_round_trip_is_exact(room):
 
 # -- general transforms ------------------------------------------------------------------------
 
-GENERAL = [pose_matrix(0.37, -0.21, 0.04, 0, 0, 0.3), pose_matrix(-0.5, 0.13, 0.0, 0.05, -0.03, 2.0)]
+GENERAL = [
+    pose_matrix(0.37, -0.21, 0.04, 0, 0, 0.3),
+    pose_matrix(-0.5, 0.13, 0.0, 0.05, -0.03, 2.0),
+]
 
 
 @pytest.mark.parametrize("T", GENERAL, ids=["yaw", "rpy"])
@@ -133,8 +144,9 @@ def test_unknown_stays_unknown_and_known_space_has_no_holes(room, T):
     assert np.isin(pack(neighbourhood(back)), known).any(axis=1).all()
     # every target voxel whose centre lands deep in known space (all neighbours known) has a value
     lo, hi = keys.min(axis=0) - 2, keys.max(axis=0) + 3
-    grid = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)], indexing="ij"),
-                    -1).reshape(-1, 3)
+    grid = np.stack(
+        np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)], indexing="ij"), -1
+    ).reshape(-1, 3)
     cand = np.unique(moved_keys(grid, T, RES, RES), axis=0)
     back = np.floor(((cand + 0.5) * RES - T[:3, 3]) @ T[:3, :3] / RES).astype(np.int64)
     inside = np.isin(pack(neighbourhood(back)), known).all(axis=1)
@@ -158,8 +170,9 @@ def test_coarser_resolution_is_max_of_occupied_else_mean_of_free(room):
     groups: dict = {}
     for k, v in voxels(room).items():
         groups.setdefault(tuple(np.floor_divide(k, 2)), []).append(v)
-    want = {k: (max(vs) if max(vs) > 0 else float(np.float32(np.mean(vs))))
-            for k, vs in groups.items()}
+    want = {
+        k: (max(vs) if max(vs) > 0 else float(np.float32(np.mean(vs)))) for k, vs in groups.items()
+    }
     assert set(out) == set(want)
     assert all(out[k] == pytest.approx(want[k], abs=1e-6) for k in want)
 
@@ -182,14 +195,17 @@ def test_empty_map_and_parameters_kept():
 # -- bad transforms ----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("T, match", [
-    (np.diag([2.0, 1, 1, 1]), "not a rigid transform.*orthonormal"),
-    (np.diag([1.0, 1, -1, 1]), "reflection"),
-    (np.eye(3), "4x4"),
-    ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0.5, 0, 1]], "last row"),
-    ([[1, 0.2, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "orthonormal"),
-    ("identity", "4x4"),
-])
+@pytest.mark.parametrize(
+    "T, match",
+    [
+        (np.diag([2.0, 1, 1, 1]), "not a rigid transform.*orthonormal"),
+        (np.diag([1.0, 1, -1, 1]), "reflection"),
+        (np.eye(3), "4x4"),
+        ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0.5, 0, 1]], "last row"),
+        ([[1, 0.2, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "orthonormal"),
+        ("identity", "4x4"),
+    ],
+)
 def test_bad_transform_is_refused(room, T, match):
     with pytest.raises(ValueError, match=match):
         room.transformed(T)
@@ -237,8 +253,13 @@ def test_parse_frame():
     assert name == "robot2"
     np.testing.assert_allclose(T[:3, 3], [1, 2, 0])
     assert T[0, 1] == -1.0 and T[0, 0] == 0.0
-    for bad, match in [("robot2", "NAME="), ("r=1,2", "6 numbers"), ("r=1,a,2,0,0,0", "6 numbers"), ("r=1,2,3", "got 3"),
-                       ("r=1,nan,2,0,0,0", "finite")]:
+    for bad, match in [
+        ("robot2", "NAME="),
+        ("r=1,2", "6 numbers"),
+        ("r=1,a,2,0,0,0", "6 numbers"),
+        ("r=1,2,3", "got 3"),
+        ("r=1,nan,2,0,0,0", "finite"),
+    ]:
         with pytest.raises(ValueError, match=match):
             parse_frame(bad)
 
@@ -273,11 +294,15 @@ def test_fuse_map_files_with_frames_and_one_loss_convention(tmp_path, room):
     room.save(tmp_path / "a.ot")
     b.transformed(invert(shift)).save(tmp_path / "b.ot")
     c.save(tmp_path / "c.ot")
-    fused, loss, stats = fuse_map_files([tmp_path / "a.ot", tmp_path / "b.ot", tmp_path / "c.ot"],
-                                        frames={"b": shift})
+    fused, loss, stats = fuse_map_files(
+        [tmp_path / "a.ot", tmp_path / "b.ot", tmp_path / "c.ot"], frames={"b": shift}
+    )
     want, _ = fuse_maps(fuse_maps(room, b).map, c.transformed(np.eye(4), RES))
     assert voxels(fused) == voxels(want)
-    assert stats.resolution == RES and stats.resampled == [str(tmp_path / "b.ot"), str(tmp_path / "c.ot")]
+    assert stats.resolution == RES and stats.resampled == [
+        str(tmp_path / "b.ot"),
+        str(tmp_path / "c.ot"),
+    ]
     # fused voxels: known to both sides of each fusion; copied: known to one side only
     ab = np.asarray(b.class_counts(room, 0.0)["confusion"])
     both_ab = int(ab[:2, :2].sum())
@@ -295,7 +320,9 @@ def test_fuse_map_files_errors(tmp_path, room):
     with pytest.raises(ValueError, match="unknown map 'c'"):
         fuse_map_files([tmp_path / "a.ot", tmp_path / "b.ot"], frames={"c": np.eye(4)})
     with pytest.raises(ValueError, match="frame of .*b.ot.*not a rigid"):
-        fuse_map_files([tmp_path / "a.ot", tmp_path / "b.ot"], frames=[None, np.diag([1, 1, 2, 1.0])])
+        fuse_map_files(
+            [tmp_path / "a.ot", tmp_path / "b.ot"], frames=[None, np.diag([1, 1, 2, 1.0])]
+        )
     with pytest.raises(ValueError, match="1 frames given for 2"):
         fuse_map_files([tmp_path / "a.ot", tmp_path / "b.ot"], frames=[None])
     with pytest.raises(FileNotFoundError):
@@ -304,8 +331,10 @@ def test_fuse_map_files_errors(tmp_path, room):
 
 # ------------------------------------------------------------------ point sampling ("nearest")
 
-ODD_MOVES = [pose_matrix(0.03, 0.02, 0.0, 0.0, 0.0, math.radians(3)),
-             pose_matrix(0.37, -0.21, 0.05, 0.02, -0.01, math.radians(-17))]
+ODD_MOVES = [
+    pose_matrix(0.03, 0.02, 0.0, 0.0, 0.0, math.radians(3)),
+    pose_matrix(0.37, -0.21, 0.05, 0.02, -0.01, math.radians(-17)),
+]
 
 
 @pytest.mark.parametrize("T", ODD_MOVES)
@@ -332,7 +361,8 @@ def test_nearest_keeps_surfaces_thin_when_moved_back_and_forth(room, T):
     for _ in range(4):
         vote = vote.transformed(T).transformed(invert(T))
         nearest = nearest.transformed(T, resampling="nearest").transformed(
-            invert(T), resampling="nearest")
+            invert(T), resampling="nearest"
+        )
     occ_v, known_v = counts(vote)
     occ_n, known_n = counts(nearest)
     assert occ_v > 1.5 * occ0  # occupied wins: surfaces thicken at every move

@@ -19,17 +19,17 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
+from bagfactory import PC2, SCAN, T0, TF, Recording, Robot, S  # noqa: E402
 from conftest import map_with_values  # noqa: E402,F401  (also for the campaign)
-from bagfactory import PC2, S, SCAN, T0, TF, Recording, Robot  # noqa: E402
 
 OCTOFUSE = Path(sys.executable).parent / "octofuse"
 MEMORY_LIMIT = 3 << 30  #: address space of a child, bytes
@@ -85,13 +85,16 @@ def _limits(fsize: int | None) -> Callable[[], None]:
         # as a user's shell would start it: a suite started in the background inherits an
         # ignored SIGINT, and Python then installs no KeyboardInterrupt for it
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+
     return apply
 
 
 def _started(pid: int, marker: str) -> bool:
     """Whether the child has opened a file whose path contains ``marker`` (it is past imports)."""
     try:
-        return any(marker in os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd"))
+        return any(
+            marker in os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd")
+        )
     except OSError:
         return False
 
@@ -107,11 +110,22 @@ def run_case(case: Case, cwd: Path) -> Outcome:
     env = {**os.environ, "COLUMNS": "200", "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
     env.pop("OCTOFUSE_DEBUG", None)
     t0 = time.monotonic()
-    p = subprocess.Popen(cmd, cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, env=env, preexec_fn=_limits(case.fsize))
+    p = subprocess.Popen(
+        cmd,
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+        preexec_fn=_limits(case.fsize),
+    )
     if case.sigint_after is not None:
         marker = case.argv[1] if len(case.argv) > 1 else ""
-        while time.monotonic() - t0 < case.timeout and p.poll() is None and not _started(p.pid, marker):
+        while (
+            time.monotonic() - t0 < case.timeout
+            and p.poll() is None
+            and not _started(p.pid, marker)
+        ):
             time.sleep(0.02)
         time.sleep(case.sigint_after)
         if p.poll() is None:
@@ -134,7 +148,11 @@ def run_case(case: Case, cwd: Path) -> Outcome:
         kind = "changed"
     elif rc == 0:
         kind = "ok"
-    elif rc == 2 and err.rstrip().splitlines()[-1:] and err.rstrip().splitlines()[-1].startswith("Error: "):
+    elif (
+        rc == 2
+        and err.rstrip().splitlines()[-1:]
+        and err.rstrip().splitlines()[-1].startswith("Error: ")
+    ):
         kind = "usage"  # click's usage block, its last line naming the bad argument
     elif len(err.splitlines()) != 1:
         kind = "messy"
@@ -149,7 +167,9 @@ def run_case(case: Case, cwd: Path) -> Outcome:
 
 def check(case: Case, outcome: Outcome) -> None:
     """Assert that ``outcome`` is what ``case`` expects."""
-    what = f"{case.name}: {outcome.kind} (exit {outcome.returncode}) stderr={outcome.stderr[-600:]!r}"
+    what = (
+        f"{case.name}: {outcome.kind} (exit {outcome.returncode}) stderr={outcome.stderr[-600:]!r}"
+    )
     allowed = {"clean", "usage"} if case.expect == "error" else {"clean", "usage", "ok"}
     assert outcome.kind in allowed, what
 
@@ -214,17 +234,25 @@ def _write_mcap(path: Path, records, ts) -> Path:
     return bare
 
 
-_PC2_FIELDS = ("uint32 width\nsensor_msgs/PointField[] fields\nbool is_bigendian\nuint32 point_step\n"
-               "uint32 row_step\nuint8[] data\nbool is_dense")
+_PC2_FIELDS = (
+    "uint32 width\nsensor_msgs/PointField[] fields\nbool is_bigendian\nuint32 point_step\n"
+    "uint32 row_step\nuint8[] data\nbool is_dense"
+)
 
 
 def _one_point_cloud(ts, **fields):
     pf = ts.types["sensor_msgs/msg/PointField"]
     data = np.frombuffer(np.array([1, 0, 0], np.float32).tobytes(), np.uint8).copy()
-    return ts.types[PC2](width=1, fields=[pf(name=n, offset=4 * i, datatype=7, count=1)
-                                          for i, n in enumerate("xyz")],
-                         is_bigendian=False, point_step=12, row_step=12, data=data, is_dense=True,
-                         **fields)
+    return ts.types[PC2](
+        width=1,
+        fields=[pf(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
+        is_bigendian=False,
+        point_step=12,
+        row_step=12,
+        data=data,
+        is_dense=True,
+        **fields,
+    )
 
 
 def _tf_records(robot: Robot):
@@ -238,19 +266,37 @@ def bag_lying_definition(root: Path, which: str) -> Path:
     robot = _robot()
     if which == "pc2_no_header":
         ts = _custom_store({PC2: "uint32 height\n" + _PC2_FIELDS})
-        recs = _tf_records(robot) + [(robot.topic, PC2, T0 + S, lambda ts: _one_point_cloud(ts, height=1))]
+        recs = _tf_records(robot) + [
+            (robot.topic, PC2, T0 + S, lambda ts: _one_point_cloud(ts, height=1))
+        ]
     elif which == "pc2_float_height":
         ts = _custom_store({PC2: "std_msgs/Header header\nfloat64 height\n" + _PC2_FIELDS})
-        recs = _tf_records(robot) + [(robot.topic, PC2, T0 + S, lambda ts: _one_point_cloud(
-            ts, header=bf.header(ts, T0 + S, robot.sensor_frame), height=math.inf))]
+        recs = _tf_records(robot) + [
+            (
+                robot.topic,
+                PC2,
+                T0 + S,
+                lambda ts: _one_point_cloud(
+                    ts, header=bf.header(ts, T0 + S, robot.sensor_frame), height=math.inf
+                ),
+            )
+        ]
     elif which == "tf_string_transform":
-        ts = _custom_store({"geometry_msgs/msg/TransformStamped":
-                            "std_msgs/Header header\nstring child_frame_id\nstring transform"})
+        ts = _custom_store(
+            {
+                "geometry_msgs/msg/TransformStamped": "std_msgs/Header header\nstring child_frame_id\nstring transform"
+            }
+        )
 
         def tf_str(ts):
             T = ts.types
-            return T[TF](transforms=[T["geometry_msgs/msg/TransformStamped"](
-                header=bf.header(ts, T0, "map"), child_frame_id="r1/odom", transform="x")])
+            return T[TF](
+                transforms=[
+                    T["geometry_msgs/msg/TransformStamped"](
+                        header=bf.header(ts, T0, "map"), child_frame_id="r1/odom", transform="x"
+                    )
+                ]
+            )
 
         scans = bf.robot_recording([robot], {"r1": SCAN_TIMES}).records
         recs = [r for r in scans if not r[0].startswith("/tf")] + [("/tf_static", TF, T0, tf_str)]
@@ -281,29 +327,52 @@ def bag_hostile_numbers(root: Path, which: str, name: str | None = None) -> Path
     elif which == "nan_angle":
         rec.records = [r for r in rec.records if r[1] != SCAN]
         for t in SCAN_TIMES:
+
             def build(ts, t=t):
                 return ts.types[SCAN](
-                    header=bf.header(ts, t, robot.sensor_frame), angle_min=0.0, angle_max=1.0,
-                    angle_increment=math.nan, time_increment=0.001, scan_time=0.1, range_min=0.1,
-                    range_max=10.0, ranges=np.full(20, 2.0, np.float32),
-                    intensities=np.zeros(20, np.float32))
+                    header=bf.header(ts, t, robot.sensor_frame),
+                    angle_min=0.0,
+                    angle_max=1.0,
+                    angle_increment=math.nan,
+                    time_increment=0.001,
+                    scan_time=0.1,
+                    range_min=0.1,
+                    range_max=10.0,
+                    ranges=np.full(20, 2.0, np.float32),
+                    intensities=np.zeros(20, np.float32),
+                )
+
             rec.add(robot.topic, SCAN, t + 1000, build)
     elif which in ("huge_points", "huge_ray"):
         rec.records = [r for r in rec.records if r[1] != PC2]
         value = 1e30 if which == "huge_points" else 3600.0
         for t in SCAN_TIMES:
+
             def build(ts, t=t):
                 pf = ts.types["sensor_msgs/msg/PointField"]
                 data = np.full((4, 3), value, np.float32).tobytes()
                 return ts.types[PC2](
-                    header=bf.header(ts, t, robot.sensor_frame), height=1, width=4,
-                    fields=[pf(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
-                    is_bigendian=False, point_step=12, row_step=48,
-                    data=np.frombuffer(data, np.uint8).copy(), is_dense=True)
+                    header=bf.header(ts, t, robot.sensor_frame),
+                    height=1,
+                    width=4,
+                    fields=[
+                        pf(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")
+                    ],
+                    is_bigendian=False,
+                    point_step=12,
+                    row_step=48,
+                    data=np.frombuffer(data, np.uint8).copy(),
+                    is_dense=True,
+                )
+
             rec.add(robot.topic, PC2, t + 1000, build)
         if which == "huge_ray":  # the sensor far out at (-1000, -1000, -1000)
-            rec.tf(T0, [("map", robot.odom_frame, bf.pose_matrix(-1000, -1000, -1000, 0))],
-                   static=True, log_ns=T0 + 1)
+            rec.tf(
+                T0,
+                [("map", robot.odom_frame, bf.pose_matrix(-1000, -1000, -1000, 0))],
+                static=True,
+                log_ns=T0 + 1,
+            )
     elif which == "huge_tf":
         rec.records = [r for r in rec.records if not (r[0] == "/tf")]
         for t in range(T0, T0 + 3 * S, S // 2):
@@ -344,8 +413,13 @@ def bt_all_inner(dst: Path, records: int) -> Path:
 
 def loss_file(dst: Path, value: float) -> Path:
     """An information-loss .npz of two voxels, the second with loss ``value``."""
-    np.savez(dst, centers=np.zeros((2, 3)), sizes=np.full(2, 0.1), values=np.array([0.5, value]),
-             depths=np.full(2, 16, np.uint8))
+    np.savez(
+        dst,
+        centers=np.zeros((2, 3)),
+        sizes=np.full(2, 0.1),
+        values=np.array([0.5, value]),
+        depths=np.full(2, 16, np.uint8),
+    )
     return dst
 
 
@@ -370,8 +444,12 @@ def work(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzz")
     w = {"root": root, "bag": good_bag(root), "team": team_bag(root), "maps": small_maps(root)}
     w["built"] = root / "built"
-    r = subprocess.run([str(OCTOFUSE), "build", str(w["bag"]), "--resolution", "0.1", "--out",
-                        str(w["built"])], capture_output=True, text=True, cwd=root)
+    r = subprocess.run(
+        [str(OCTOFUSE), "build", str(w["bag"]), "--resolution", "0.1", "--out", str(w["built"])],
+        capture_output=True,
+        text=True,
+        cwd=root,
+    )
     assert r.returncode == 0, r.stderr
     return w
 
@@ -380,9 +458,24 @@ def work(tmp_path_factory):
 def ran(work):
     """A finished ``run`` folder."""
     out = work["root"] / "ran"
-    r = subprocess.run([str(OCTOFUSE), "run", str(work["team"]), "--resolution", "0.1",
-                        "--topology", "ring", "--samples", "2", "--out", str(out)],
-                       capture_output=True, text=True, cwd=work["root"])
+    r = subprocess.run(
+        [
+            str(OCTOFUSE),
+            "run",
+            str(work["team"]),
+            "--resolution",
+            "0.1",
+            "--topology",
+            "ring",
+            "--samples",
+            "2",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=work["root"],
+    )
     assert r.returncode == 0, r.stderr
     return out
 
@@ -407,7 +500,6 @@ def _go_all(cases: list[Case], work) -> list[Outcome]:
             failures.append(str(err).splitlines()[0])
     assert not failures, "\n".join(failures)
     return outcomes
-
 
 
 # -- map files ----------------------------------------------------------------------------
@@ -436,17 +528,20 @@ def test_flipped_maps(work, suffix):
     _go_all(cases, work)
 
 
-@pytest.mark.parametrize("key,value", [
-    (b"size", b"0"),
-    (b"size", b"1e30"),
-    (b"size", b"inf"),
-    (b"size", b"18446744073709551616"),
-    (b"res", b"1e-30"),
-    (b"res", b"1e30"),
-    (b"id", b"OcTr\xffe"),
-    (b"res", b"nan"),
-    (b"size", b"-5"),
-])
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        (b"size", b"0"),
+        (b"size", b"1e30"),
+        (b"size", b"inf"),
+        (b"size", b"18446744073709551616"),
+        (b"res", b"1e-30"),
+        (b"res", b"1e30"),
+        (b"id", b"OcTr\xffe"),
+        (b"res", b"nan"),
+        (b"size", b"-5"),
+    ],
+)
 def test_map_header_values(work, key, value):
     dst = map_with_header(work["maps"][".ot"], work["root"] / "header.ot", key, value)
     outcome = _go(Case(f"header {key!r} {value!r}", ["info", str(dst)]), work)
@@ -471,8 +566,13 @@ def test_bt_every_node_inner(work):
 
 
 def _build(bag: Path, work, expect: str = "error", **kw) -> Outcome:
-    case = Case(f"build {bag.name}", ["build", str(bag), "--resolution", "0.1", "--out",
-                                      str(work["built"])], expect=expect, out=work["built"], **kw)
+    case = Case(
+        f"build {bag.name}",
+        ["build", str(bag), "--resolution", "0.1", "--out", str(work["built"])],
+        expect=expect,
+        out=work["built"],
+        **kw,
+    )
     return _go(case, work)
 
 
@@ -500,15 +600,26 @@ def test_nan_quaternion_sample_is_skipped(work, tmp_path):
     assert used >= 3
     assert len(notes) == 1 and "/tf" in notes[0] and "r1/base_link" in notes[0]
     assert "non-finite" in notes[0] and str(T0 + S) in notes[0]
-    _go(Case("nan quaternion", ["build", str(bag), "--resolution", "0.1", "--out",
-                                str(tmp_path / "maps")], expect="any"), work)
+    _go(
+        Case(
+            "nan quaternion",
+            ["build", str(bag), "--resolution", "0.1", "--out", str(tmp_path / "maps")],
+            expect="any",
+        ),
+        work,
+    )
     assert (tmp_path / "maps" / "r1.ot").is_file()
 
 
-@pytest.mark.parametrize("which,reason", [("nan_angle", "angle_increment"),
-                                          ("huge_points", "no valid points"),
-                                          ("huge_tf", "no scan"),
-                                          ("huge_ray", "no valid points")])
+@pytest.mark.parametrize(
+    "which,reason",
+    [
+        ("nan_angle", "angle_increment"),
+        ("huge_points", "no valid points"),
+        ("huge_tf", "no scan"),
+        ("huge_ray", "no valid points"),
+    ],
+)
 def test_unmappable_geometry(work, which, reason):
     bag = bag_hostile_numbers(work["root"], which)
     outcome = _build(bag, work)
@@ -521,9 +632,18 @@ def test_damaged_bags(work):
     size = bag.stat().st_size
     paths = [truncated(bag, work["root"] / f"cut{keep}.bag", keep) for keep in (0, 13, size // 3)]
     paths += [flipped(bag, work["root"] / f"flip{k}.bag", rng, 4, skip=64) for k in range(2)]
-    _go_all([Case(f"build {p.name}", ["build", str(p), "--resolution", "0.1", "--out",
-                                      str(work["built"])], expect="any" if "flip" in p.name else "error",
-                  out=work["built"]) for p in paths], work)
+    _go_all(
+        [
+            Case(
+                f"build {p.name}",
+                ["build", str(p), "--resolution", "0.1", "--out", str(work["built"])],
+                expect="any" if "flip" in p.name else "error",
+                out=work["built"],
+            )
+            for p in paths
+        ],
+        work,
+    )
 
 
 def test_special_files_as_bags(work):
@@ -548,31 +668,48 @@ API_CASES = {
     "nan resolution": "octofuse.OccupancyMap(float('nan'))",
     "tiny resolution": "octofuse.OccupancyMap(1e-30)",
     "huge resolution": "octofuse.OccupancyMap(1e30)",
-    "long ray": ("octofuse.OccupancyMap(0.05).insert_scan(np.array([[1600., 1600, 1600]]), "
-                 "[-1600, -1600, -1600])"),
-    "long fine ray": ("octofuse.OccupancyMap(0.005).insert_scan(np.array([[100., 100, 100]]), "
-                      "[-100, -100, -100])"),
+    "long ray": (
+        "octofuse.OccupancyMap(0.05).insert_scan(np.array([[1600., 1600, 1600]]), "
+        "[-1600, -1600, -1600])"
+    ),
+    "long fine ray": (
+        "octofuse.OccupancyMap(0.005).insert_scan(np.array([[100., 100, 100]]), [-100, -100, -100])"
+    ),
     # rays whose float length is 0 but which end across a voxel face from the origin
-    "tiny max_range": ("octofuse.OccupancyMap(0.1).insert_scan(np.array([[-1.0, -1.0, 0.0]]), "
-                       "[0, 0, 0], 1e-30)"),
-    "tiny max_range, OctoMap's path": ("octofuse.OccupancyMap(0.1).insert_scan_from_sensor("
-                                       "np.array([[-1.0, -1.0, 0.0]]), np.eye(4), 1e-30)"),
-    "point beside the origin": ("octofuse.OccupancyMap(0.1).insert_scan("
-                                "np.array([[-1e-30, -1e-30, 0.0]]), [0, 0, 0])"),
+    "tiny max_range": (
+        "octofuse.OccupancyMap(0.1).insert_scan(np.array([[-1.0, -1.0, 0.0]]), [0, 0, 0], 1e-30)"
+    ),
+    "tiny max_range, OctoMap's path": (
+        "octofuse.OccupancyMap(0.1).insert_scan_from_sensor("
+        "np.array([[-1.0, -1.0, 0.0]]), np.eye(4), 1e-30)"
+    ),
+    "point beside the origin": (
+        "octofuse.OccupancyMap(0.1).insert_scan(np.array([[-1e-30, -1e-30, 0.0]]), [0, 0, 0])"
+    ),
     # beliefs: sizes beyond any machine, numbers that overflow, contracts of the arguments
-    "huge mixtures": ("from octofuse.beliefs.mixture import GaussianMixture as G\n"
-                      "g = G(np.ones(3000), np.arange(3000.0)[:, None], np.ones((3000, 1, 1)))\n"
-                      "octofuse.fuse_mixtures(g, g)"),
-    "huge sample count": ("from octofuse.beliefs.mixture import GaussianMixture as G\n"
-                          "g = G.gaussian([0.0], [[1.0]])\n"
-                          "octofuse.fuse_mixtures(g, g, n_samples=10**13)"),
-    "tiny measured range": ("from octofuse.beliefs.expoly import ExPoly2D\n"
-                            "ExPoly2D.range_likelihood([0, 0], 1e-200, a=1.0)"),
-    "mixture dict without covariances": ("from octofuse.beliefs.mixture import GaussianMixture\n"
-                                         "GaussianMixture.from_dict({'weights': [1], 'means': [[0]]})"),
-    "overflowing moments": ("from octofuse.beliefs.mixture import GaussianMixture\n"
-                            "GaussianMixture([.5, .5], [[1e308, 0], [-1e308, 0]], "
-                            "[np.eye(2)] * 2).moments()"),
+    "huge mixtures": (
+        "from octofuse.beliefs.mixture import GaussianMixture as G\n"
+        "g = G(np.ones(3000), np.arange(3000.0)[:, None], np.ones((3000, 1, 1)))\n"
+        "octofuse.fuse_mixtures(g, g)"
+    ),
+    "huge sample count": (
+        "from octofuse.beliefs.mixture import GaussianMixture as G\n"
+        "g = G.gaussian([0.0], [[1.0]])\n"
+        "octofuse.fuse_mixtures(g, g, n_samples=10**13)"
+    ),
+    "tiny measured range": (
+        "from octofuse.beliefs.expoly import ExPoly2D\n"
+        "ExPoly2D.range_likelihood([0, 0], 1e-200, a=1.0)"
+    ),
+    "mixture dict without covariances": (
+        "from octofuse.beliefs.mixture import GaussianMixture\n"
+        "GaussianMixture.from_dict({'weights': [1], 'means': [[0]]})"
+    ),
+    "overflowing moments": (
+        "from octofuse.beliefs.mixture import GaussianMixture\n"
+        "GaussianMixture([.5, .5], [[1e308, 0], [-1e308, 0]], "
+        "[np.eye(2)] * 2).moments()"
+    ),
 }
 
 
@@ -586,9 +723,24 @@ def test_api_numbers(work, name):
 
 def test_runaway_schedules(work, ran):
     for spec in ("aperiodic:1e-9", "periodic:1e-6"):
-        outcome = _go(Case(f"schedule {spec}", ["run", str(work["team"]), "--topology", "ring",
-                                                "--schedule", spec, "--out", str(ran)],
-                           out=ran, timeout=30), work)
+        outcome = _go(
+            Case(
+                f"schedule {spec}",
+                [
+                    "run",
+                    str(work["team"]),
+                    "--topology",
+                    "ring",
+                    "--schedule",
+                    spec,
+                    "--out",
+                    str(ran),
+                ],
+                out=ran,
+                timeout=30,
+            ),
+            work,
+        )
         assert "exchanges" in outcome.stderr
 
 
@@ -609,20 +761,35 @@ def test_hostile_arguments(work):
     cases = []
     for argv in HOSTILE_ARGUMENTS:
         argv = [a.format(built=work["built"], bag=work["bag"], root=work["root"]) for a in argv]
-        cases.append(Case(" ".join(argv[:4]), argv, expect="any" if "--max-range" in argv else "error",
-                          out=work["built"]))
+        cases.append(
+            Case(
+                " ".join(argv[:4]),
+                argv,
+                expect="any" if "--max-range" in argv else "error",
+                out=work["built"],
+            )
+        )
     _go_all(cases, work)
 
 
 HOSTILE_CONFIGS = [
-    b"build:\n  scan_stride: '2'\n", b"build:\n  max_range: far\n", b"build:\n  map:\n    clamping: 5\n",
-    b"build:\n  fixed_frame: 5\n", b"fuse:\n  rules: 5\n", b"build:\n  threads: two\n",
-    b"build:\n  threads: -1\n", b"build:\n  map:\n    resolution: [1, 2]\n",
-    b"build:\n  agents:\n    - name: a\n", b"build:\n  threads: 100000\n",
-    b"build: [\n", b"build:\n  scan_stride: \xff\n", b"\x00\x01\x02", b"- 1\n- 2\n",
-    b"build:\n  map:\n    resolution: 1e-30\n", b"build:\n  bags: 5\n",
+    b"build:\n  scan_stride: '2'\n",
+    b"build:\n  max_range: far\n",
+    b"build:\n  map:\n    clamping: 5\n",
+    b"build:\n  fixed_frame: 5\n",
+    b"fuse:\n  rules: 5\n",
+    b"build:\n  threads: two\n",
+    b"build:\n  threads: -1\n",
+    b"build:\n  map:\n    resolution: [1, 2]\n",
+    b"build:\n  agents:\n    - name: a\n",
+    b"build:\n  threads: 100000\n",
+    b"build: [\n",
+    b"build:\n  scan_stride: \xff\n",
+    b"\x00\x01\x02",
+    b"- 1\n- 2\n",
+    b"build:\n  map:\n    resolution: 1e-30\n",
+    b"build:\n  bags: 5\n",
 ]
-
 
 
 def test_hostile_configs(work):
@@ -630,8 +797,13 @@ def test_hostile_configs(work):
     for k, text in enumerate(HOSTILE_CONFIGS):
         cfg = work["root"] / f"hostile{k}.yaml"
         cfg.write_bytes(text)
-        cases.append(Case(f"config {text[:30]!r}", ["build", str(work["bag"]), "--config", str(cfg),
-                                                    "--out", str(work["built"])], out=work["built"]))
+        cases.append(
+            Case(
+                f"config {text[:30]!r}",
+                ["build", str(work["bag"]), "--config", str(cfg), "--out", str(work["built"])],
+                out=work["built"],
+            )
+        )
     for k, outcome in enumerate(_go_all(cases, work)):
         assert f"hostile{k}.yaml" in outcome.stderr or "options" in outcome.stderr, outcome
 
@@ -642,24 +814,48 @@ def test_hostile_configs(work):
 def test_sigint_keeps_outputs(work, ran):
     # the bundled lab: a run of many seconds, so that the interruption lands inside it
     lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
-    case = Case("SIGINT in run", ["run", str(lab8), "--topology", "ring", "--samples", "2",
-                                  "--resolution", "0.1", "--out", str(ran)],
-                out=ran, sigint_after=0.3, exit_code=130)
+    case = Case(
+        "SIGINT in run",
+        [
+            "run",
+            str(lab8),
+            "--topology",
+            "ring",
+            "--samples",
+            "2",
+            "--resolution",
+            "0.1",
+            "--out",
+            str(ran),
+        ],
+        out=ran,
+        sigint_after=0.3,
+        exit_code=130,
+    )
     outcome = run_case(case, work["root"])
     # click writes an empty line before its Abort, hence strip()
     assert outcome.returncode == 130 and outcome.kind in ("clean", "messy"), outcome
     assert outcome.stderr.strip() == "error: interrupted"
 
 
-@pytest.mark.parametrize("value,expect", [(-1e38, "warning"), (100.0, "warning"), (-100.0, "warning"),
-                                          (1e-40, "subnormal")])
+@pytest.mark.parametrize(
+    "value,expect",
+    [(-1e38, "warning"), (100.0, "warning"), (-100.0, "warning"), (1e-40, "subnormal")],
+)
 def test_map_values_no_clamping_produces(work, tmp_path, value, expect):
     src = map_with_values(work["maps"][".ot"], tmp_path / "odd.ot", [value, value])
     out = tmp_path / "kept"
     out.mkdir()
     (out / "cloud.ply").write_bytes(b"earlier")
-    outcome = run_case(Case("map values", ["export", str(src), "--out", str(out / "cloud.ply")],
-                            out=out, expect="any"), work["root"])
+    outcome = run_case(
+        Case(
+            "map values",
+            ["export", str(src), "--out", str(out / "cloud.ply")],
+            out=out,
+            expect="any",
+        ),
+        work["root"],
+    )
     assert str(src) in outcome.stderr and expect in outcome.stderr, outcome
     assert outcome.kind == ("ok" if expect == "warning" else "clean"), outcome
 
@@ -673,9 +869,25 @@ def test_loss_files_with_impossible_losses(work, tmp_path, value):
 
 def test_sigterm_keeps_outputs(work, ran):
     lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
-    case = Case("SIGTERM in run", ["run", str(lab8), "--topology", "ring", "--samples", "2",
-                                   "--resolution", "0.1", "--out", str(ran)],
-                out=ran, sigint_after=0.3, stop_signal=signal.SIGTERM, exit_code=143)
+    case = Case(
+        "SIGTERM in run",
+        [
+            "run",
+            str(lab8),
+            "--topology",
+            "ring",
+            "--samples",
+            "2",
+            "--resolution",
+            "0.1",
+            "--out",
+            str(ran),
+        ],
+        out=ran,
+        sigint_after=0.3,
+        stop_signal=signal.SIGTERM,
+        exit_code=143,
+    )
     outcome = run_case(case, work["root"])
     assert outcome.returncode == 143 and outcome.kind in ("clean", "messy"), outcome
     assert outcome.stderr.strip() == "error: terminated"
@@ -686,10 +898,14 @@ def test_sigint_while_importing_is_one_line(work, tmp_path):
     """Ctrl-C once the interpreter is up, while the program still imports (numpy loaded, the
     command line not yet): one line, exit code 130, nothing written."""
     out = tmp_path / "never"
-    p = subprocess.Popen([str(OCTOFUSE), "run", str(work["team"]), "--out", str(out)],
-                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, preexec_fn=_limits(None),
-                         env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    p = subprocess.Popen(
+        [str(OCTOFUSE), "run", str(work["team"]), "--out", str(out)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        preexec_fn=_limits(None),
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
+    )
     t0 = time.monotonic()
     while p.poll() is None and time.monotonic() - t0 < TIME_LIMIT:
         try:
@@ -706,12 +922,35 @@ def test_sigint_while_importing_is_one_line(work, tmp_path):
 
 def test_full_disk(work, ran):
     fsize = 30000
-    _go(Case("build with fsize 1000", ["build", str(work["bag"]), "--resolution", "0.1", "--out",
-                                       str(work["built"])], out=work["built"], fsize=1000), work)
+    _go(
+        Case(
+            "build with fsize 1000",
+            ["build", str(work["bag"]), "--resolution", "0.1", "--out", str(work["built"])],
+            out=work["built"],
+            fsize=1000,
+        ),
+        work,
+    )
     for argv, out in (
-        (["run", str(work["team"]), "--topology", "ring", "--samples", "2", "--resolution", "0.1",
-          "--out", str(ran)], ran),
-        (["build", str(work["bag"]), "--resolution", "0.1", "--out", str(work["built"])], work["built"]),
+        (
+            [
+                "run",
+                str(work["team"]),
+                "--topology",
+                "ring",
+                "--samples",
+                "2",
+                "--resolution",
+                "0.1",
+                "--out",
+                str(ran),
+            ],
+            ran,
+        ),
+        (
+            ["build", str(work["bag"]), "--resolution", "0.1", "--out", str(work["built"])],
+            work["built"],
+        ),
         (["export", str(ran / "centralized.ot"), "--out", str(ran / "cloud.pcd")], ran),
     ):
         outcome = _go(Case(f"{argv[0]} with fsize {fsize}", argv, out=out, fsize=fsize), work)

@@ -5,12 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-
-
-
+import graph_checks  # noqa: E402
 from octofuse.fusion import graph  # noqa: E402
 
-import graph_checks  # noqa: E402
 make_graph = graph.make_graph
 Graph = graph.Graph
 
@@ -73,8 +70,12 @@ def test_known_shapes():
 def test_paper_network_h38():
     g = make_graph("max-robust:3", 8)
     # the Wagner graph: an 8-cycle plus its four diameters
-    assert g.edges == tuple(sorted([(i, (i + 1) % 8) if i < 7 else (0, 7) for i in range(8)]
-                                   + [(i, i + 4) for i in range(4)]))
+    assert g.edges == tuple(
+        sorted(
+            [(i, (i + 1) % 8) if i < 7 else (0, 7) for i in range(8)]
+            + [(i, i + 4) for i in range(4)]
+        )
+    )
     assert g.degrees() == (3,) * 8
     assert connectivities(g) == (3, 3)
     ecc = graph_checks.eccentricities(g)
@@ -108,7 +109,12 @@ def test_max_robust_connectivity_small_exhaustive(n):
 def test_max_robust_connectivity_property(n_k):
     n, k = n_k
     g = make_graph(f"max-robust:{k}", n)
-    assert graph_checks.node_connectivity(g) == graph_checks.edge_connectivity(g) == min(g.degrees()) == k
+    assert (
+        graph_checks.node_connectivity(g)
+        == graph_checks.edge_connectivity(g)
+        == min(g.degrees())
+        == k
+    )
     assert g.n_edges == -(-k * n // 2)
 
 
@@ -157,7 +163,9 @@ def test_edge_list_file_with_indices_only(tmp_path):
 
 def test_yaml_file_names(tmp_path):
     f = tmp_path / "net.yaml"
-    f.write_text("nodes: [alpha, bravo, charlie, delta]\nedges: [[alpha, bravo], [bravo, charlie], [delta, alpha], [charlie, 3]]\n")
+    f.write_text(
+        "nodes: [alpha, bravo, charlie, delta]\nedges: [[alpha, bravo], [bravo, charlie], [delta, alpha], [charlie, 3]]\n"
+    )
     g = make_graph(str(f), 4, names=NAMES)
     assert g.edges == ((0, 1), (0, 3), (1, 2), (2, 3))
     # without agent names the file's node list names them, in order
@@ -167,8 +175,13 @@ def test_yaml_file_names(tmp_path):
     h = make_graph(str(f), 4, names=shuffled)
     assert h.edges == ((0, 3), (1, 2), (1, 3), (2, 3))  # 3 is an agent index: alpha here
     assert {frozenset((h.label(a), h.label(b))) for a, b in h.edges} == {
-        frozenset(p) for p in [("alpha", "bravo"), ("bravo", "charlie"), ("delta", "alpha"),
-                               ("charlie", "alpha")]
+        frozenset(p)
+        for p in [
+            ("alpha", "bravo"),
+            ("bravo", "charlie"),
+            ("delta", "alpha"),
+            ("charlie", "alpha"),
+        ]
     }
 
 
@@ -181,15 +194,35 @@ def test_yaml_without_nodes(tmp_path):
 @pytest.mark.parametrize(
     "suffix, text, names, expected",
     [
-        (".txt", "alpha bravo\nbravo echo\n", NAMES, ["'echo'", "known names: alpha, bravo, charlie, delta"]),
+        (
+            ".txt",
+            "alpha bravo\nbravo echo\n",
+            NAMES,
+            ["'echo'", "known names: alpha, bravo, charlie, delta"],
+        ),
         (".txt", "alpha bravo\n", None, ["'alpha'", "no agent names were given"]),
         (".txt", "0 1\n1 7\n", None, ["'7'", "0..3"]),
         (".txt", "alpha bravo\nbravo bravo\n", NAMES, [":2", "self-loop"]),
         (".txt", "alpha bravo\nbravo alpha\n", NAMES, [":2", "duplicate edge", ":1"]),
         (".txt", "alpha bravo charlie\n", NAMES, [":1", "expected two nodes"]),
-        (".txt", "alpha bravo\ncharlie delta\n", NAMES, ["disconnected", "{charlie, delta}", "cut off from node alpha"]),
-        (".yaml", "nodes: [alpha, bravo]\nedges: [[alpha, bravo]]\n", NAMES, ["does not list the agents charlie, delta"]),
-        (".yaml", "nodes: [a, b, c]\nedges: [[a, b], [b, c]]\n", None, ["declares 3 nodes but n=4"]),
+        (
+            ".txt",
+            "alpha bravo\ncharlie delta\n",
+            NAMES,
+            ["disconnected", "{charlie, delta}", "cut off from node alpha"],
+        ),
+        (
+            ".yaml",
+            "nodes: [alpha, bravo]\nedges: [[alpha, bravo]]\n",
+            NAMES,
+            ["does not list the agents charlie, delta"],
+        ),
+        (
+            ".yaml",
+            "nodes: [a, b, c]\nedges: [[a, b], [b, c]]\n",
+            None,
+            ["declares 3 nodes but n=4"],
+        ),
         (".yaml", "edges: [[alpha, bravo, charlie]]\n", NAMES, ["edges[0] must be a pair"]),
         (".yaml", "edge: [[alpha, bravo]]\n", NAMES, ["'edges"]),
         (".yaml", "edges: [[alpha, bravo]]\nnode: [alpha]\n", NAMES, ["unknown keys ['node']"]),
@@ -218,7 +251,11 @@ def test_missing_file(tmp_path):
 @pytest.mark.parametrize(
     "spec, n, expected",
     [
-        ("torus", 8, "unknown topology 'torus'; valid: ring, line, star, complete, grid, random:P, max-robust:K"),
+        (
+            "torus",
+            8,
+            "unknown topology 'torus'; valid: ring, line, star, complete, grid, random:P, max-robust:K",
+        ),
         ("ring:3", 8, "takes no parameter"),
         ("complete:1", 8, "takes no parameter"),
         ("max-robust:8", 8, "K < n, got K=8 with n=8; the most connected is max-robust:7"),
@@ -274,16 +311,23 @@ def test_graph_normalises_and_is_immutable():
     with pytest.raises(dataclasses.FrozenInstanceError):
         g.n = 5
     assert Graph(**g.to_dict()) == g
-    assert g.to_dict() == {"n": 4, "names": ["a", "b", "c", "d"],
-                           "edges": [[0, 1], [1, 2], [2, 3]], "spec": ""}
+    assert g.to_dict() == {
+        "n": 4,
+        "names": ["a", "b", "c", "d"],
+        "edges": [[0, 1], [1, 2], [2, 3]],
+        "spec": "",
+    }
     m = g.adjacency_matrix()
     assert (m == m.T).all() and m.sum(axis=1).tolist() == list(g.degrees())
 
 
 @pytest.mark.parametrize(
     "edges, expected",
-    [([(0, 0)], "self-loop on node 0"), ([(0, 1), (1, 0)], r"duplicate edge \(0, 1\)"),
-     ([(0, 3)], "outside 0..2")],
+    [
+        ([(0, 0)], "self-loop on node 0"),
+        ([(0, 1), (1, 0)], r"duplicate edge \(0, 1\)"),
+        ([(0, 3)], "outside 0..2"),
+    ],
 )
 def test_graph_rejects_bad_edges(edges, expected):
     with pytest.raises(ValueError, match=expected):
@@ -305,6 +349,7 @@ def test_disconnected_graph_properties():
 
 def _brute_connectivity(n, edges):
     """Node and edge connectivity straight from the definitions (fine for n <= 8)."""
+
     def connected(nodes, edge_list):
         nodes = set(nodes)
         seen, stack = {min(nodes)}, [min(nodes)]
@@ -323,22 +368,30 @@ def _brute_connectivity(n, edges):
         kappa = n - 1
     else:  # the smallest node set whose removal leaves a disconnected graph
         kappa = next(
-            size for size in range(n) for cut in itertools.combinations(range(n), size)
-            if not connected(set(range(n)) - set(cut),
-                             [e for e in edges if e[0] not in cut and e[1] not in cut])
+            size
+            for size in range(n)
+            for cut in itertools.combinations(range(n), size)
+            if not connected(
+                set(range(n)) - set(cut), [e for e in edges if e[0] not in cut and e[1] not in cut]
+            )
         )
     # the smallest number of edges across a split of the nodes into two non-empty sides
     lam = min(
         sum((a in side) != (b in side) for a, b in edges)
-        for size in range(1, n) for side in map(set, itertools.combinations(range(n), size))
+        for size in range(1, n)
+        for side in map(set, itertools.combinations(range(n), size))
     )
     return kappa, lam
 
 
 @SETTINGS
-@given(st.integers(2, 8).flatmap(
-    lambda n: st.tuples(st.just(n), st.sets(st.sampled_from(list(itertools.combinations(range(n), 2)))))
-))
+@given(
+    st.integers(2, 8).flatmap(
+        lambda n: st.tuples(
+            st.just(n), st.sets(st.sampled_from(list(itertools.combinations(range(n), 2))))
+        )
+    )
+)
 def test_connectivity_matches_brute_force(n_edges):
     n, edges = n_edges
     edges = sorted(edges)

@@ -2,17 +2,20 @@
 
 import numpy as np
 import pytest
-from test_frames import SENSORS, room_map
 
 from octofuse.maps.tree_fusion import fuse_maps
 from octofuse.outputs.clouds import read_cloud
 from octofuse.outputs.export import shared_color_range, write_heatmap
+from test_frames import SENSORS, room_map
 
 
 @pytest.fixture(scope="module")
 def fused():
     a, b = room_map(SENSORS[:2]), room_map(SENSORS[1:])
-    return {rule: fuse_maps(a, b, rule=rule) for rule in ("min-info-loss", "naive-bayes", "bhattacharyya")}
+    return {
+        rule: fuse_maps(a, b, rule=rule)
+        for rule in ("min-info-loss", "naive-bayes", "bhattacharyya")
+    }
 
 
 def test_occupied_voxels_by_default_with_occupancy_fields(fused, tmp_path):
@@ -46,9 +49,16 @@ def test_shared_range_crop_slice_and_colour_bar(fused, tmp_path):
     lo, hi = shared_color_range([loss for _, loss in fused.values()])
     assert lo == 0.0 and hi > 0
     for rule, (m, loss) in fused.items():
-        write_heatmap(loss, tmp_path / f"{rule}.ply", map=m, vmin=lo, vmax=hi,
-                      colorbar=tmp_path / "bar.png", crop=((-3, -2, -0.2), (0, 2, 2.5)),
-                      z_range=(0.0, 1.0))
+        write_heatmap(
+            loss,
+            tmp_path / f"{rule}.ply",
+            map=m,
+            vmin=lo,
+            vmax=hi,
+            colorbar=tmp_path / "bar.png",
+            crop=((-3, -2, -0.2), (0, 2, 2.5)),
+            z_range=(0.0, 1.0),
+        )
         c = read_cloud(tmp_path / f"{rule}.ply")
         assert (c["positions"][:, 0] <= 0).all() and (c["positions"][:, 2] <= 1.0).all()
     assert (tmp_path / "bar.png").read_bytes()[:4] == b"\x89PNG"

@@ -20,7 +20,6 @@ from octofuse.config import BuildConfig
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.bags import BagSet
 from octofuse.scans.decode import pointcloud2_to_xyz
-
 from test_fast_paths import assert_same_map, random_scans, warehouse_scans  # noqa: E402
 
 #: the bound the fast mode is held to against the exact mode
@@ -46,8 +45,9 @@ def both_modes(scans, max_range=-1.0, **fast):
 @pytest.mark.parametrize("max_range", [-1.0, 2.0])
 def test_single_rays_give_the_exact_map(max_range):
     rng = np.random.default_rng(4)
-    scans = [(origin + rng.normal(size=(1, 3)) * 3.0, origin)
-             for origin in rng.uniform(-1, 1, (40, 3))]
+    scans = [
+        (origin + rng.normal(size=(1, 3)) * 3.0, origin) for origin in rng.uniform(-1, 1, (40, 3))
+    ]
     exact, fast = both_modes(scans, max_range)
     assert_same_map(fast, exact)
 
@@ -82,8 +82,9 @@ def test_end_points_occupied_once_and_duplicates_merged():
     np.testing.assert_allclose(occ.values, hit, rtol=1e-6)  # one hit each, in a fresh map
     exact = OccupancyMap(0.1)
     exact.insert_scan(pts, origin)
-    np.testing.assert_array_equal(np.unique(occ.centers, axis=0),
-                                  np.unique(exact.leaves("occupied").centers, axis=0))
+    np.testing.assert_array_equal(
+        np.unique(occ.centers, axis=0), np.unique(exact.leaves("occupied").centers, axis=0)
+    )
 
 
 def test_values_stay_clamped_and_free_space_saturates():

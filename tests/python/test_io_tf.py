@@ -196,8 +196,9 @@ def test_samples_out_of_order_and_duplicates():
     buf.add_transforms("a", "b", [4 * S], [[4, 0, 0]], [[0, 0, 0, 1.0]])
     buf.add_transform("a", "b", 5 * S, [5, 0, 0], [0, 0, 0, 3.0])
     np.testing.assert_array_equal(buf.lookup("a", "b", 4 * S)[:3, 3], [4, 0, 0])
-    np.testing.assert_array_equal(buf.lookup("a", "b", 5 * S), [[1, 0, 0, 5], [0, 1, 0, 0],
-                                                                [0, 0, 1, 0], [0, 0, 0, 1]])
+    np.testing.assert_array_equal(
+        buf.lookup("a", "b", 5 * S), [[1, 0, 0, 5], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    )
 
 
 @pytest.mark.parametrize("store", [Stores.ROS1_NOETIC, Stores.LATEST], ids=["ros1", "ros2"])

@@ -3,18 +3,30 @@
 import numpy as np
 import pytest
 
-from octofuse.maps.landmarks import Landmarks, associate, extract_landmarks, map_offset, offsets_to_reference
+from octofuse.maps.landmarks import (
+    Landmarks,
+    associate,
+    extract_landmarks,
+    map_offset,
+    offsets_to_reference,
+)
 
 RES = 0.05
 #: (centre x, centre y, size x, size y, height) of boxes standing on the floor
-BOXES = [(1.0, 1.0, 0.30, 0.20, 0.20), (2.5, 1.5, 0.60, 0.50, 0.25), (1.5, 3.0, 0.24, 0.06, 0.15),
-         (3.2, 3.4, 0.40, 0.40, 0.10)]
+BOXES = [
+    (1.0, 1.0, 0.30, 0.20, 0.20),
+    (2.5, 1.5, 0.60, 0.50, 0.25),
+    (1.5, 3.0, 0.24, 0.06, 0.15),
+    (3.2, 3.4, 0.40, 0.40, 0.10),
+]
 
 
 def box_surface(cx, cy, sx, sy, h, step=0.01):
     """Points on the sides and top of a box standing on the floor."""
-    xs, ys, zs = (np.arange(lo, hi + 1e-9, step) for lo, hi in
-                  ((cx - sx / 2, cx + sx / 2), (cy - sy / 2, cy + sy / 2), (0.0, h)))
+    xs, ys, zs = (
+        np.arange(lo, hi + 1e-9, step)
+        for lo, hi in ((cx - sx / 2, cx + sx / 2), (cy - sy / 2, cy + sy / 2), (0.0, h))
+    )
     pts = []
     for x in (xs[0], xs[-1]):
         pts.append(np.stack(np.meshgrid([x], ys, zs, indexing="ij"), -1).reshape(-1, 3))
@@ -27,10 +39,12 @@ def box_surface(cx, cy, sx, sy, h, step=0.01):
 def scene_points(dx=0.0, dy=0.0, yaw=0.0):
     """Floor, a long wall and the boxes, as a robot with map error (dx, dy, yaw) about the origin
     would map them."""
-    floor = np.stack(np.meshgrid(np.arange(0, 4, 0.04), np.arange(0, 4, 0.04), [-0.01], indexing="ij"),
-                     -1).reshape(-1, 3)
-    wall = np.stack(np.meshgrid(np.arange(0, 4, 0.02), [4.0], np.arange(0, 0.6, 0.02), indexing="ij"),
-                    -1).reshape(-1, 3)
+    floor = np.stack(
+        np.meshgrid(np.arange(0, 4, 0.04), np.arange(0, 4, 0.04), [-0.01], indexing="ij"), -1
+    ).reshape(-1, 3)
+    wall = np.stack(
+        np.meshgrid(np.arange(0, 4, 0.02), [4.0], np.arange(0, 0.6, 0.02), indexing="ij"), -1
+    ).reshape(-1, 3)
     pts = np.concatenate([floor, wall] + [box_surface(*b) for b in BOXES])
     c, s = np.cos(yaw), np.sin(yaw)
     xy = pts[:, :2] @ np.array([[c, -s], [s, c]]).T + [dx, dy]
@@ -44,8 +58,12 @@ def leaves_of(points, coarse_free=True):
     sizes = np.full(len(keys), RES)
     values = np.full(len(keys), 2.0)
     if coarse_free:  # free space above everything, coarse leaves
-        free = np.stack(np.meshgrid(np.arange(0, 4, 0.4) + 0.2, np.arange(0, 4, 0.4) + 0.2, [1.0],
-                                    indexing="ij"), -1).reshape(-1, 3)
+        free = np.stack(
+            np.meshgrid(
+                np.arange(0, 4, 0.4) + 0.2, np.arange(0, 4, 0.4) + 0.2, [1.0], indexing="ij"
+            ),
+            -1,
+        ).reshape(-1, 3)
         centers = np.vstack([centers, free])
         sizes = np.concatenate([sizes, np.full(len(free), 0.4)])
         values = np.concatenate([values, np.full(len(free), -2.0)])
@@ -91,7 +109,9 @@ def test_association_is_one_to_one_and_gated():
     assert len(associate(a, b, max_distance=0.01)) == 0
 
 
-@pytest.mark.parametrize("dx, dy, yaw", [(0.0, 0.0, 0.0), (0.2, -0.15, 0.0), (0.1, 0.05, np.radians(3))])
+@pytest.mark.parametrize(
+    "dx, dy, yaw", [(0.0, 0.0, 0.0), (0.2, -0.15, 0.0), (0.1, 0.05, np.radians(3))]
+)
 def test_map_offset_recovers_the_error(dx, dy, yaw):
     ref = extract_landmarks(*leaves_of(scene_points()), resolution=RES)
     own = extract_landmarks(*leaves_of(scene_points(dx, dy, yaw)), resolution=RES)
@@ -106,8 +126,10 @@ def test_map_offset_recovers_the_error(dx, dy, yaw):
 
 
 def test_offsets_to_reference_feed_voting():
-    sets = [extract_landmarks(*leaves_of(scene_points(*e)), resolution=RES)
-            for e in [(0, 0, 0), (0, 0, 0), (0.3, 0.0, 0.0), (0, 0, 0)]]
+    sets = [
+        extract_landmarks(*leaves_of(scene_points(*e)), resolution=RES)
+        for e in [(0, 0, 0), (0, 0, 0), (0.3, 0.0, 0.0), (0, 0, 0)]
+    ]
     x, cov = offsets_to_reference(sets, 0)
     assert x.shape == (4, 3) and cov.shape == (4, 3, 3)
     assert np.abs(x[[0, 1, 3]]).max() < 1e-9
@@ -119,16 +141,23 @@ def test_bad_leaves_and_too_few_landmarks_raise():
         extract_landmarks(np.zeros((3, 2)), np.ones(3), np.ones(3))
     with pytest.raises(ValueError, match="sizes"):
         extract_landmarks(np.zeros((3, 3)), np.ones(2), np.ones(3))
-    one = Landmarks(np.zeros((1, 3)), np.eye(3)[None], np.ones(1, np.int64), np.zeros((1, 3)),
-                    np.ones((1, 3)))
+    one = Landmarks(
+        np.zeros((1, 3)), np.eye(3)[None], np.ones(1, np.int64), np.zeros((1, 3)), np.ones((1, 3))
+    )
     with pytest.raises(ValueError, match="at least 2"):
         map_offset(one, one)
 
 
 def test_height_and_area_filters():
     leaves = leaves_of(scene_points())
-    low = extract_landmarks(*leaves, resolution=RES, max_height=0.26)  # voxel tops: 0.25, 0.3, 0.2, 0.15
-    assert sorted(np.round(low.centroids[:, :2], 1).tolist()) == [[1.0, 1.0], [1.5, 3.0], [3.2, 3.4]]
+    low = extract_landmarks(
+        *leaves, resolution=RES, max_height=0.26
+    )  # voxel tops: 0.25, 0.3, 0.2, 0.15
+    assert sorted(np.round(low.centroids[:, :2], 1).tolist()) == [
+        [1.0, 1.0],
+        [1.5, 3.0],
+        [3.2, 3.4],
+    ]
     left = extract_landmarks(*leaves, resolution=RES, within=((0.0, 0.0), (2.0, 4.0)))
     assert len(left) == 2
     with pytest.raises(ValueError, match="within"):

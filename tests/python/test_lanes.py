@@ -16,8 +16,9 @@ def test_each_lane_runs_its_tasks_in_order(threads):
     with Lanes(threads, backlog=3) as lanes:
         for i in range(40):
             lane = i % 4
-            lanes.submit(lane, lambda lane=lane, i=i: (time.sleep(0.001 * (lane == 0)),
-                                                       seen[lane].append(i)))
+            lanes.submit(
+                lane, lambda lane=lane, i=i: (time.sleep(0.001 * (lane == 0)), seen[lane].append(i))
+            )
         lanes.wait()
     assert seen == {k: list(range(k, 40, 4)) for k in range(4)}
 
@@ -27,6 +28,7 @@ def test_lanes_run_at_once_and_a_task_waits_for_the_tasks_it_follows():
     release = threading.Event()
     order = []
     with Lanes(2) as lanes:
+
         def slow():
             started.set()
             release.wait(5)

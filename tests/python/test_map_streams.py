@@ -9,7 +9,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from conftest import random_map  # noqa: E402
-
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.maps.occupancy import MapFileError  # noqa: E402
 

@@ -6,9 +6,9 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import expand, map_with_values, random_map, scan_ring
 
 import octofuse
+from conftest import expand, map_with_values, random_map, scan_ring
 from octofuse import OccupancyMap, fuse_logodds, fuse_maps
 
 
@@ -147,12 +147,14 @@ def test_bt_keeps_only_maximum_likelihood(pair, tmp_path):
 def test_octomaps_own_tools_open_our_files(pair, tmp_path):
     a, _ = pair
     p = a.save(tmp_path / "a.ot")
-    out = subprocess.run(["compare_octrees", str(p), str(p)], capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        ["compare_octrees", str(p), str(p)], capture_output=True, text=True, check=True
+    )
     assert "KLD: 0" in out.stdout
     bt = a.save(tmp_path / "a.bt")
-    subprocess.run(["convert_octree", str(bt), str(tmp_path / "c.ot")], check=True,
-                   capture_output=True)
+    subprocess.run(
+        ["convert_octree", str(bt), str(tmp_path / "c.ot")], check=True, capture_output=True
+    )
     c = OccupancyMap.load(tmp_path / "c.ot")
     assert c.num_leaves == OccupancyMap.load(bt).num_leaves
 
@@ -224,8 +226,9 @@ def test_info_loss_accumulates_and_saves(pair, tmp_path):
 
 
 @pytest.mark.parametrize("unknown", ["copy", "prior"])
-@pytest.mark.parametrize("rule", ["naive-bayes", "chernoff", "min-info-loss",
-                                  "kld-weighted-chernoff"])
+@pytest.mark.parametrize(
+    "rule", ["naive-bayes", "chernoff", "min-info-loss", "kld-weighted-chernoff"]
+)
 def test_in_place_fusion_equals_tree_fusion(pair, rule, unknown):
     a, b = pair
     for dst, msg in [(a.copy(), b), (b.copy(), a)]:
@@ -256,8 +259,18 @@ def test_in_place_fusion_accumulates_loss_over_messages(pair):
 
 
 @pytest.mark.parametrize("unknown", ["copy", "prior"])
-@pytest.mark.parametrize("rule", ["chernoff", "min-entropy", "naive-bayes", "kld-weighted-chernoff",
-                                  "entropy-weighted-chernoff", "bhattacharyya", "min-info-loss"])
+@pytest.mark.parametrize(
+    "rule",
+    [
+        "chernoff",
+        "min-entropy",
+        "naive-bayes",
+        "kld-weighted-chernoff",
+        "entropy-weighted-chernoff",
+        "bhattacharyya",
+        "min-info-loss",
+    ],
+)
 def test_two_way_exchange_equals_two_fusions_of_the_maps_before(pair, rule, unknown):
     a, b = pair
     ra, rb = a.copy(), b.copy()
@@ -281,14 +294,27 @@ def test_in_place_fusions_count_the_leaves_of_what_they_fuse_in(pair, unknown):
     from octofuse.rules import parse_rule, parse_unknown
 
     empty = OccupancyMap(0.1)
-    pairs = [pair, pair[::-1], _random_tree_pair(5), _random_tree_pair(6), (pair[0], empty),
-             (empty, pair[1]), (empty, OccupancyMap(0.1))]
+    pairs = [
+        pair,
+        pair[::-1],
+        _random_tree_pair(5),
+        _random_tree_pair(6),
+        (pair[0], empty),
+        (empty, pair[1]),
+        (empty, OccupancyMap(0.1)),
+    ]
     for a, b in pairs:
         want = a.num_leaves, b.num_leaves
         assert octofuse.exchange_maps(a.copy(), b.copy(), "chernoff", unknown) == want
         for threads in (1, 2, 3):
-            counts = _core._fuse_into(a.copy()._m, b._m, parse_rule("min-info-loss"),
-                                      parse_unknown(unknown), None, threads=threads)
+            counts = _core._fuse_into(
+                a.copy()._m,
+                b._m,
+                parse_rule("min-info-loss"),
+                parse_unknown(unknown),
+                None,
+                threads=threads,
+            )
             assert counts[3] == b.num_leaves
     assert min(pairs[2][0].leaves().depths) < 16 and max(pairs[2][1].leaves().depths) == 16
 
@@ -340,10 +366,18 @@ def _brute_force_counts(a, b, rule, unknown):
     la = np.array([ea.get(k, np.nan) for k in keys], dtype=np.float64)
     lb = np.array([eb.get(k, np.nan) for k in keys], dtype=np.float64)
     both = ~np.isnan(la) & ~np.isnan(lb)
-    only_a, only_b = int((~np.isnan(la) & np.isnan(lb)).sum()), int((np.isnan(la) & ~np.isnan(lb)).sum())
+    only_a, only_b = (
+        int((~np.isnan(la) & np.isnan(lb)).sum()),
+        int((np.isnan(la) & ~np.isnan(lb)).sum()),
+    )
     if unknown == "copy":
         loss = fuse_logodds(la[both], lb[both], rule=rule).info_loss
-        return int(both.sum()), only_a, only_b, float(loss.astype(np.float32).astype(np.float64).sum())
+        return (
+            int(both.sum()),
+            only_a,
+            only_b,
+            float(loss.astype(np.float32).astype(np.float64).sum()),
+        )
     loss = fuse_logodds(np.nan_to_num(la, nan=0.0), np.nan_to_num(lb, nan=0.0), rule=rule).info_loss
     return len(keys), only_a, only_b, float(loss.astype(np.float32).astype(np.float64).sum())
 
@@ -441,8 +475,11 @@ def test_leaves_of_a_class_are_those_leaves_of_all(seed):
     every = m.leaves()
     occupied = every.values > 0
     assert 0 < occupied.sum() < len(every.values) and (every.depths < 16).any()  # coarse leaves too
-    for voxels, sel in (("occupied", occupied), ("free", ~occupied),
-                        ("all", np.ones(len(occupied), bool))):
+    for voxels, sel in (
+        ("occupied", occupied),
+        ("free", ~occupied),
+        ("all", np.ones(len(occupied), bool)),
+    ):
         got = m.leaves(voxels)
         for name in ("centers", "sizes", "values", "depths"):
             assert np.array_equal(getattr(got, name), getattr(every, name)[sel]), (voxels, name)
@@ -453,7 +490,8 @@ def test_leaves_of_a_class_are_those_leaves_of_all(seed):
 # -- values no OctoMap clamping produces ---------------------------------------------------
 import warnings  # noqa: E402
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 from octofuse.maps.occupancy import MapFileError, MapValueWarning  # noqa: E402
 
@@ -472,8 +510,15 @@ def _with_values(tmp_path, values):
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.lists(st.one_of(st.floats(-_F32_MAX, _f32(-2.01), width=32),
-                          st.floats(_f32(3.52), _F32_MAX, width=32)), min_size=1, max_size=6))
+@given(
+    st.lists(
+        st.one_of(
+            st.floats(-_F32_MAX, _f32(-2.01), width=32), st.floats(_f32(3.52), _F32_MAX, width=32)
+        ),
+        min_size=1,
+        max_size=6,
+    )
+)
 def test_values_outside_the_clamping_range_are_clamped_with_one_warning(tmp_path_factory, values):
     p = _with_values(tmp_path_factory.mktemp("v"), values)
     with warnings.catch_warnings(record=True) as seen:

@@ -15,11 +15,18 @@ import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from conftest import expand, random_map
 
 import octofuse
+from conftest import expand, random_map
 from octofuse import OccupancyMap, fuse_into, fuse_maps
-from octofuse.maps.compare import compare, compare_many, finest_centers, loss_stats, score, weighted_percentile
+from octofuse.maps.compare import (
+    compare,
+    compare_many,
+    finest_centers,
+    loss_stats,
+    score,
+    weighted_percentile,
+)
 from octofuse.maps.infoloss import voxels_in_bins, voxels_per_leaf
 from octofuse.maps.occupancy import ReferenceMap
 from octofuse.maps.truth import Scene
@@ -105,18 +112,30 @@ def assert_score(s, want: dict) -> None:
 
 def test_the_single_ray_maps_hold_the_expected_voxels():
     once, twice = ray_map(0.55), ray_map(0.55, times=2)
-    assert values_by_x(once) == pytest.approx({0.05: L_MISS, 0.15: L_MISS, 0.25: L_MISS,
-                                               0.35: L_MISS, 0.45: L_MISS, 0.55: L_HIT})
-    assert values_by_x(twice) == pytest.approx({x: 2 * v for x, v in values_by_x(once).items()},
-                                               rel=1e-6)
+    assert values_by_x(once) == pytest.approx(
+        {0.05: L_MISS, 0.15: L_MISS, 0.25: L_MISS, 0.35: L_MISS, 0.45: L_MISS, 0.55: L_HIT}
+    )
+    assert values_by_x(twice) == pytest.approx(
+        {x: 2 * v for x, v in values_by_x(once).items()}, rel=1e-6
+    )
 
 
 def test_a_map_against_itself_scores_perfectly():
     m = ray_map(0.55)
     s = compare(m, m.copy())
-    assert_score(s, {"kl_mean": 0.0, "agreement": 1.0, "agreement_occupied": 1.0,
-                     "agreement_free": 1.0, "overconfidence": 0.0, "coverage": 1.0,
-                     "mean_abs_logodds_error": 0.0, "voxels": 6.0})
+    assert_score(
+        s,
+        {
+            "kl_mean": 0.0,
+            "agreement": 1.0,
+            "agreement_occupied": 1.0,
+            "agreement_free": 1.0,
+            "overconfidence": 0.0,
+            "coverage": 1.0,
+            "mean_abs_logodds_error": 0.0,
+            "voxels": 6.0,
+        },
+    )
 
 
 def test_kl_of_a_less_certain_agent_by_hand():
@@ -126,9 +145,17 @@ def test_kl_of_a_less_certain_agent_by_hand():
     by_hand = (5 * kl(2 * L_MISS, L_MISS) + kl(2 * L_HIT, L_HIT)) / 6
     assert want_kl == pytest.approx(by_hand, rel=1e-6)
     s = compare(central, agent)
-    assert_score(s, {"kl_mean": want_kl, "agreement": 1.0, "coverage": 1.0, "overconfidence": 0.0,
-                     "mean_abs_logodds_error": sum(abs(c[x] - a[x]) for x in c) / 6,
-                     "voxels": 6.0})
+    assert_score(
+        s,
+        {
+            "kl_mean": want_kl,
+            "agreement": 1.0,
+            "coverage": 1.0,
+            "overconfidence": 0.0,
+            "mean_abs_logodds_error": sum(abs(c[x] - a[x]) for x in c) / 6,
+            "voxels": 6.0,
+        },
+    )
 
 
 def test_over_confidence_is_certainty_beyond_the_tolerance():
@@ -145,19 +172,25 @@ def test_over_confidence_is_certainty_beyond_the_tolerance():
 def test_unknown_agent_voxels_count_as_even_odds():
     central = ray_map(0.55)  # free 0.05 .. 0.45, occupied 0.55
     agent = ray_map(0.25)  # free 0.05, 0.15, occupied 0.25; the rest unknown
-    want_kl = (kl(L_MISS, L_HIT)  # 0.25: free against occupied
-               + 2 * kl(L_MISS, 0.0) + kl(L_HIT, 0.0)) / 6  # 0.35, 0.45, 0.55 unknown
+    want_kl = (
+        kl(L_MISS, L_HIT)  # 0.25: free against occupied
+        + 2 * kl(L_MISS, 0.0)
+        + kl(L_HIT, 0.0)
+    ) / 6  # 0.35, 0.45, 0.55 unknown
     s = compare(central, agent)
-    assert_score(s, {
-        "kl_mean": want_kl,
-        "agreement": 2 / 6,  # 0.05 and 0.15
-        "agreement_free": 2 / 5,
-        "agreement_occupied": 0.0,
-        "coverage": 3 / 6,
-        "overconfidence": 1 / 3,  # of the 3 voxels both know: 0.25 (|0.847| > |-0.405| + 0.1)
-        "mean_abs_logodds_error": (L_HIT - L_MISS) / 3,
-        "voxels": 6.0,
-    })
+    assert_score(
+        s,
+        {
+            "kl_mean": want_kl,
+            "agreement": 2 / 6,  # 0.05 and 0.15
+            "agreement_free": 2 / 5,
+            "agreement_occupied": 0.0,
+            "coverage": 3 / 6,
+            "overconfidence": 1 / 3,  # of the 3 voxels both know: 0.25 (|0.847| > |-0.405| + 0.1)
+            "mean_abs_logodds_error": (L_HIT - L_MISS) / 3,
+            "voxels": 6.0,
+        },
+    )
 
 
 def test_voxels_only_the_agent_knows_do_not_count():
@@ -189,7 +222,7 @@ def test_maps_of_other_resolutions_are_refused():
 def test_a_coarse_leaf_counts_for_its_eight_voxels():
     central = block_map()
     lv = central.leaves()
-    block = (lv.values > 0)
+    block = lv.values > 0
     assert block.sum() == 1 and lv.depths[block][0] == 15  # the 8 endpoints, pruned
     np.testing.assert_allclose(lv.centers[block][0], [0.1, 0.1, 0.1])
     weights = np.power(8.0, 16 - lv.depths.astype(float))
@@ -232,9 +265,14 @@ def test_compare_many_gives_each_map_its_own_comparison(threads):
     """One walk of the reference for several maps (pruned and fine, disjoint, empty, the
     reference itself) gives every map exactly the score it gets alone."""
     central = random_map(1, 25)
-    maps = [random_map(2, 2, offset=(0.35, 0.1, 0.0)), OccupancyMap(RES), central.copy(),
-            random_map(3, 25, offset=(-0.2, 0.3, 0.1)), random_map(4, 3, offset=(9.0, 9.0, 9.0)),
-            block_map()]
+    maps = [
+        random_map(2, 2, offset=(0.35, 0.1, 0.0)),
+        OccupancyMap(RES),
+        central.copy(),
+        random_map(3, 25, offset=(-0.2, 0.3, 0.1)),
+        random_map(4, 3, offset=(9.0, 9.0, 9.0)),
+        block_map(),
+    ]
     many = compare_many(central, maps, 0.1, threads=threads)
     assert [s.kl_mean for s in many][2] == 0.0
     # different maps, different scores (the empty and the disjoint map score alike)
@@ -299,17 +337,26 @@ def test_voxels_in_bins_are_the_weights_summed_per_bin(nbins, top, block, data):
     # leaves counted per bin and depth, a block at a time, then weighed: the sums are exact
     # (the leaves of a few trees: at most 300 x 8^14 voxels, below 2^53)
     n = data.draw(st.integers(0, 300))
-    values = np.array(data.draw(st.lists(st.sampled_from([-0.5, 0.0, top, top + 0.1, np.nan])
-                                         | st.floats(0.0, top), min_size=n, max_size=n)),
-                      dtype=np.float32)
-    depths = np.array(data.draw(st.lists(st.integers(2, 16), min_size=n, max_size=n)),
-                      dtype=np.uint8)
+    values = np.array(
+        data.draw(
+            st.lists(
+                st.sampled_from([-0.5, 0.0, top, top + 0.1, np.nan]) | st.floats(0.0, top),
+                min_size=n,
+                max_size=n,
+            )
+        ),
+        dtype=np.float32,
+    )
+    depths = np.array(
+        data.draw(st.lists(st.integers(2, 16), min_size=n, max_size=n)), dtype=np.uint8
+    )
     w = voxels_per_leaf(depths)
     inside = (values >= 0) & (values <= top)
     bins = np.minimum((values[inside] * (nbins / top)).astype(np.int64), nbins - 1)
     cut = data.draw(st.integers(0, n))  # the leaves of two maps
-    per_bin, total = voxels_in_bins([(values[:cut], depths[:cut]), (values[cut:], depths[cut:])],
-                                    nbins, top, block)
+    per_bin, total = voxels_in_bins(
+        [(values[:cut], depths[:cut]), (values[cut:], depths[cut:])], nbins, top, block
+    )
     assert per_bin.shape == (nbins,)
     assert np.array_equal(per_bin, np.bincount(bins, weights=w[inside], minlength=nbins))
     assert total == w.sum()
@@ -341,8 +388,9 @@ def test_score_adds_loss_traffic_and_accuracy():
     central, agent = ray_map(0.55, times=2), ray_map(0.55)
     _, loss = fuse_maps(agent, agent, rule="bhattacharyya")
     truth = Scene(np.array([[[0.5, -1.0, -1.0], [2.0, 1.0, 1.0]]]), ["wall"], ["wall"])
-    s = score(agent, central, loss=loss, truth=truth, bytes_sent=10, bytes_received=20,
-              bytes_sent_32b=30)
+    s = score(
+        agent, central, loss=loss, truth=truth, bytes_sent=10, bytes_received=20, bytes_sent_32b=30
+    )
     # the loss map's leaves as read already give the same statistics
     read = score(agent, central, loss=loss.values_depths())
     assert (read.loss_mean, read.loss_p95) == (s.loss_mean, s.loss_p95)
@@ -387,15 +435,17 @@ UNIT = Scene(np.array([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]]), ["box"], ["obstacle
 
 
 def test_signed_distance_to_a_box():
-    pts = np.array([
-        [0.5, 0.5, 0.5],  # centre: 0.5 inside
-        [0.5, 0.5, 0.9],  # near the top face
-        [1.0, 0.5, 0.5],  # on a face
-        [2.0, 0.5, 0.5],  # beside a face
-        [2.0, 2.0, 0.5],  # beside an edge
-        [2.0, 2.0, 3.0],  # beside a corner
-        [-0.3, -0.4, 0.5],
-    ])
+    pts = np.array(
+        [
+            [0.5, 0.5, 0.5],  # centre: 0.5 inside
+            [0.5, 0.5, 0.9],  # near the top face
+            [1.0, 0.5, 0.5],  # on a face
+            [2.0, 0.5, 0.5],  # beside a face
+            [2.0, 2.0, 0.5],  # beside an edge
+            [2.0, 2.0, 3.0],  # beside a corner
+            [-0.3, -0.4, 0.5],
+        ]
+    )
     want = [-0.5, -0.1, 0.0, 1.0, math.sqrt(2), math.sqrt(6), 0.5]
     np.testing.assert_allclose(UNIT.signed_distance(pts), want, atol=1e-12)
     np.testing.assert_allclose(UNIT.signed_distance(pts, chunk=2), want, atol=1e-12)
@@ -403,21 +453,26 @@ def test_signed_distance_to_a_box():
 
 
 def test_signed_distance_takes_the_nearest_box():
-    two = Scene(np.array([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], [[1.2, 0.0, 0.0], [2.0, 1.0, 1.0]]]),
-                ["a", "b"], ["", ""])
+    two = Scene(
+        np.array([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], [[1.2, 0.0, 0.0], [2.0, 1.0, 1.0]]]),
+        ["a", "b"],
+        ["", ""],
+    )
     pts = np.array([[0.9, 0.5, 0.5], [1.1, 0.5, 0.5], [1.5, 0.5, 0.5], [3.0, 0.5, 0.5]])
     np.testing.assert_allclose(two.signed_distance(pts), [-0.1, 0.1, -0.3, 1.0], atol=1e-12)
 
 
 def test_occupied_accuracy_within_half_a_voxel_diagonal_and_noise():
     tol = RES * math.sqrt(3) / 2 + 0.03
-    centers = np.array([
-        [1.0, 0.5, 0.5],  # on the surface
-        [1.0 + tol - 1e-6, 0.5, 0.5],  # just within, outside
-        [1.0 - tol + 1e-6, 0.5, 0.5],  # just within, inside
-        [1.0 + tol + 1e-3, 0.5, 0.5],  # just beyond
-        [0.5, 0.5, 0.5],  # deep inside
-    ])
+    centers = np.array(
+        [
+            [1.0, 0.5, 0.5],  # on the surface
+            [1.0 + tol - 1e-6, 0.5, 0.5],  # just within, outside
+            [1.0 - tol + 1e-6, 0.5, 0.5],  # just within, inside
+            [1.0 + tol + 1e-3, 0.5, 0.5],  # just beyond
+            [0.5, 0.5, 0.5],  # deep inside
+        ]
+    )
     assert UNIT.occupied_accuracy(centers, RES) == pytest.approx(3 / 5)
     assert UNIT.occupied_accuracy(centers, RES, noise=0.0) == pytest.approx(1 / 5)
     assert math.isnan(UNIT.occupied_accuracy(np.empty((0, 3)), RES))
@@ -444,8 +499,9 @@ def test_near_surface_is_the_signed_distance_test():
     want = np.abs(scene.signed_distance(centres)) <= tol
     np.testing.assert_array_equal(scene.near_surface(centres, tol), want)
     one_box = Scene(boxes[:1], [""], [""])  # a grid of one cell
-    np.testing.assert_array_equal(one_box.near_surface(pts, 0.05),
-                                  np.abs(one_box.signed_distance(pts)) <= 0.05)
+    np.testing.assert_array_equal(
+        one_box.near_surface(pts, 0.05), np.abs(one_box.signed_distance(pts)) <= 0.05
+    )
     assert not scene.near_surface(np.array([[np.nan, 0.0, 0.0]]), 0.3).any()
     assert len(scene.near_surface(np.empty((0, 3)), 0.3)) == 0
     with pytest.raises(ValueError, match="a box corner is not finite"):
@@ -460,13 +516,34 @@ def _sorted_weighted_percentile(v, w, q):
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 12), st.integers(0, 4)), min_size=1, max_size=200),
-       st.one_of(st.sampled_from([0.0, 25.0, 50.0, 95.0, 100.0]), st.floats(0.0, 100.0)),
-       st.sampled_from([np.float32, np.float64]))
+@given(
+    st.lists(st.tuples(st.integers(0, 12), st.integers(0, 4)), min_size=1, max_size=200),
+    st.one_of(st.sampled_from([0.0, 25.0, 50.0, 95.0, 100.0]), st.floats(0.0, 100.0)),
+    st.sampled_from([np.float32, np.float64]),
+)
 # the target exactly at the weight of the smallest value: with weights / 3, the tied values'
 # weights must add up in their order, as in the definition
-@example([(0, 0), (0, 1), (0, 1), (0, 2), (0, 3), (0, 3), (1, 1), (1, 2), (1, 2), (0, 1), (0, 3),
-          (1, 2), (1, 3), (1, 4), (1, 2)], 25.0, np.float32)
+@example(
+    [
+        (0, 0),
+        (0, 1),
+        (0, 1),
+        (0, 2),
+        (0, 3),
+        (0, 3),
+        (1, 1),
+        (1, 2),
+        (1, 2),
+        (0, 1),
+        (0, 3),
+        (1, 2),
+        (1, 3),
+        (1, 4),
+        (1, 2),
+    ],
+    25.0,
+    np.float32,
+)
 def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
     """Narrowing around partition pivots (forced down to a few values) picks the value the
     sort picks, with ties, zero weights and voxel-count weights."""
@@ -489,5 +566,7 @@ def test_weighted_percentile_narrowing_is_the_sort(pairs, q, dtype):
 def test_a_scene_file_with_a_bad_corner_is_refused_by_name(tmp_path, corner):
     path = tmp_path / "bad_scene.json"
     path.write_text(json.dumps({"boxes": [{"min": corner, "max": [1.0, 2.0, 3.0]}]}))
-    with pytest.raises(ValueError, match="bad_scene.json.*box 1: min and max must be 3 finite numbers"):
+    with pytest.raises(
+        ValueError, match="bad_scene.json.*box 1: min and max must be 3 finite numbers"
+    ):
         Scene.load(path)

@@ -23,7 +23,9 @@ def random_mixture(seed, m=3, offset=(0.0, 0.0), spread=3.0):
     rng = np.random.default_rng(seed)
     a = rng.normal(size=(m, 2, 2)) * 0.7
     cov = a @ np.swapaxes(a, 1, 2) + 0.2 * np.eye(2)
-    return GaussianMixture(rng.uniform(0.2, 1.0, m), rng.uniform(-spread, spread, (m, 2)) + offset, cov)
+    return GaussianMixture(
+        rng.uniform(0.2, 1.0, m), rng.uniform(-spread, spread, (m, 2)) + offset, cov
+    )
 
 
 class GridTruth:
@@ -35,8 +37,10 @@ class GridTruth:
         self.dA = self.grid.cell_area
 
     def log_pdf(self, mix):
-        comps = [np.log(w) + multivariate_normal(m, c).logpdf(self.pts)
-                 for w, m, c in zip(mix.weights, mix.means, mix.covariances)]
+        comps = [
+            np.log(w) + multivariate_normal(m, c).logpdf(self.pts)
+            for w, m, c in zip(mix.weights, mix.means, mix.covariances)
+        ]
         return logsumexp(comps, axis=0)
 
     def normalise(self, log_p):
@@ -51,6 +55,7 @@ class GridTruth:
 
 
 # -- the mixture type ------------------------------------------------------------------------
+
 
 def test_pdf_matches_independent_evaluation_and_integrates_to_one():
     mix = random_mixture(1)
@@ -68,14 +73,17 @@ def test_sample_moments_match_moments():
     np.testing.assert_allclose(np.cov(x.T), cov, atol=0.08)
 
 
-@pytest.mark.parametrize("weights, means, covs, match", [
-    ([1.0], [[0.0, 0.0]], [[[1.0, 1.0], [1.0, 1.0]]], "positive definite"),
-    ([1.0], [[0.0, 0.0]], [[[1.0, 0.5], [0.0, 1.0]]], "symmetric"),
-    ([-1.0, 2.0], [[0, 0], [1, 1]], [np.eye(2), np.eye(2)], "non-negative"),
-    ([1.0], [[0.0, np.nan]], [np.eye(2)], "finite"),
-    ([1.0, 1.0], [[0.0, 0.0]], [np.eye(2)], "shape"),
-    ([], np.zeros((0, 2)), np.zeros((0, 2, 2)), "at least one"),
-])
+@pytest.mark.parametrize(
+    "weights, means, covs, match",
+    [
+        ([1.0], [[0.0, 0.0]], [[[1.0, 1.0], [1.0, 1.0]]], "positive definite"),
+        ([1.0], [[0.0, 0.0]], [[[1.0, 0.5], [0.0, 1.0]]], "symmetric"),
+        ([-1.0, 2.0], [[0, 0], [1, 1]], [np.eye(2), np.eye(2)], "non-negative"),
+        ([1.0], [[0.0, np.nan]], [np.eye(2)], "finite"),
+        ([1.0, 1.0], [[0.0, 0.0]], [np.eye(2)], "shape"),
+        ([], np.zeros((0, 2)), np.zeros((0, 2, 2)), "at least one"),
+    ],
+)
 def test_invalid_mixtures_raise_clear_errors(weights, means, covs, match):
     with pytest.raises(ValueError, match=match):
         GaussianMixture(weights, means, covs)
@@ -101,6 +109,7 @@ def test_runnalls_preserves_moments_and_bounds_the_size():
 
 # -- the rules' defining properties --------------------------------------------------------
 
+
 def test_single_gaussians_reduce_to_covariance_intersection():
     a = GaussianMixture.gaussian([0.0, 0.0], [[2.0, 0.3], [0.3, 0.5]])
     b = GaussianMixture.gaussian([1.5, -1.0], [[0.4, -0.1], [-0.1, 1.5]])
@@ -108,8 +117,10 @@ def test_single_gaussians_reduce_to_covariance_intersection():
     w = res.omega
     info = w * np.linalg.inv(a.covariances[0]) + (1 - w) * np.linalg.inv(b.covariances[0])
     ci_cov = np.linalg.inv(info)
-    ci_mean = ci_cov @ (w * np.linalg.solve(a.covariances[0], a.means[0])
-                        + (1 - w) * np.linalg.solve(b.covariances[0], b.means[0]))
+    ci_mean = ci_cov @ (
+        w * np.linalg.solve(a.covariances[0], a.means[0])
+        + (1 - w) * np.linalg.solve(b.covariances[0], b.means[0])
+    )
     mean, cov = res.mixture.moments()
     np.testing.assert_allclose(mean, ci_mean, atol=0.02)
     np.testing.assert_allclose(cov, ci_cov, atol=0.02)
@@ -149,10 +160,13 @@ def test_kld_weighted_chernoff_balances_weighted_klds():
     truth = GridTruth(a, b, prior)
     la, lb, l0 = truth.log_pdf(a), truth.log_pdf(b), truth.log_pdf(prior)
     ca, cb = truth.kl(la, l0), truth.kl(lb, l0)
-    w = fuse_mixtures(a, b, rule="kld-weighted-chernoff", prior=prior, n_samples=4000, seed=3,
-                      method="foci").omega
-    grid_gap = [abs(ca * truth.kl(truth.wep(la, lb, v), la) - cb * truth.kl(truth.wep(la, lb, v), lb))
-                for v in W_GRID]
+    w = fuse_mixtures(
+        a, b, rule="kld-weighted-chernoff", prior=prior, n_samples=4000, seed=3, method="foci"
+    ).omega
+    grid_gap = [
+        abs(ca * truth.kl(truth.wep(la, lb, v), la) - cb * truth.kl(truth.wep(la, lb, v), lb))
+        for v in W_GRID
+    ]
     assert abs(w - W_GRID[int(np.argmin(grid_gap))]) < 0.05
 
 
@@ -194,13 +208,21 @@ def test_belief_wep_matches_the_grid_wep_at_a_fixed_weight():
     fused = a.wep(b, 0.3, seed=0)
     exact = truth.wep(truth.log_pdf(a), truth.log_pdf(b), 0.3)
     assert truth.kl(exact, fused.logpdf(truth.pts)) < 0.03
-    assert truth.kl(exact, a.foci(b, 0.3).logpdf(truth.pts)) > truth.kl(exact, fused.logpdf(truth.pts))
+    assert truth.kl(exact, a.foci(b, 0.3).logpdf(truth.pts)) > truth.kl(
+        exact, fused.logpdf(truth.pts)
+    )
 
 
 @settings(max_examples=12, deadline=None)
-@given(seed=st.integers(0, 10_000), m_a=st.integers(1, 3), m_b=st.integers(1, 3),
-       rule=st.sampled_from(["naive-bayes", "bhattacharyya", "chernoff", "min-info-loss", "min-entropy"]),
-       method=st.sampled_from(["moment-match", "em", "foci"]))
+@given(
+    seed=st.integers(0, 10_000),
+    m_a=st.integers(1, 3),
+    m_b=st.integers(1, 3),
+    rule=st.sampled_from(
+        ["naive-bayes", "bhattacharyya", "chernoff", "min-info-loss", "min-entropy"]
+    ),
+    method=st.sampled_from(["moment-match", "em", "foci"]),
+)
 def test_fused_mixtures_are_valid(seed, m_a, m_b, rule, method):
     a, b = random_mixture(seed, m=m_a), random_mixture(seed + 1, m=m_b, offset=(2.0, 0.0))
     res = fuse_mixtures(a, b, rule=rule, method=method, n_samples=300, max_components=4, seed=seed)
@@ -213,6 +235,7 @@ def test_fused_mixtures_are_valid(seed, m_a, m_b, rule, method):
 
 
 # -- degenerate inputs ---------------------------------------------------------------------
+
 
 def test_identical_mixtures_fuse_to_themselves():
     a = random_mixture(18)
@@ -228,8 +251,14 @@ def test_disjoint_supports_with_underflowing_densities_give_finite_results():
     b = GaussianMixture.gaussian([400.0, 0.0], np.eye(2) * 0.1)
     assert a.pdf(b.means[0]) == 0.0 and b.pdf(a.means[0]) == 0.0  # they underflow
     for rule in ("naive-bayes", "chernoff", "min-info-loss", "kld-weighted-chernoff"):
-        res = fuse_mixtures(a, b, rule=rule, prior=GaussianMixture.gaussian([200.0, 0.0], np.eye(2) * 1e4),
-                            n_samples=500, seed=0)
+        res = fuse_mixtures(
+            a,
+            b,
+            rule=rule,
+            prior=GaussianMixture.gaussian([200.0, 0.0], np.eye(2) * 1e4),
+            n_samples=500,
+            seed=0,
+        )
         mean, cov = res.mixture.moments()
         assert np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))
         assert 0.0 < mean[0] < 400.0
@@ -238,17 +267,24 @@ def test_disjoint_supports_with_underflowing_densities_give_finite_results():
 
 def test_weights_at_the_end_points_return_one_side():
     a, b = random_mixture(19), random_mixture(20)
-    assert fuse_mixtures(a, b, omega=1.0, rule="chernoff").mixture.means.tolist() == a.means.tolist()
-    assert fuse_mixtures(a, b, omega=0.0, rule="chernoff").mixture.means.tolist() == b.means.tolist()
+    assert (
+        fuse_mixtures(a, b, omega=1.0, rule="chernoff").mixture.means.tolist() == a.means.tolist()
+    )
+    assert (
+        fuse_mixtures(a, b, omega=0.0, rule="chernoff").mixture.means.tolist() == b.means.tolist()
+    )
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"rule": "entropy-weighted-chernoff"}, "negative"),
-    ({"rule": "kld-weighted-chernoff"}, "prior"),
-    ({"rule": "nope"}, "valid rules"),
-    ({"method": "nope"}, "valid methods"),
-    ({"n_samples": 3}, "n_samples"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"rule": "entropy-weighted-chernoff"}, "negative"),
+        ({"rule": "kld-weighted-chernoff"}, "prior"),
+        ({"rule": "nope"}, "valid rules"),
+        ({"method": "nope"}, "valid methods"),
+        ({"n_samples": 3}, "n_samples"),
+    ],
+)
 def test_bad_arguments_raise_clear_errors(kwargs, match):
     a, b = random_mixture(21), random_mixture(22)
     with pytest.raises(ValueError, match=match):
@@ -264,15 +300,29 @@ def test_operations_keep_the_class_of_their_input_and_refuse_other_beliefs():
     class Tagged(GaussianMixture):  # a user's subclass: every result must stay one
         __slots__ = ()
 
-    a, b = (Tagged(m.weights, m.means, m.covariances) for m in (random_mixture(5), random_mixture(6)))
-    results = [product(a, b)[0], foci(a, b, 0.3), runnalls_reduce(product(a, b)[0], 2), a.reduce(1),
-               a.multiply(b), a.wep(b, 0.4, seed=0)]
-    results += [fuse_mixtures(a, b, rule=r, method=m, seed=1).mixture
-                for r in ("naive-bayes", "chernoff") for m in ("moment-match", "em", "foci")]
+    a, b = (
+        Tagged(m.weights, m.means, m.covariances) for m in (random_mixture(5), random_mixture(6))
+    )
+    results = [
+        product(a, b)[0],
+        foci(a, b, 0.3),
+        runnalls_reduce(product(a, b)[0], 2),
+        a.reduce(1),
+        a.multiply(b),
+        a.wep(b, 0.4, seed=0),
+    ]
+    results += [
+        fuse_mixtures(a, b, rule=r, method=m, seed=1).mixture
+        for r in ("naive-bayes", "chernoff")
+        for m in ("moment-match", "em", "foci")
+    ]
     assert all(type(m) is Tagged for m in results)
     gaussian = Gaussian.from_moments([0.0, 0.0], np.eye(2))
-    for call in (lambda: product(a, gaussian), lambda: foci(gaussian, a, 0.5),
-                 lambda: fuse_mixtures(a, gaussian)):
+    for call in (
+        lambda: product(a, gaussian),
+        lambda: foci(gaussian, a, 0.5),
+        lambda: fuse_mixtures(a, gaussian),
+    ):
         with pytest.raises(TypeError, match="GaussianMixture"):
             call()
 
@@ -292,9 +342,12 @@ def _wep_1d(w, ma=0.0, va=1.0, mb=2.0, vb=4.0):
     """Mean, variance and log normaliser of N(ma, va)^w N(mb, vb)^(1-w), exactly."""
     lam = w / va + (1 - w) / vb
     eta = w * ma / va + (1 - w) * mb / vb
-    log_c = (-0.5 * (w * ma * ma / va + (1 - w) * mb * mb / vb - eta * eta / lam)
-             + 0.5 * np.log(2 * np.pi / lam) - 0.5 * w * np.log(2 * np.pi * va)
-             - 0.5 * (1 - w) * np.log(2 * np.pi * vb))
+    log_c = (
+        -0.5 * (w * ma * ma / va + (1 - w) * mb * mb / vb - eta * eta / lam)
+        + 0.5 * np.log(2 * np.pi / lam)
+        - 0.5 * w * np.log(2 * np.pi * va)
+        - 0.5 * (1 - w) * np.log(2 * np.pi * vb)
+    )
     return eta / lam, 1 / lam, log_c
 
 
@@ -302,9 +355,11 @@ def _closed_form(rule):
     if rule == "chernoff":
         cost = lambda w: _wep_1d(w)[2]  # noqa: E731
     else:  # KL(p_NB || p_w), p_NB = N(0.4, 0.8)
+
         def cost(w):
             m, v, _ = _wep_1d(w)
             return 0.5 * np.log(v / 0.8) + (0.8 + (0.4 - m) ** 2) / (2 * v) - 0.5
+
     w = minimize_scalar(cost, bounds=(0, 1), method="bounded", options={"xatol": 1e-10}).x
     return w, _wep_1d(w)[1]
 
@@ -313,7 +368,9 @@ def _closed_form(rule):
 def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_percent(rule, seeds):
     w_true, var_true = _closed_form(rule)
     if rule == "chernoff":
-        assert w_true == pytest.approx(0.3522, abs=1e-4) and var_true == pytest.approx(1.9449, abs=1e-4)
+        assert w_true == pytest.approx(0.3522, abs=1e-4) and var_true == pytest.approx(
+            1.9449, abs=1e-4
+        )
     a, b = GaussianMixture.gaussian([0.0], [[1.0]]), GaussianMixture.gaussian([2.0], [[4.0]])
     res = [fuse_mixtures(a, b, rule=rule, seed=s) for s in range(seeds)]
     omega = np.array([r.omega for r in res])
@@ -321,7 +378,9 @@ def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_per
     err = np.array([r.std_error for r in res])
     assert np.sqrt(np.mean((var / var_true - 1) ** 2)) < 0.01  # 1 % (1 sd), bias included
     assert np.sqrt(np.mean((omega - w_true) ** 2)) < 0.008
-    assert np.all((err > 0) & (err <= 0.005 + 1e-12) | (np.array([r.n_samples for r in res]) >= 1 << 15))
+    assert np.all(
+        (err > 0) & (err <= 0.005 + 1e-12) | (np.array([r.n_samples for r in res]) >= 1 << 15)
+    )
     assert np.sqrt(np.mean((omega - w_true) ** 2)) < 3 * np.mean(err)  # the error it reports
 
 
@@ -352,13 +411,16 @@ def test_sample_counts_beyond_memory_are_refused_naming_the_argument():
         fuse_mixtures(a, random_mixture(1, m=10), pair_samples=10**11, n_samples=100, seed=0)
 
 
-@pytest.mark.parametrize("kwargs,error,match", [
-    ({"n_samples": 12.5}, ValueError, "n_samples"),
-    ({"n_samples": "many"}, TypeError, "n_samples"),
-    ({"n_samples": float("nan")}, ValueError, "n_samples"),
-    ({"pair_samples": 1}, ValueError, "pair_samples"),
-    ({"omega_tol": 0.0}, ValueError, "omega_tol"),
-])
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"n_samples": 12.5}, ValueError, "n_samples"),
+        ({"n_samples": "many"}, TypeError, "n_samples"),
+        ({"n_samples": float("nan")}, ValueError, "n_samples"),
+        ({"pair_samples": 1}, ValueError, "pair_samples"),
+        ({"omega_tol": 0.0}, ValueError, "omega_tol"),
+    ],
+)
 def test_bad_counts_name_the_argument(kwargs, error, match):
     with pytest.raises(error, match=match):
         fuse_mixtures(random_mixture(0), random_mixture(1), seed=0, **kwargs)

@@ -18,19 +18,23 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import S, T0, Robot, assert_same_map, voxel_keys  # noqa: E402
-
 import octofuse  # noqa: E402
-from octofuse import InfoLossMap, OccupancyMap, fuse_into, fuse_maps  # noqa: E402
-from octofuse import _core  # noqa: E402
-from octofuse.maps.build import make_build_config  # noqa: E402
+from bagfactory import T0, Robot, S, assert_same_map, voxel_keys  # noqa: E402
+from octofuse import (  # noqa: E402
+    InfoLossMap,
+    OccupancyMap,
+    _core,  # noqa: E402
+    fuse_into,
+    fuse_maps,
+)
 from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.graph import make_graph  # noqa: E402
-from octofuse.scans.source import ScanSource  # noqa: E402
-from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
 from octofuse.fusion.results import LOCAL, rule_time_part
 from octofuse.fusion.rounds import fuse_finished
+from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
+from octofuse.maps.build import make_build_config  # noqa: E402
+from octofuse.scans.source import ScanSource  # noqa: E402
 
 RES = 0.2
 WEP = [r for r in octofuse.RULES if r != "naive-bayes"]
@@ -116,8 +120,9 @@ def assert_same_loss(got: InfoLossMap, want: InfoLossMap, what: str) -> None:
     np.testing.assert_array_equal(gv, wv, err_msg=what)
 
 
-def assert_loss_of_fused_voxels(got: InfoLossMap, want: InfoLossMap, a: OccupancyMap,
-                                b: OccupancyMap, what: str) -> None:
+def assert_loss_of_fused_voxels(
+    got: InfoLossMap, want: InfoLossMap, a: OccupancyMap, b: OccupancyMap, what: str
+) -> None:
     """``got`` (accumulated by in-place fusion) holds the voxels both maps know, with the loss
     of ``want`` (from :func:`fuse_maps`, which also lists the copied voxels, at zero loss)."""
     both = np.intersect1d(voxel_keys(a)[0], voxel_keys(b)[0])
@@ -142,8 +147,9 @@ def four():
 def ring_result(four):
     """Every rule on a ring of 4 (a loop), 4 synchronous rounds of exchanges."""
     maps, central = four
-    return fuse_finished(maps, central, FuseConfig(topology="ring", rules=list(octofuse.RULES),
-                                                   schedule="rounds:4"))
+    return fuse_finished(
+        maps, central, FuseConfig(topology="ring", rules=list(octofuse.RULES), schedule="rounds:4")
+    )
 
 
 #: scans at 0.25 + 0.05 i + 0.5 k s (robot i, k = 0..3): none at a multiple of 0.33 s
@@ -207,8 +213,9 @@ def test_wep_maps_stay_between_the_agents_maps(four, ring_result):
                 continue
             assert np.all(fv >= lo - 1e-5) and np.all(fv <= hi + 1e-5), (r, a)
             # hence never more certain than the most certain local map or the centralized map
-            assert np.all(np.abs(fv) <= np.maximum(np.maximum(np.abs(lo), np.abs(hi)), np.abs(cv))
-                          + 1e-5), (r, a)
+            assert np.all(
+                np.abs(fv) <= np.maximum(np.maximum(np.abs(lo), np.abs(hi)), np.abs(cv)) + 1e-5
+            ), (r, a)
     assert outside_nb > len(uniq)
 
 
@@ -246,9 +253,16 @@ def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, t
     for r, per in ring_result.scores.items():
         for a, sc in per.items():
             assert merged.scores[r][a].to_dict() == sc.to_dict(), (r, a)
-    aligned = list(fuse_finished_in_rule_groups(
-        maps, central, FuseConfig(topology="ring", align="planar", schedule="rounds:1",
-                                  rules=list(octofuse.RULES)), threads=threads))
+    aligned = list(
+        fuse_finished_in_rule_groups(
+            maps,
+            central,
+            FuseConfig(
+                topology="ring", align="planar", schedule="rounds:1", rules=list(octofuse.RULES)
+            ),
+            threads=threads,
+        )
+    )
     assert [p.rules for p in aligned] == [list(octofuse.RULES)]  # one group: links align once
 
 
@@ -260,8 +274,11 @@ def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, t
 def test_a_two_way_exchange_fuses_both_maps_from_before(rule, delta):
     maps, central = finished_maps(2)
     a, b = maps["a"].copy(), maps["b"].copy()
-    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta, rules=[rule],
-                                                  schedule="rounds:1"))
+    res = fuse_finished(
+        maps,
+        central,
+        FuseConfig(topology="complete", delta=delta, rules=[rule], schedule="rounds:1"),
+    )
     assert res.events == [Exchange(0.0, 0, 1), Exchange(0.0, 1, 0)]
     want_a, loss_a = fuse_maps(a, b, rule=rule)
     want_b, loss_b = fuse_maps(b, a, rule=rule)
@@ -278,8 +295,11 @@ def test_messages_of_a_round_carry_the_maps_from_its_start(delta):
     round, in the order of the schedule (first in, first out)."""
     maps, central = finished_maps(3)
     rule = "naive-bayes"  # sums: any map sent after its sender fused would show
-    res = fuse_finished(maps, central, FuseConfig(topology="complete", delta=delta, rules=[rule],
-                                                  schedule="rounds:1"))
+    res = fuse_finished(
+        maps,
+        central,
+        FuseConfig(topology="complete", delta=delta, rules=[rule], schedule="rounds:1"),
+    )
     m = {a: x.copy() for a, x in maps.items()}
     want = {
         "a": fuse_maps(fuse_maps(m["a"], m["b"], rule).map, m["c"], rule).map,  # b then c
@@ -294,8 +314,9 @@ def test_messages_of_a_round_carry_the_maps_from_its_start(delta):
 @pytest.mark.parametrize("delta", [False, True], ids=["whole", "delta"])
 def test_rounds_on_a_line_equal_a_replay(delta, directions):
     maps, central = finished_maps(4)
-    fcfg = FuseConfig(topology="line", delta=delta, directions=directions, rules=SOME_RULES,
-                      schedule="rounds:3")
+    fcfg = FuseConfig(
+        topology="line", delta=delta, directions=directions, rules=SOME_RULES, schedule="rounds:3"
+    )
     res = fuse_finished(maps, central, fcfg)
     graph = make_graph("line", 4)
     for rule in SOME_RULES:
@@ -314,8 +335,11 @@ def test_information_travels_one_hop_per_round():
     only_d = known["d"] - known["a"] - known["b"] - known["c"]
     assert len(only_d) > 100
     for n_rounds, reached in [(1, {"c", "d"}), (2, {"b", "c", "d"}), (3, {"a", "b", "c", "d"})]:
-        res = fuse_finished(maps, central, FuseConfig(topology="line", rules=["chernoff"],
-                                                      schedule=f"rounds:{n_rounds}"))
+        res = fuse_finished(
+            maps,
+            central,
+            FuseConfig(topology="line", rules=["chernoff"], schedule=f"rounds:{n_rounds}"),
+        )
         for a in maps:
             has = set(voxel_keys(res.fused["chernoff"][a])[0].tolist())
             assert (only_d <= has) == (a in reached), (n_rounds, a)
@@ -327,8 +351,11 @@ def test_information_travels_one_hop_per_round():
 
 def test_traffic_of_one_round_is_five_bytes_per_node(four):
     maps, central = four
-    res = fuse_finished(maps, central, FuseConfig(topology="ring", rules=["chernoff", "naive-bayes"],
-                                                  schedule="rounds:1"))
+    res = fuse_finished(
+        maps,
+        central,
+        FuseConfig(topology="ring", rules=["chernoff", "naive-bayes"], schedule="rounds:1"),
+    )
     graph = make_graph("ring", 4)
     names = list(maps)
     assert len(res.events) == 2 * len(graph.edges) == 8
@@ -342,7 +369,10 @@ def test_traffic_of_one_round_is_five_bytes_per_node(four):
             assert tr.received[a] == sum(5 * maps[names[j]].num_nodes for j in nbrs)
             s = res.scores[rule][a]
             assert (s.bytes_sent, s.bytes_received, s.bytes_sent_32b) == (
-                tr.sent[a], tr.received[a], tr.sent_32b[a])
+                tr.sent[a],
+                tr.received[a],
+                tr.sent_32b[a],
+            )
     assert res.scores[LOCAL]["a"].bytes_sent is None
 
 
@@ -351,14 +381,16 @@ def test_fuse_finished_errors(four):
     with pytest.raises(ValueError, match="at least 2 agent maps"):
         fuse_finished({"a": maps["a"]}, central, FuseConfig(topology="ring", schedule="rounds:3"))
     with pytest.raises(ValueError, match="valid rules are: naive-bayes"):
-        fuse_finished(maps, central, FuseConfig(topology="ring", rules=["bayes"],
-                                                schedule="rounds:3"))
+        fuse_finished(
+            maps, central, FuseConfig(topology="ring", rules=["bayes"], schedule="rounds:3")
+        )
     with pytest.raises(ValueError, match="max-robust"):
         fuse_finished(maps, central, FuseConfig(topology="max-robust:4", schedule="rounds:3"))
     with pytest.raises(ValueError, match="finished maps are fused in rounds"):
         fuse_finished(maps, central, FuseConfig(topology="ring", schedule="periodic:1"))
-    res = fuse_finished(maps, None, FuseConfig(topology="ring", rules=["chernoff"],
-                                               schedule="rounds:1"))
+    res = fuse_finished(
+        maps, None, FuseConfig(topology="ring", rules=["chernoff"], schedule="rounds:1")
+    )
     assert res.central is None and res.scores == {}
 
 
@@ -389,8 +421,11 @@ def whole_and_delta(team_bag):
     cfg = run_config(team_bag)
     out = {}
     for delta in (False, True):
-        out[delta] = simulate(cfg, FuseConfig(topology="ring", schedule=PERIOD, delta=delta,
-                                              rules=SOME_RULES), samples=0)
+        out[delta] = simulate(
+            cfg,
+            FuseConfig(topology="ring", schedule=PERIOD, delta=delta, rules=SOME_RULES),
+            samples=0,
+        )
     return out
 
 
@@ -408,8 +443,9 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
     from octofuse.fusion.results import score_result
 
     anew = score_result(one, cfg.overconfidence_tol, threads=2)
-    assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in anew.items()} \
-        == {r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()}
+    assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in anew.items()} == {
+        r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()
+    }
     for threads in (2, 3):
         got = simulate(replace(run_config(team_bag), threads=threads), cfg, samples=4)
         assert_same_map(got.central, one.central, "central")
@@ -420,8 +456,9 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
                 assert got.loss[r][a].loss_sum == one.loss[r][a].loss_sum
         assert got.traffic == one.traffic
         assert got.timeline == one.timeline
-        assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in got.scores.items()} \
-            == {r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()}
+        assert {r: {a: s.to_dict() for a, s in per.items()} for r, per in got.scores.items()} == {
+            r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()
+        }
         # each rule's time, added to from the lanes' threads, holds its exchanges and fusions
         per_rule = [got.timings[rule_time_part(r)] for r in rules]
         assert min(per_rule) > 0
@@ -429,20 +466,25 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
 
 
 @pytest.mark.parametrize("per_pass", [1, 2])
-def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, whole_and_delta,
-                                                                      per_pass):
+def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(
+    team_bag, whole_and_delta, per_pass
+):
     """simulate_in_rule_groups (the bags replayed once per group of rules, as `demo` runs)
     gives every rule the maps, losses, traffic, scores and timeline of one pass with all rules;
     the agents' own maps are mapped, sampled and scored in the first pass only."""
     from octofuse.fusion.results import merge_rule_results
     from octofuse.fusion.simulate import simulate_in_rule_groups
 
-    one = simulate(run_config(team_bag), FuseConfig(topology="ring", schedule=PERIOD,
-                                                   rules=SOME_RULES), samples=3)
+    one = simulate(
+        run_config(team_bag),
+        FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES),
+        samples=3,
+    )
     cfg = FuseConfig(topology="ring", schedule=PERIOD, rules=SOME_RULES, rules_per_pass=per_pass)
     parts = list(simulate_in_rule_groups(run_config(team_bag), cfg, samples=3))
-    assert [p.rules for p in parts] == [SOME_RULES[k:k + per_pass]
-                                        for k in range(0, len(SOME_RULES), per_pass)]
+    assert [p.rules for p in parts] == [
+        SOME_RULES[k : k + per_pass] for k in range(0, len(SOME_RULES), per_pass)
+    ]
     assert parts[0].local and not any(p.local for p in parts[1:])
     for p in parts:
         assert_same_map(p.central, one.central, "central")
@@ -467,8 +509,9 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(team_bag, 
     # the loss leaves the final scores read are kept only when asked (for a loss histogram);
     # otherwise they are read again from the loss maps: the same arrays
     assert not any(per for p in (one, *parts) for per in p.loss_leaves.values())
-    kept = list(simulate_in_rule_groups(run_config(team_bag), cfg, samples=0,
-                                        keep_loss_leaves=True))
+    kept = list(
+        simulate_in_rule_groups(run_config(team_bag), cfg, samples=0, keep_loss_leaves=True)
+    )
     wep = [r for r in SOME_RULES if r != "naive-bayes"]
     for p in kept:
         for r in p.rules:
@@ -495,20 +538,29 @@ def test_deltas_send_fewer_bytes_and_reach_the_same_voxels(whole_and_delta):
             assert td.sent[a] < tw.sent[a], (rule, a)
             assert td.sent_32b[a] < tw.sent_32b[a], (rule, a)
             # a receiver already holds what a link carried before: the same voxels get known
-            np.testing.assert_array_equal(voxel_keys(delta.fused[rule][a])[0],
-                                          voxel_keys(whole.fused[rule][a])[0],
-                                          err_msg=f"{rule} {a}")
+            np.testing.assert_array_equal(
+                voxel_keys(delta.fused[rule][a])[0],
+                voxel_keys(whole.fused[rule][a])[0],
+                err_msg=f"{rule} {a}",
+            )
             assert delta.scores[rule][a].coverage == whole.scores[rule][a].coverage
     # re-fusing voxels that did not change is what whole maps add: naive-bayes counts them again
-    assert (mean(delta.scores["naive-bayes"], "overconfidence")
-            < mean(whole.scores["naive-bayes"], "overconfidence"))
+    assert mean(delta.scores["naive-bayes"], "overconfidence") < mean(
+        whole.scores["naive-bayes"], "overconfidence"
+    )
 
 
 def test_a_first_message_on_a_link_is_the_whole_map(team_bag):
     cfg = run_config(team_bag)
     # one round of exchanges, after the last scan: deltas and whole maps are the same messages
-    runs = [simulate(cfg, FuseConfig(topology="ring", schedule="periodic:2", delta=d,
-                                      rules=["min-info-loss"]), samples=0) for d in (False, True)]
+    runs = [
+        simulate(
+            cfg,
+            FuseConfig(topology="ring", schedule="periodic:2", delta=d, rules=["min-info-loss"]),
+            samples=0,
+        )
+        for d in (False, True)
+    ]
     assert len(runs[0].events) == 8
     for a in runs[0].agents:
         assert_same_map(runs[1].fused["min-info-loss"][a], runs[0].fused["min-info-loss"][a], a)
@@ -550,8 +602,9 @@ def replay_run(bag, topology: str, schedule: str, rules, delta: bool = False):
 @pytest.mark.parametrize("delta", [False, True], ids=["whole", "delta"])
 def test_a_run_interleaves_scans_and_exchanges_in_time_order(team_bag, whole_and_delta, delta):
     res = whole_and_delta[delta]
-    events, replays, local, central, scans, start = replay_run(team_bag, "ring", PERIOD,
-                                                               SOME_RULES, delta)
+    events, replays, local, central, scans, start = replay_run(
+        team_bag, "ring", PERIOD, SOME_RULES, delta
+    )
     times = sorted({e.time_s for e in events})
     stamps = [(s.stamp_ns - start) / 1e9 for s in scans]
     assert len(times) == 6 and len(scans) == 16
@@ -570,8 +623,11 @@ def test_a_run_interleaves_scans_and_exchanges_in_time_order(team_bag, whole_and
 
 
 def test_events_follow_the_schedule_and_the_timeline_ends_at_the_final_scores(team_bag):
-    res = simulate(run_config(team_bag), FuseConfig(topology="star", schedule=PERIOD,
-                                                    rules=["chernoff", "naive-bayes"]), samples=5)
+    res = simulate(
+        run_config(team_bag),
+        FuseConfig(topology="star", schedule=PERIOD, rules=["chernoff", "naive-bayes"]),
+        samples=5,
+    )
     duration = (T0 + int(2.0 * S) + bf.LATENCY_NS - T0) / 1e9  # the last tf message
     graph = make_graph("star", 4)
     want = periodic(graph, period_s=0.33, duration_s=duration)
@@ -597,8 +653,11 @@ def test_a_region_seen_late_reaches_no_one_before_it_is_seen(tmp_path):
     a, b = bf.team(3)[0], bf.team(3)[2]
     b = Robot("b", start=b.start, velocity=b.velocity)
     c = Robot("c", start=(-2.4, -1.6, 0.0), velocity=(1.4, 0.0, 0.5))
-    scan_times = {"a": [T0 + S // 4, T0 + 3 * S // 4], "b": [T0 + 3 * S // 10, T0 + 8 * S // 10],
-                  "c": [T0 + 7 * S // 20, T0 + 3 * S, T0 + 7 * S // 2]}
+    scan_times = {
+        "a": [T0 + S // 4, T0 + 3 * S // 4],
+        "b": [T0 + 3 * S // 10, T0 + 8 * S // 10],
+        "c": [T0 + 7 * S // 20, T0 + 3 * S, T0 + 7 * S // 2],
+    }
     rec = bf.robot_recording([a, b, c], scan_times, sensor_range=2.0)
     bag = rec.write(tmp_path / "late", "mcap")
     cfg = run_config(bag)
@@ -613,8 +672,9 @@ def test_a_region_seen_late_reaches_no_one_before_it_is_seen(tmp_path):
     ek, lk = voxel_keys(early)[0], voxel_keys(late)[0]
     late_only = np.setdiff1d(lk, ek)
     assert len(late_only) > 100
-    res = simulate(cfg, FuseConfig(topology="complete", schedule="periodic:2.1", rules=SOME_RULES),
-                   samples=4)
+    res = simulate(
+        cfg, FuseConfig(topology="complete", schedule="periodic:2.1", rules=SOME_RULES), samples=4
+    )
     assert {e.time_s for e in res.events} == {2.1}
     c_early = np.setdiff1d(voxel_keys(res.local["c"])[0], late_only)
     for rule in SOME_RULES:
@@ -626,10 +686,14 @@ def test_a_region_seen_late_reaches_no_one_before_it_is_seen(tmp_path):
     assert np.isin(late_only, voxel_keys(res.central)[0]).all()
     # before the exchange nobody covers more than its own scans; after it a and b jump
     for name in ("a", "b"):
-        cov = {s["t"]: s["coverage"] for s in res.timeline
-               if s["rule"] == "chernoff" and s["agent"] == name}
-        local = {s["t"]: s["coverage"] for s in res.timeline
-                 if s["rule"] == LOCAL and s["agent"] == name}
+        cov = {
+            s["t"]: s["coverage"]
+            for s in res.timeline
+            if s["rule"] == "chernoff" and s["agent"] == name
+        }
+        local = {
+            s["t"]: s["coverage"] for s in res.timeline if s["rule"] == LOCAL and s["agent"] == name
+        }
         t_before, t_after = sorted(cov)[1], sorted(cov)[2]  # samples at ~2.0 s and ~3.0 s
         assert t_before < 2.1 < t_after
         assert cov[t_before] == local[t_before]

@@ -16,8 +16,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import S, T0, assert_same_map, run_cli, run_keeping_result  # noqa: E402
-
+from bagfactory import T0, S, assert_same_map, run_cli, run_keeping_result  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.results import LOCAL, rule_time_part
@@ -48,8 +47,18 @@ def bag(team_recording, tmp_path_factory):
     return team_recording.write(tmp_path_factory.mktemp("bag") / "team", "mcap")
 
 
-RUN_ARGS = ["--rule", "chernoff", "--topology", "ring", "--schedule", "periodic:1",
-            "--resolution", RES, "--samples", "4"]
+RUN_ARGS = [
+    "--rule",
+    "chernoff",
+    "--topology",
+    "ring",
+    "--schedule",
+    "periodic:1",
+    "--resolution",
+    RES,
+    "--samples",
+    "4",
+]
 
 
 @pytest.fixture(scope="module")
@@ -70,14 +79,16 @@ def test_run_writes_every_output(run_out, team_recording):
         assert (out / name).is_file(), name
     assert is_png(out / "kl_over_time.png") and is_png(out / "info_loss_histogram.png")
     assert sorted(p.name for p in (out / "chernoff").iterdir()) == sorted(
-        f"{a}{suffix}" for a in AGENTS for suffix in (".ot", "_info_loss.ply"))
+        f"{a}{suffix}" for a in AGENTS for suffix in (".ot", "_info_loss.ply")
+    )
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["chernoff"]
     # the maps written are the run's maps; the centralized one is every scan of the bag
     want = bf.reference_maps(team_recording.shots, bf.team_agents(bf.team(4)), resolution=0.2)
     assert_same_map(OccupancyMap.load(out / "centralized.ot"), want["centralized"], "centralized")
     for a in AGENTS:
-        assert_same_map(OccupancyMap.load(out / "chernoff" / f"{a}.ot"),
-                        res.fused["chernoff"][a], a)
+        assert_same_map(
+            OccupancyMap.load(out / "chernoff" / f"{a}.ot"), res.fused["chernoff"][a], a
+        )
         assert_same_map(res.local[a], want[a], f"local {a}")
 
 
@@ -105,15 +116,19 @@ def test_run_summary_numbers(run_out):
         sa = s["scores"]["chernoff"][a]
         tr = res.traffic["chernoff"]
         assert (sa["bytes_sent"], sa["bytes_received"], sa["bytes_sent_32b"]) == (
-            tr.sent[a], tr.received[a], tr.sent_32b[a])
+            tr.sent[a],
+            tr.received[a],
+            tr.sent_32b[a],
+        )
         assert sa["bytes_sent"] % 5 == 0 and sa["bytes_sent_32b"] % 32 == 0
         assert sa["kl_mean"] == res.scores["chernoff"][a].kl_mean
         assert sa["voxels"] == s["scores"][LOCAL][a]["voxels"] > 1000
     assert len(s["timeline"]) == 4 * 2 * 4  # samples x (rule + local-only) x agents
     assert all(fraction(x["coverage"]) and x["kl"] >= 0 for x in s["timeline"])
     assert s["timings_s"]["total"] > 0 and s["timings_s"]["export (wall)"] > 0
-    assert any(f.startswith("Every WEP rule closer") and "1 of 1 rules." in f
-               for f in s["findings"])
+    assert any(
+        f.startswith("Every WEP rule closer") and "1 of 1 rules." in f for f in s["findings"]
+    )
 
 
 def test_run_report(run_out):
@@ -127,10 +142,25 @@ def test_run_report(run_out):
 
 
 def test_run_prints_the_table(bag, tmp_path, capsys):
-    code, out, err = run_cli(capsys, "run", bag, "--rules", "naive-bayes,min-info-loss",
-                             "--topology", "complete", "--schedule", "aperiodic:0.5",
-                             "--resolution", RES, "--samples", "0", "--export-agents", "b",
-                             "--out", tmp_path / "o")
+    code, out, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "naive-bayes,min-info-loss",
+        "--topology",
+        "complete",
+        "--schedule",
+        "aperiodic:0.5",
+        "--resolution",
+        RES,
+        "--samples",
+        "0",
+        "--export-agents",
+        "b",
+        "--out",
+        tmp_path / "o",
+    )
     assert code == 0, err
     assert "Traceback" not in err
     for rule in (LOCAL, "naive-bayes", "min-info-loss"):
@@ -138,7 +168,9 @@ def test_run_prints_the_table(bag, tmp_path, capsys):
     assert f"report: {tmp_path / 'o' / 'report.md'}" in out
     for rule in ("naive-bayes", "min-info-loss"):
         assert sorted(p.name for p in (tmp_path / "o" / rule).iterdir()) == [
-            "b.ot", "b_info_loss.ply"]
+            "b.ot",
+            "b_info_loss.ply",
+        ]
     assert not (tmp_path / "o" / "kl_over_time.png").exists()  # no samples, no timeline
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["events"] > 0 and s["timeline"] == []
@@ -147,9 +179,23 @@ def test_run_prints_the_table(bag, tmp_path, capsys):
 
 def test_run_dump_config_then_run_it(bag, tmp_path, capsys):
     out = tmp_path / "o"
-    code, text, err = run_cli(capsys, "run", bag, "--rule", "chernoff,naive-bayes", "--topology",
-                              "star", "--schedule", "periodic:0.7", "--delta", "--resolution", RES,
-                              "--out", out, "--dump-config")
+    code, text, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rule",
+        "chernoff,naive-bayes",
+        "--topology",
+        "star",
+        "--schedule",
+        "periodic:0.7",
+        "--delta",
+        "--resolution",
+        RES,
+        "--out",
+        out,
+        "--dump-config",
+    )
     assert code == 0, err
     cfg = yaml.safe_load(text)
     assert cfg["fuse"]["rules"] == ["chernoff", "naive-bayes"]
@@ -160,8 +206,9 @@ def test_run_dump_config_then_run_it(bag, tmp_path, capsys):
     assert not out.exists()
     conf = tmp_path / "run.yaml"
     conf.write_text(text)
-    code, _, err = run_cli(capsys, "run", "--config", conf, "--samples", "0",
-                           "--export-agents", "none")
+    code, _, err = run_cli(
+        capsys, "run", "--config", conf, "--samples", "0", "--export-agents", "none"
+    )
     assert code == 0, err
     s = json.loads((out / "summary.json").read_text())
     assert s["rules"] == ["chernoff", "naive-bayes"] and s["config"]["fuse"]["delta"] is True
@@ -184,17 +231,30 @@ def built(bag, tmp_path_factory):
 
 def test_build_then_fuse(built, tmp_path, capsys):
     out = tmp_path / "fused"
-    code, text, err = run_cli(capsys, "fuse", built, "--topology", "complete", "--rule",
-                              "min-info-loss", "--rounds", "2", "--out", out)
+    code, text, err = run_cli(
+        capsys,
+        "fuse",
+        built,
+        "--topology",
+        "complete",
+        "--rule",
+        "min-info-loss",
+        "--rounds",
+        "2",
+        "--out",
+        out,
+    )
     assert code == 0, err
     assert "fused 4 maps with min-info-loss over complete (24 messages)" in text
     maps = {a: OccupancyMap.load(built / f"{a}.ot") for a in AGENTS}
     central = OccupancyMap.load(built / "centralized.ot")
-    want = fuse_finished(maps, central, FuseConfig(topology="complete", rules=["min-info-loss"],
-                                                   schedule="rounds:2"))
+    want = fuse_finished(
+        maps, central, FuseConfig(topology="complete", rules=["min-info-loss"], schedule="rounds:2")
+    )
     for a in AGENTS:
-        assert_same_map(OccupancyMap.load(out / "min-info-loss" / f"{a}.ot"),
-                        want.fused["min-info-loss"][a], a)
+        assert_same_map(
+            OccupancyMap.load(out / "min-info-loss" / f"{a}.ot"), want.fused["min-info-loss"][a], a
+        )
         assert (out / "min-info-loss" / f"{a}_info_loss.ply").is_file()
     assert_same_map(OccupancyMap.load(out / "centralized.ot"), central, "centralized")
     s = json.loads((out / "summary.json").read_text())
@@ -210,8 +270,7 @@ def test_build_then_fuse(built, tmp_path, capsys):
     assert all(s["timings_s"][p] > 0 for p in ("scoring (wall)", "export (wall)", "total"))
 
 
-def test_fuse_with_nothing_to_plot_forks_no_drawing_process(built, tmp_path, capsys,
-                                                           monkeypatch):
+def test_fuse_with_nothing_to_plot_forks_no_drawing_process(built, tmp_path, capsys, monkeypatch):
     """Naive Bayes loses nothing (no loss histogram) and `fuse` samples no timeline: no plot,
     so no process is forked to draw one."""
     import os
@@ -221,8 +280,9 @@ def test_fuse_with_nothing_to_plot_forks_no_drawing_process(built, tmp_path, cap
 
     monkeypatch.setattr(os, "fork", fork)
     out = tmp_path / "fused"
-    code, _, err = run_cli(capsys, "fuse", built, "--rule", "naive-bayes", "--rounds", "1",
-                           "--out", out)
+    code, _, err = run_cli(
+        capsys, "fuse", built, "--rule", "naive-bayes", "--rounds", "1", "--out", out
+    )
     assert code == 0, err
     assert not (out / "kl_over_time.png").exists()
     assert not (out / "info_loss_histogram.png").exists()
@@ -230,12 +290,16 @@ def test_fuse_with_nothing_to_plot_forks_no_drawing_process(built, tmp_path, cap
     assert "![timeline]" not in report and "![loss_hist]" not in report
 
 
-@pytest.mark.parametrize("error, code, says", [
-    (TypeError, 70, "internal error (TypeError: drawn wrong)"),
-    (PermissionError, 1, "error: drawn wrong")])
-def test_a_drawing_error_keeps_its_kind_across_the_drawing_process(built, tmp_path, capsys,
-                                                                   monkeypatch, error, code,
-                                                                   says):
+@pytest.mark.parametrize(
+    "error, code, says",
+    [
+        (TypeError, 70, "internal error (TypeError: drawn wrong)"),
+        (PermissionError, 1, "error: drawn wrong"),
+    ],
+)
+def test_a_drawing_error_keeps_its_kind_across_the_drawing_process(
+    built, tmp_path, capsys, monkeypatch, error, code, says
+):
     """The loss histogram drawn in a process of its own fails: a bug is an internal error, a
     file's error bad input, as if drawn in the command's own process."""
     from octofuse.outputs import report
@@ -244,8 +308,17 @@ def test_a_drawing_error_keeps_its_kind_across_the_drawing_process(built, tmp_pa
         raise error("drawn wrong")
 
     monkeypatch.setattr(report, "plot_loss_histograms", plot)
-    got, _, err = run_cli(capsys, "fuse", built, "--rule", "min-info-loss", "--rounds", "1",
-                          "--out", tmp_path / "fused")
+    got, _, err = run_cli(
+        capsys,
+        "fuse",
+        built,
+        "--rule",
+        "min-info-loss",
+        "--rounds",
+        "1",
+        "--out",
+        tmp_path / "fused",
+    )
     assert got == code and says in err and "Traceback" not in err
 
 
@@ -257,8 +330,21 @@ def test_fuse_writes_every_round_to_a_bag(built, tmp_path, capsys, fmt):
 
     out, replay = tmp_path / "fused", tmp_path / f"rounds.{fmt}"
     rules = ["min-info-loss", "channel-filter"]
-    code, text, err = run_cli(capsys, "fuse", built, "--topology", "line", "--rounds", "3",
-                              "--rules", ",".join(rules), "--export-bag", replay, "--out", out)
+    code, text, err = run_cli(
+        capsys,
+        "fuse",
+        built,
+        "--topology",
+        "line",
+        "--rounds",
+        "3",
+        "--rules",
+        ",".join(rules),
+        "--export-bag",
+        replay,
+        "--out",
+        out,
+    )
     assert code == 0, err
     s = json.loads((out / "summary.json").read_text())
     want = {(e["rule"], e["receiver"], round(e["t"] * 1e9)) for e in s["fusion_events"]}
@@ -266,7 +352,8 @@ def test_fuse_writes_every_round_to_a_bag(built, tmp_path, capsys, fmt):
     assert len(got) == len(want) == s["event_bag"]["messages"] > 0
     assert f"bag: {replay} ({len(got)} map messages)" in text
     assert sorted((t, st) for t, st, _ in got) == sorted(
-        (f"/octofuse/{r}/{a}/octomap", st) for r, a, st in want)
+        (f"/octofuse/{r}/{a}/octomap", st) for r, a, st in want
+    )
     assert {st for _, st, _ in got} == {0, S, 2 * S}
     for r in rules:
         for a in AGENTS:
@@ -274,12 +361,29 @@ def test_fuse_writes_every_round_to_a_bag(built, tmp_path, capsys, fmt):
             assert_same_map(last, OccupancyMap.load(out / r / f"{a}.ot"), (r, a))
     # the same maps as without the bag (there, the rules run in groups)
     plain = tmp_path / "plain"
-    assert run_cli(capsys, "fuse", built, "--topology", "line", "--rounds", "3", "--rules",
-                   ",".join(rules), "--out", plain)[0] == 0
+    assert (
+        run_cli(
+            capsys,
+            "fuse",
+            built,
+            "--topology",
+            "line",
+            "--rounds",
+            "3",
+            "--rules",
+            ",".join(rules),
+            "--out",
+            plain,
+        )[0]
+        == 0
+    )
     for r in rules:
         for a in AGENTS:
-            assert_same_map(OccupancyMap.load(plain / r / f"{a}.ot"),
-                            OccupancyMap.load(out / r / f"{a}.ot"), (r, a))
+            assert_same_map(
+                OccupancyMap.load(plain / r / f"{a}.ot"),
+                OccupancyMap.load(out / r / f"{a}.ot"),
+                (r, a),
+            )
 
 
 def test_fuse_without_a_centralized_map_scores_nothing(built, tmp_path, capsys):
@@ -288,8 +392,9 @@ def test_fuse_without_a_centralized_map_scores_nothing(built, tmp_path, capsys):
     for a in ("a", "b"):
         shutil.copy(built / f"{a}.ot", maps)
     out = tmp_path / "fused"
-    code, _, err = run_cli(capsys, "fuse", maps, "--topology", "line", "--rounds", "1",
-                           "--out", out)
+    code, _, err = run_cli(
+        capsys, "fuse", maps, "--topology", "line", "--rounds", "1", "--out", out
+    )
     assert code == 0, err
     assert not (out / "centralized.ot").exists()  # not an agent's map under that name
     assert sorted(p.name for p in (out / "min-info-loss").glob("*.ot")) == ["a.ot", "b.ot"]
@@ -305,19 +410,40 @@ def test_bench_rules_by_topologies(bag, run_out, tmp_path, capsys):
     graph = tmp_path / "square.txt"
     graph.write_text("# the ring, by agent name\na b\nb c\nc d\nd a\n")
     out = tmp_path / "bench"
-    code, text, err = run_cli(capsys, "bench", bag, "--rules", "naive-bayes,chernoff",
-                              "--topologies", f"ring,complete,{graph}", "--schedule", "periodic:1",
-                              "--resolution", RES, "--executor", "serial", "--out", out)
+    code, text, err = run_cli(
+        capsys,
+        "bench",
+        bag,
+        "--rules",
+        "naive-bayes,chernoff",
+        "--topologies",
+        f"ring,complete,{graph}",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--executor",
+        "serial",
+        "--out",
+        out,
+    )
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == [
-        ".octofuse-output", "bench.csv", "bench.md", "bench_kl_mean.png", "bench_loss_mean.png",
-        "bench_overconfidence.png", "cells"]
+        ".octofuse-output",
+        "bench.csv",
+        "bench.md",
+        "bench_kl_mean.png",
+        "bench_loss_mean.png",
+        "bench_overconfidence.png",
+        "cells",
+    ]
     assert all(is_png(p) for p in out.glob("*.png"))
     with (out / "bench.csv").open() as f:
         rows = list(csv.DictReader(f))
     topologies = ["ring", "complete", str(graph)]
     assert [(r["topology"], r["rule"]) for r in rows] == [
-        (t, r) for t in topologies for r in (LOCAL, "naive-bayes", "chernoff")]
+        (t, r) for t in topologies for r in (LOCAL, "naive-bayes", "chernoff")
+    ]
     messages = {"ring": 16, "complete": 24, str(graph): 16}
     for r in rows:
         assert int(r["messages"]) == (0 if r["rule"] == LOCAL else messages[r["topology"]])
@@ -326,8 +452,9 @@ def test_bench_rules_by_topologies(bag, run_out, tmp_path, capsys):
     by = {(r["topology"], r["rule"]): r for r in rows}
     for t in topologies:
         assert float(by[(t, "chernoff")]["kl_mean"]) < float(by[(t, LOCAL)]["kl_mean"])
-        assert (float(by[(t, "naive-bayes")]["overconfidence"])
-                > float(by[(t, "chernoff")]["overconfidence"]))
+        assert float(by[(t, "naive-bayes")]["overconfidence"]) > float(
+            by[(t, "chernoff")]["overconfidence"]
+        )
     # the named file is the ring; each rule's maps do not depend on the others run beside it
     for rule in ("naive-bayes", "chernoff", LOCAL):
         assert by[(str(graph), rule)]["kl_mean"] == by[("ring", rule)]["kl_mean"]
@@ -357,8 +484,18 @@ def test_demo_on_every_400th_scan(tmp_path, capsys):
         pytest.skip("the bundled dataset data/lab8.bag is not present")
     out = tmp_path / "demo"
     replay = tmp_path / "demo.mcap"
-    code, text, err = run_cli(capsys, "demo", "--every", "400", "--rules",
-                              "naive-bayes,min-info-loss", "--export-bag", replay, "--out", out)
+    code, text, err = run_cli(
+        capsys,
+        "demo",
+        "--every",
+        "400",
+        "--rules",
+        "naive-bayes,min-info-loss",
+        "--export-bag",
+        replay,
+        "--out",
+        out,
+    )
     assert code == 0, err
     assert "octofuse demo: lab8.bag" in text
     from octofuse.outputs.rosbag_export import read_map_bag
@@ -371,7 +508,9 @@ def test_demo_on_every_400th_scan(tmp_path, capsys):
     assert s["rules"] == ["naive-bayes", "min-info-loss"]
     for rule in s["rules"]:  # only the first agent's maps are exported
         assert sorted(p.name for p in (out / rule).iterdir()) == [
-            "robot1.ot", "robot1_info_loss.ply"]
+            "robot1.ot",
+            "robot1_info_loss.ply",
+        ]
     nb, mil = s["mean"]["naive-bayes"], s["mean"]["min-info-loss"]
     assert nb["overconfidence"] > 0.5 > 0.05 > mil["overconfidence"]
     assert fraction(mil["occupied_accuracy"]) and mil["occupied_accuracy"] > 0.9  # ground truth
@@ -388,8 +527,18 @@ def test_demo_in_passes_writes_what_one_pass_writes(tmp_path, capsys):
     outs = {}
     for per_pass in ("0", "2"):
         outs[per_pass] = tmp_path / f"demo{per_pass}"
-        code, _, err = run_cli(capsys, "demo", "--every", "400", "--rules", rules,
-                               "--rules-per-pass", per_pass, "--out", outs[per_pass])
+        code, _, err = run_cli(
+            capsys,
+            "demo",
+            "--every",
+            "400",
+            "--rules",
+            rules,
+            "--rules-per-pass",
+            per_pass,
+            "--out",
+            outs[per_pass],
+        )
         assert code == 0, err
     files = sorted(p.relative_to(outs["0"]) for p in outs["0"].rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(outs["2"]) for p in outs["2"].rglob("*") if p.is_file())
@@ -398,7 +547,10 @@ def test_demo_in_passes_writes_what_one_pass_writes(tmp_path, capsys):
         if f.suffix not in (".json", ".md", ".png"):
             assert (outs["0"] / f).read_bytes() == (outs["2"] / f).read_bytes(), f
     one, two = (json.loads((outs[k] / "summary.json").read_text()) for k in ("0", "2"))
-    assert (one["config"]["fuse"]["rules_per_pass"], two["config"]["fuse"]["rules_per_pass"]) == (0, 2)
+    assert (one["config"]["fuse"]["rules_per_pass"], two["config"]["fuse"]["rules_per_pass"]) == (
+        0,
+        2,
+    )
     # each rule's own time after the other parts, in the order of the rules, in both runs
     for s in (one, two):
         parts = list(s["timings_s"])
@@ -429,17 +581,22 @@ def split_graph(tmp_path_factory):
     return p
 
 
-@pytest.mark.parametrize("args, needles", [
-    (["--topology", "hexagon"], ["unknown topology 'hexagon'", "ring", "max-robust:K"]),
-    (["--topology", "SPLIT"], ["is disconnected", "nodes {c, d} are cut off from node a"]),
-    (["--topology", "max-robust:4"], ["max-robust:K needs K < n, got K=4 with n=4",
-                                      "max-robust:3"]),
-    (["--topology", "max-robust:7"], ["K=7 with n=4"]),
-    (["--schedule", "rounds:2"], ["rounds:N", "octofuse fuse", "periodic:PERIOD_S"]),
-    (["--schedule", "weekly"], ["unknown schedule 'weekly'"]),
-    (["--schedule", "periodic:-1"], ["positive"]),
-    (["--topology", "missing.yaml"], ["graph file not found: missing.yaml"]),
-])
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["--topology", "hexagon"], ["unknown topology 'hexagon'", "ring", "max-robust:K"]),
+        (["--topology", "SPLIT"], ["is disconnected", "nodes {c, d} are cut off from node a"]),
+        (
+            ["--topology", "max-robust:4"],
+            ["max-robust:K needs K < n, got K=4 with n=4", "max-robust:3"],
+        ),
+        (["--topology", "max-robust:7"], ["K=7 with n=4"]),
+        (["--schedule", "rounds:2"], ["rounds:N", "octofuse fuse", "periodic:PERIOD_S"]),
+        (["--schedule", "weekly"], ["unknown schedule 'weekly'"]),
+        (["--schedule", "periodic:-1"], ["positive"]),
+        (["--topology", "missing.yaml"], ["graph file not found: missing.yaml"]),
+    ],
+)
 def test_run_bad_input_is_one_error_line(bag, split_graph, tmp_path, capsys, args, needles):
     args = [str(split_graph) if a == "SPLIT" else a for a in args]
     base = ["--rule", "chernoff", "--topology", "ring", "--schedule", "periodic:1"]
@@ -455,48 +612,90 @@ def test_run_without_a_placeable_scan_is_an_error(tmp_path, capsys):
     rec = bf.robot_recording(robots, bf.team_times(robots, 2), tf_times=late_tf)
     bag = rec.write(tmp_path / "early", "mcap")
     out = tmp_path / "o"
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "naive-bayes,chernoff", "--topology",
-                           "ring", "--schedule", "periodic:1", "--resolution", RES, "--out", out)
-    assert_one_error(code, err, "no scan of", "could be placed in the fixed frame 'map'",
-                     "a: 2 before the first transform")
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "naive-bayes,chernoff",
+        "--topology",
+        "ring",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--out",
+        out,
+    )
+    assert_one_error(
+        code,
+        err,
+        "no scan of",
+        "could be placed in the fixed frame 'map'",
+        "a: 2 before the first transform",
+    )
     assert not out.exists()
 
 
-@pytest.mark.parametrize("args, needles", [
-    (["--topology", "max-robust:4"], ["K=4 with n=4"]),
-    (["--topology", "SPLIT"], ["is disconnected"]),
-    # flags are checked by click (usage errors, below); the same values from a config file
-    # are bad input, and a config's schedule is not overridden by the default of --rounds
-    (["--config", "fuse:\n  schedule: rounds:0\n"], ["rounds:R needs a whole number of rounds >= 1"]),
-    (["--config", "fuse:\n  schedule: periodic:1\n"], ["finished maps are fused in rounds"]),
-    (["--config", "fuse:\n  directions: sideways\n"], ["fuse.directions = 'sideways'",
-                                                         "expected both or one"]),
-])
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["--topology", "max-robust:4"], ["K=4 with n=4"]),
+        (["--topology", "SPLIT"], ["is disconnected"]),
+        # flags are checked by click (usage errors, below); the same values from a config file
+        # are bad input, and a config's schedule is not overridden by the default of --rounds
+        (
+            ["--config", "fuse:\n  schedule: rounds:0\n"],
+            ["rounds:R needs a whole number of rounds >= 1"],
+        ),
+        (["--config", "fuse:\n  schedule: periodic:1\n"], ["finished maps are fused in rounds"]),
+        (
+            ["--config", "fuse:\n  directions: sideways\n"],
+            ["fuse.directions = 'sideways'", "expected both or one"],
+        ),
+    ],
+)
 def test_fuse_bad_input_is_one_error_line(built, split_graph, tmp_path, capsys, args, needles):
     args = [str(split_graph) if a == "SPLIT" else a for a in args]
     if args[0] == "--config":
         (tmp_path / "fuse.yaml").write_text(args[1])
         args = ["--config", tmp_path / "fuse.yaml"]
-    code, _, err = run_cli(capsys, "fuse", built, "--topology", "ring", *args,
-                           "--out", tmp_path / "o")
+    code, _, err = run_cli(
+        capsys, "fuse", built, "--topology", "ring", *args, "--out", tmp_path / "o"
+    )
     assert_one_error(code, err, *needles)
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("command, args, needles", [
-    ("fuse", ["--rounds", "0"], ["--rounds", "0 is not in the range 1<=x<=10000"]),
-    ("fuse", ["--directions", "sideways"], ["--directions", "'sideways' is not one of 'both', 'one'"]),
-    ("bench", ["--topologies", " , "], ["--topologies", "' , ' has an empty item"]),
-    ("run", ["--rule", "bayes"], ["--rule", "unknown 'bayes'; expected one or more of "
-                                  "naive-bayes, bhattacharyya, min-entropy, chernoff"]),
-    ("run", ["--rule", "chernoff,bayes"], ["unknown 'bayes'"]),
-    ("fuse", ["--rule", "bayes"], ["unknown 'bayes'"]),
-    ("bench", ["--rules", "chernoff,bayes"], ["unknown 'bayes'"]),
-])
+@pytest.mark.parametrize(
+    "command, args, needles",
+    [
+        ("fuse", ["--rounds", "0"], ["--rounds", "0 is not in the range 1<=x<=10000"]),
+        (
+            "fuse",
+            ["--directions", "sideways"],
+            ["--directions", "'sideways' is not one of 'both', 'one'"],
+        ),
+        ("bench", ["--topologies", " , "], ["--topologies", "' , ' has an empty item"]),
+        (
+            "run",
+            ["--rule", "bayes"],
+            [
+                "--rule",
+                "unknown 'bayes'; expected one or more of "
+                "naive-bayes, bhattacharyya, min-entropy, chernoff",
+            ],
+        ),
+        ("run", ["--rule", "chernoff,bayes"], ["unknown 'bayes'"]),
+        ("fuse", ["--rule", "bayes"], ["unknown 'bayes'"]),
+        ("bench", ["--rules", "chernoff,bayes"], ["unknown 'bayes'"]),
+    ],
+)
 def test_bad_flag_values_are_usage_errors(bag, built, tmp_path, capsys, command, args, needles):
     out = tmp_path / "o"
-    code, text, err = run_cli(capsys, command, built if command == "fuse" else bag, *args,
-                              "--out", out)
+    code, text, err = run_cli(
+        capsys, command, built if command == "fuse" else bag, *args, "--out", out
+    )
     assert code == 2, err
     assert "Traceback" not in err and err.startswith(f"Usage: octofuse {command} ")
     for n in needles:
@@ -516,34 +715,59 @@ def test_fuse_needs_a_folder_of_maps(built, tmp_path, capsys):
 
 
 def test_bench_with_an_agent_in_its_own_frame_scores_as_run_does(bag, tmp_path, capsys):
-    args = ["--rules", "chernoff", "--schedule", "periodic:1", "--resolution", RES,
-            "--agent-frame", "b=0.2,0,0,0,0,0.1"]
-    code, _, err = run_cli(capsys, "bench", bag, *args, "--topologies", "ring",
-                           "--executor", "serial", "--out", tmp_path / "bench")
+    args = [
+        "--rules",
+        "chernoff",
+        "--schedule",
+        "periodic:1",
+        "--resolution",
+        RES,
+        "--agent-frame",
+        "b=0.2,0,0,0,0,0.1",
+    ]
+    code, _, err = run_cli(
+        capsys,
+        "bench",
+        bag,
+        *args,
+        "--topologies",
+        "ring",
+        "--executor",
+        "serial",
+        "--out",
+        tmp_path / "bench",
+    )
     assert code == 0, err
     with (tmp_path / "bench" / "bench.csv").open() as f:
         rows = {r["rule"]: r for r in csv.DictReader(f)}
-    code, _, err = run_cli(capsys, "run", bag, *args, "--topology", "ring", "--samples", "0",
-                           "--out", tmp_path / "run")
+    code, _, err = run_cli(
+        capsys, "run", bag, *args, "--topology", "ring", "--samples", "0", "--out", tmp_path / "run"
+    )
     assert code == 0, err
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert run["agent_frames"]["b"]["x"] == pytest.approx(0.2)
     for rule in ("chernoff", LOCAL):
         for key in ("kl_mean", "overconfidence", "coverage"):
-            assert float(rows[rule][key]) == pytest.approx(run["mean"][rule][key], rel=1e-12), \
-                (rule, key)
+            assert float(rows[rule][key]) == pytest.approx(run["mean"][rule][key], rel=1e-12), (
+                rule,
+                key,
+            )
 
 
-@pytest.mark.parametrize("args, needles", [
-    (["--topologies", "ring,hexagon"], ["unknown topology 'hexagon'"]),
-    (["--topologies", "ring,SPLIT"], ["is disconnected"]),
-    (["--rules", "chernoff", "--agent-frame", "zz=1,0,0,0,0,0"], ["unknown agent 'zz'"]),
-])
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["--topologies", "ring,hexagon"], ["unknown topology 'hexagon'"]),
+        (["--topologies", "ring,SPLIT"], ["is disconnected"]),
+        (["--rules", "chernoff", "--agent-frame", "zz=1,0,0,0,0,0"], ["unknown agent 'zz'"]),
+    ],
+)
 def test_bench_bad_input_fails_before_any_run(bag, split_graph, tmp_path, capsys, args, needles):
     args = [a.replace("SPLIT", str(split_graph)) for a in args]
     out = tmp_path / "o"
-    code, text, err = run_cli(capsys, "bench", bag, "--resolution", RES, "--schedule",
-                              "periodic:1", *args, "--out", out)
+    code, text, err = run_cli(
+        capsys, "bench", bag, "--resolution", RES, "--schedule", "periodic:1", *args, "--out", out
+    )
     assert_one_error(code, err, *needles)
     assert "done in" not in text and not out.exists()
 
@@ -557,16 +781,32 @@ def test_score_numbers_are_finite(run_out):
 
 
 def test_a_run_bag_of_every_nth_map_as_clouds_says_its_size_first(bag, tmp_path, capsys):
-    from octofuse.outputs.rosbag_export import POINTCLOUD2
     from rosbags.highlevel import AnyReader
 
+    from octofuse.outputs.rosbag_export import POINTCLOUD2
+
     replay = tmp_path / "replay.mcap"
-    code, text, err = run_cli(capsys, "run", bag, *RUN_ARGS, "--schedule", "periodic:0.33",
-                              "--export-bag", replay, "--bag-every", "2", "--bag-clouds-only",
-                              "--out", tmp_path / "out")
+    code, text, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        *RUN_ARGS,
+        "--schedule",
+        "periodic:0.33",
+        "--export-bag",
+        replay,
+        "--bag-every",
+        "2",
+        "--bag-clouds-only",
+        "--out",
+        tmp_path / "out",
+    )
     assert code == 0, err
-    said = re.search(r"--export-bag: (\d+) of about (\d+) map messages written, about [\d.,]+ "
-                     r"MB expected", text)
+    said = re.search(
+        r"--export-bag: (\d+) of about (\d+) map messages written, about [\d.,]+ "
+        r"MB expected",
+        text,
+    )
     assert said, text
     with AnyReader([replay]) as reader:
         assert {c.msgtype for c in reader.connections} == {POINTCLOUD2}

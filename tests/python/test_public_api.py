@@ -25,8 +25,9 @@ def _modules_with_all():
 
 
 def test_every_module_all_resolves():
-    missing = [f"{m.__name__}.{n}" for m in _modules_with_all() for n in m.__all__
-               if not hasattr(m, n)]
+    missing = [
+        f"{m.__name__}.{n}" for m in _modules_with_all() for n in m.__all__ if not hasattr(m, n)
+    ]
     assert missing == []
 
 

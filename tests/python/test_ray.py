@@ -15,7 +15,6 @@ ray = pytest.importorskip("ray")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-
 from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig  # noqa: E402
 from octofuse.fusion.executors import RayExecutor, make_executor  # noqa: E402
 from octofuse.fusion.results import LOCAL  # noqa: E402
@@ -42,8 +41,10 @@ def bag(tmp_path_factory):
 
 
 def config(bag, threads=1) -> RunConfig:
-    return RunConfig(build=make_build_config(bag, resolution=0.2, threads=threads),
-                     fuse=FuseConfig(rules=list(RULES), topology="ring", schedule="aperiodic:1"))
+    return RunConfig(
+        build=make_build_config(bag, resolution=0.2, threads=threads),
+        fuse=FuseConfig(rules=list(RULES), topology="ring", schedule="aperiodic:1"),
+    )
 
 
 def test_cells_on_ray_equal_the_serial_cells(bag, tmp_path):
@@ -55,7 +56,9 @@ def test_cells_on_ray_equal_the_serial_cells(bag, tmp_path):
     assert len(serial) == 2 and serial.keys() == on_ray.keys()
     for k in serial:
         assert serial[k]["rows"] == on_ray[k]["rows"], k
-    assert (tmp_path / "serial" / "bench.csv").read_text() == (tmp_path / "ray" / "bench.csv").read_text()
+    assert (tmp_path / "serial" / "bench.csv").read_text() == (
+        tmp_path / "ray" / "bench.csv"
+    ).read_text()
     assert sum("done in" in x for x in lines) == 2
     assert ray.is_initialized()  # a running Ray is used, not shut down
 
@@ -64,8 +67,14 @@ def test_a_failing_task_is_reported_and_the_others_go_on(bag, tmp_path):
     bad = tmp_path / "broken.bag"
     bad.write_bytes(b"not a bag at all")
     lines: list[str] = []
-    run_study(config(bag), ["ring"], tmp_path / "out", bag_sets=[[str(bad)], [str(bag)]],
-              executor=RayExecutor(), log=lines.append)
+    run_study(
+        config(bag),
+        ["ring"],
+        tmp_path / "out",
+        bag_sets=[[str(bad)], [str(bag)]],
+        executor=RayExecutor(),
+        log=lines.append,
+    )
     failed = [x for x in lines if "FAILED" in x]
     assert len(failed) == 1 and "broken.bag" in failed[0]
     assert "## Failed cells" in (tmp_path / "out" / "bench.md").read_text()
@@ -86,12 +95,20 @@ def test_the_executor_reports_a_crashed_worker():
     assert not by[1].ok and "Worker" in by[1].error
 
 
-@pytest.mark.parametrize("delta, per_worker, framed, align, extra", [
-    (False, 2, False, "off", {}), (True, 4, False, "off", {}), (False, 2, True, "off", {}),
-    (True, 1, True, "off", {}), (False, 2, True, "planar", {}), (True, 2, True, "planar", {}),
-    (True, 2, False, "off", {"rules": [*RULES, "channel-filter"], "loss": 0.3}),
-    (False, 2, False, "off", {"rules": [*RULES, "source-layers"], "loss": 0.3}),
-    (False, 2, True, "off", {"robust": RobustConfig(enabled=True, time=1.0)})])
+@pytest.mark.parametrize(
+    "delta, per_worker, framed, align, extra",
+    [
+        (False, 2, False, "off", {}),
+        (True, 4, False, "off", {}),
+        (False, 2, True, "off", {}),
+        (True, 1, True, "off", {}),
+        (False, 2, True, "planar", {}),
+        (True, 2, True, "planar", {}),
+        (True, 2, False, "off", {"rules": [*RULES, "channel-filter"], "loss": 0.3}),
+        (False, 2, False, "off", {"rules": [*RULES, "source-layers"], "loss": 0.3}),
+        (False, 2, True, "off", {"robust": RobustConfig(enabled=True, time=1.0)}),
+    ],
+)
 def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed, align, extra):
     """Also with two agents mapping in frames of their own (their scans are taken as given in
     those frames): messages moved into the receiver's, the centralized map and the scores in
@@ -102,12 +119,27 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     agent frames, run as in the simulation too; and source layers (their frames of several
     layers) on links that lose messages."""
     cfg = config(bag)
-    frames = [AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
-              AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05])] if framed else []
+    frames = (
+        [
+            AgentFrame("a", [0.3, -0.2, 0.0, 0.0, 0.0, 0.09]),
+            AgentFrame("c", [-0.1, 0.25, 0.0, 0.0, 0.0, -0.05]),
+        ]
+        if framed
+        else []
+    )
     # with alignment, messages often enough for a link's second registration to confirm it
     schedule = "periodic:0.2" if align != "off" else "periodic:0.33"
-    fuse = FuseConfig(**{"rules": list(RULES), "topology": "ring", "schedule": schedule,
-                         "delta": delta, "agent_frames": frames, "align": align, **extra})
+    fuse = FuseConfig(
+        **{
+            "rules": list(RULES),
+            "topology": "ring",
+            "schedule": schedule,
+            "delta": delta,
+            "agent_frames": frames,
+            "align": align,
+            **extra,
+        }
+    )
     fuse.validate("fuse")
     rules = fuse.rules
     ref = simulate(cfg.build, fuse, samples=3)
@@ -116,11 +148,14 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
     assert ref.frames.keys() == ({"a", "c"} if framed else set())
     if align != "off":  # links that align after a few tries, and links that never do
         assert {(d["aligned"], d["attempts"] > 1) for d in ref.alignment} == {
-            (True, True), (False, True)}
-    sw = simulate_swarm(cfg.build, fuse, samples=3, collect_maps=True,
-                        agents_per_worker=per_worker)
-    untimed = lambda links: [{k: v for k, v in d.items() if k != "seconds"}  # noqa: E731
-                             for d in links]
+            (True, True),
+            (False, True),
+        }
+    sw = simulate_swarm(cfg.build, fuse, samples=3, collect_maps=True, agents_per_worker=per_worker)
+
+    def untimed(links):
+        return [{k: v for k, v in d.items() if k != "seconds"} for d in links]
+
     assert untimed(sw.alignment) == untimed(ref.alignment)
     assert len(sw.timeline) == 3 * (len(rules) + 1) * 4 and sw.timeline == ref.timeline
     assert sw.excluded == ref.excluded and (sw.robust is None) == (ref.robust is None)
@@ -142,5 +177,10 @@ def test_a_swarm_equals_the_in_process_simulation(bag, delta, per_worker, framed
         assert dict(sw.traffic[r].sent_32b) == dict(ref.traffic[r].sent_32b)
     assert sw.stream_bytes > 0 and all(w["peak_rss"] > 0 for w in sw.workers)
     # the driver's parts: wall time, named so (the workers' threads are not timed here)
-    assert set(sw.timings) == {"start workers", "exchange calls (driver)", "run (wall)",
-                               "final scores (wall)", "total"}
+    assert set(sw.timings) == {
+        "start workers",
+        "exchange calls (driver)",
+        "run (wall)",
+        "final scores (wall)",
+        "total",
+    }

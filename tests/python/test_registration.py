@@ -4,18 +4,23 @@ import math
 
 import numpy as np
 import pytest
-from bagfactory import ROOM, Box, Scene, lidar_directions
-from test_frames import SENSORS, room_map
 
+from bagfactory import ROOM, Box, Scene, lidar_directions
 from octofuse import OccupancyMap
 from octofuse.maps.frames import pose_matrix
 from octofuse.maps.registration import MAX_CONFLICT, free_space_conflict, register
+from test_frames import SENSORS, room_map
 
 RES = 0.1
 
 #: (x, y, z metres, yaw degrees) of B's frame in A's frame
-OFFSETS = [(0.5, -0.3, 0.0, 0.0), (1.2, 0.4, 0.1, 30.0), (-0.8, 0.9, 0.0, -120.0),
-           (0.3, 0.2, 0.0, 180.0), (2.0, -1.0, 0.0, 75.0)]
+OFFSETS = [
+    (0.5, -0.3, 0.0, 0.0),
+    (1.2, 0.4, 0.1, 30.0),
+    (-0.8, 0.9, 0.0, -120.0),
+    (0.3, 0.2, 0.0, 180.0),
+    (2.0, -1.0, 0.0, 75.0),
+]
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +35,9 @@ def errors(T_est, T_true):
 
 
 @pytest.mark.parametrize("planar", [False, True], ids=["full", "planar"])
-@pytest.mark.parametrize("off", OFFSETS, ids=[f"{x},{y},{z},{yaw:g}deg" for x, y, z, yaw in OFFSETS])
+@pytest.mark.parametrize(
+    "off", OFFSETS, ids=[f"{x},{y},{z},{yaw:g}deg" for x, y, z, yaw in OFFSETS]
+)
 def test_known_offsets_are_recovered(a_map, off, planar):
     x, y, z, yaw = off
     T = pose_matrix(x, y, z, 0, 0, math.radians(yaw))
@@ -81,7 +88,9 @@ def test_single_wall_is_refused(a_map):
 
 def test_other_place_is_refused(a_map):
     corridor = Scene(Box((-4.95, -0.95, -0.05), (4.95, 0.95, 2.45)))
-    with pytest.raises(ValueError, match="cannot register: the best transform matches .*too little"):
+    with pytest.raises(
+        ValueError, match="cannot register: the best transform matches .*too little"
+    ):
         register(a_map, _scene_map(corridor, [(-3, 0, 0.6), (3, 0, 0.6)]))
 
 

@@ -13,22 +13,53 @@ import numpy as np
 import pytest
 
 from octofuse.config import FuseConfig, RobustConfig, RunConfig, from_dict
-from octofuse.maps.alignment import ABSTAIN_VARIANCE, map_points, neighbour_offset, occupied_points, register
+from octofuse.maps.alignment import (
+    ABSTAIN_VARIANCE,
+    map_points,
+    neighbour_offset,
+    occupied_points,
+    register,
+)
 from octofuse.maps.build import insert_scans, make_build_config
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.source import ScanSource
 
 GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
-BIAS = ["--bias-robot", "3", "--bias-offset", "0.4", "-0.2", "--bias-yaw", "3",
-        "--bias-drift", "0.002", "0.001", "--bias-yaw-drift", "0.01"]
+BIAS = [
+    "--bias-robot",
+    "3",
+    "--bias-offset",
+    "0.4",
+    "-0.2",
+    "--bias-yaw",
+    "3",
+    "--bias-drift",
+    "0.002",
+    "0.001",
+    "--bias-yaw-drift",
+    "0.01",
+]
 
 
 @pytest.fixture(scope="module")
 def lab_bag(tmp_path_factory) -> Path:
     """60 s of the simulated lab at 1 scan/s, robot 3's poses biased."""
     out = tmp_path_factory.mktemp("lab") / "lab_bias.bag"
-    subprocess.run([sys.executable, str(GENERATOR), "--duration", "60", "--rate", "1",
-                    "--out", str(out), *BIAS], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(
+        [
+            sys.executable,
+            str(GENERATOR),
+            "--duration",
+            "60",
+            "--rate",
+            "1",
+            "--out",
+            str(out),
+            *BIAS,
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
     return out
 
 
@@ -42,7 +73,9 @@ def maps(lab_bag):
     """Maps of robots 7 and 8 (correctly localised, they overlap): robot 8 from its even and
     from its odd scans, robot 7 from all, and robot 8's even scans with every pose moved by a
     known rigid transform (a shifted copy of the map)."""
-    cfg = make_build_config(lab_bag, agents=["robot7=/robot7/scan", "robot8=/robot8/scan"], threads=1)
+    cfg = make_build_config(
+        lab_bag, agents=["robot7=/robot7/scan", "robot8=/robot8/scan"], threads=1
+    )
     out = {k: OccupancyMap.from_config(cfg.map) for k in ("even", "odd", "other", "shifted")}
     shift = _pose_shift(0.3, -0.2, 4.0)
     with ScanSource(cfg) as src:
@@ -135,8 +168,13 @@ def test_robust_fields_are_validated():
     cfg = from_dict(RunConfig, {"fuse": {"robust": {"enabled": True, "time": 30, "p_in": 0.7}}})
     r = cfg.fuse.robust
     assert r.enabled and r.time == 30.0 and r.hold and r.p_in == 0.7
-    for key, bad in [("p_in", 1.0), ("confidence", 0.0), ("time", -1.0),
-                     ("iterations", 0), ("success", 1.5)]:
+    for key, bad in [
+        ("p_in", 1.0),
+        ("confidence", 0.0),
+        ("time", -1.0),
+        ("iterations", 0),
+        ("success", 1.5),
+    ]:
         with pytest.raises(ValueError, match=key):
             from_dict(RunConfig, {"fuse": {"robust": {key: bad}}})
     with pytest.raises(ValueError, match="robust"):
@@ -148,8 +186,12 @@ def test_the_biased_robot_is_voted_out_and_not_fused(lab_bag, tmp_path):
     from octofuse.outputs.report import write_outputs
 
     bcfg = make_build_config(lab_bag, threads=1)
-    fcfg = FuseConfig(rules=["min-info-loss"], topology="max-robust:3", schedule="periodic:10",
-                      robust=RobustConfig(enabled=True, time=50.0))
+    fcfg = FuseConfig(
+        rules=["min-info-loss"],
+        topology="max-robust:3",
+        schedule="periodic:10",
+        robust=RobustConfig(enabled=True, time=50.0),
+    )
     res = simulate(bcfg, fcfg, samples=0)
     out = res.robust
     assert res.excluded == ["robot3"] and out.excluded == ["robot3"]

@@ -3,13 +3,19 @@ with rosbags and decoded with the map core's OctoMap reader."""
 
 import numpy as np
 import pytest
-from test_frames import SENSORS, room_map, voxels
 
 from octofuse import OccupancyMap
 from octofuse.maps.registration import occupied_centers
-from octofuse.outputs.rosbag_export import (OCTOMAP, POINTCLOUD2, MapEvent, read_map_bag,
-                                            typestore, write_map_bag)
+from octofuse.outputs.rosbag_export import (
+    OCTOMAP,
+    POINTCLOUD2,
+    MapEvent,
+    read_map_bag,
+    typestore,
+    write_map_bag,
+)
 from octofuse.scans.bags import BagSet
+from test_frames import SENSORS, room_map, voxels
 
 S = 1_000_000_000
 
@@ -46,7 +52,7 @@ def test_maps_round_trip_voxel_by_voxel(maps, tmp_path, name):
     assert out.exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     got = read_map_bag(out)
     assert [(t, s) for t, s, _ in got] == [("/robot1/octomap", 5 * S), ("/robot2/octomap", 5 * S)]
-    for (topic, _, m), agent in zip(got, maps):
+    for (_, _, m), agent in zip(got, maps):
         ref = OccupancyMap.load(paths[agent])  # the .ot file written by the map core
         assert m.resolution == ref.resolution
         assert voxels(m) == voxels(ref)  # log-odds kept, voxel by voxel
@@ -62,21 +68,29 @@ def test_maps_round_trip_voxel_by_voxel(maps, tmp_path, name):
             agent = topic.split("/")[1]
             names = [f.name for f in msg.fields]
             assert names == ["x", "y", "z", "log_odds", "occupancy"]
-            rec = np.frombuffer(np.asarray(msg.data).tobytes(),
-                                dtype=[(n, "<f4") for n in names])
+            rec = np.frombuffer(np.asarray(msg.data).tobytes(), dtype=[(n, "<f4") for n in names])
             assert msg.width == len(rec) == len(occupied_centers(maps[agent])) > 100
-            np.testing.assert_allclose(np.stack([rec["x"], rec["y"], rec["z"]], 1),
-                                       occupied_centers(maps[agent]), atol=1e-6)
+            np.testing.assert_allclose(
+                np.stack([rec["x"], rec["y"], rec["z"]], 1),
+                occupied_centers(maps[agent]),
+                atol=1e-6,
+            )
             assert (rec["log_odds"] > 0).all() and (rec["occupancy"] > 0.5).all()
 
 
 def test_one_message_per_agent_per_event_in_time_order(maps, tmp_path):
-    events = [MapEvent("robot2", 3 * S, maps["robot2"]), MapEvent("robot1", 1 * S, maps["robot1"]),
-              MapEvent("robot1", 2 * S, maps["robot2"])]
+    events = [
+        MapEvent("robot2", 3 * S, maps["robot2"]),
+        MapEvent("robot1", 1 * S, maps["robot1"]),
+        MapEvent("robot1", 2 * S, maps["robot2"]),
+    ]
     out = write_map_bag(tmp_path / "run.mcap", events, cloud_topic=None)
     got = read_map_bag(out)
-    assert [(t, s) for t, s, _ in got] == [("/robot1/octomap", S), ("/robot1/octomap", 2 * S),
-                                           ("/robot2/octomap", 3 * S)]
+    assert [(t, s) for t, s, _ in got] == [
+        ("/robot1/octomap", S),
+        ("/robot1/octomap", 2 * S),
+        ("/robot2/octomap", 3 * S),
+    ]
     assert voxels(got[1][2]) == voxels(maps["robot2"])
     with BagSet([out]) as bags:
         assert set(bags.topics()) == {"/robot1/octomap", "/robot2/octomap"}

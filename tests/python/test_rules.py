@@ -37,7 +37,9 @@ def test_chernoff_equalises_the_two_klds(la, lb):
 @given(logodds, logodds)
 def test_entropy_weighted_chernoff_equalises_the_weighted_klds(la, lb):
     f = fuse_logodds(la, lb, rule="entropy-weighted-chernoff")
-    assert kl(f.l, la) / entropy(la) == pytest.approx(kl(f.l, lb) / entropy(lb), rel=1e-6, abs=1e-11)
+    assert kl(f.l, la) / entropy(la) == pytest.approx(
+        kl(f.l, lb) / entropy(lb), rel=1e-6, abs=1e-11
+    )
 
 
 @given(logodds.filter(lambda x: abs(x) > 1e-3))
@@ -142,7 +144,8 @@ def test_chernoff_matches_the_papers_closed_form():
     A, B = np.log(pa / pb), np.log((1 - pa) / (1 - pb))
     p_star = B / (B - A)
     w = (np.log(p_star / (1 - p_star)) - np.log(pb / (1 - pb))) / (
-        np.log(pa / (1 - pa)) - np.log(pb / (1 - pb)))
+        np.log(pa / (1 - pa)) - np.log(pb / (1 - pb))
+    )
     assert fuse_bernoulli(pa, pb, rule="chernoff").omega == pytest.approx(w, rel=1e-12)
 
 
@@ -184,5 +187,12 @@ def test_bad_inputs_are_clear_errors():
 
 
 def test_rules_list_is_complete():
-    assert octofuse.RULES == ("naive-bayes", "bhattacharyya", "min-entropy", "chernoff",
-                              "entropy-weighted-chernoff", "kld-weighted-chernoff", "min-info-loss")
+    assert octofuse.RULES == (
+        "naive-bayes",
+        "bhattacharyya",
+        "min-entropy",
+        "chernoff",
+        "entropy-weighted-chernoff",
+        "kld-weighted-chernoff",
+        "min-info-loss",
+    )

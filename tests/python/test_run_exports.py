@@ -17,23 +17,43 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli, run_keeping_result  # noqa: E402
 from conftest import finest_voxels  # noqa: E402
-
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.fusion.results import FusionEvent  # noqa: E402
-from octofuse.outputs.event_loss import (MIN_EXPLAINED, counts_messages,  # noqa: E402
-                                         event_loss_summary, messages_sentence)
 from octofuse.outputs.clouds import read_cloud  # noqa: E402
+from octofuse.outputs.event_loss import (  # noqa: E402
+    MIN_EXPLAINED,
+    counts_messages,
+    event_loss_summary,
+    messages_sentence,
+)
 from octofuse.outputs.export import MapVoxelLoss, colorize  # noqa: E402
 from octofuse.outputs.rosbag_export import read_map_bag  # noqa: E402
-from octofuse.outputs.topview import (MARGIN_PX, MAX_SIDE_PX, MIN_CELL_PX,  # noqa: E402
-                                      MIN_SIDE_PX, above_floor, frame_for, pooled_max,
-                                      topview_grid)
+from octofuse.outputs.topview import (  # noqa: E402
+    MARGIN_PX,
+    MAX_SIDE_PX,
+    MIN_CELL_PX,
+    MIN_SIDE_PX,
+    above_floor,
+    frame_for,
+    pooled_max,
+    topview_grid,
+)
 
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]
 RULES = ["naive-bayes", "chernoff", "kld-weighted-chernoff", "min-info-loss"]
-BASE = ["--topology", "ring", "--schedule", "aperiodic:0.4", "--resolution", RES,
-        "--samples", "0", "--seed", "3"]
+BASE = [
+    "--topology",
+    "ring",
+    "--schedule",
+    "aperiodic:0.4",
+    "--resolution",
+    RES,
+    "--samples",
+    "0",
+    "--seed",
+    "3",
+]
 
 
 def png_size(p: Path) -> tuple[int, int]:
@@ -55,7 +75,8 @@ def voxels(m) -> dict:
 def bag(tmp_path_factory):
     robots = bf.team(4)
     return bf.robot_recording(robots, bf.team_times(robots, 4)).write(
-        tmp_path_factory.mktemp("bag") / "team", "mcap")
+        tmp_path_factory.mktemp("bag") / "team", "mcap"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -66,8 +87,19 @@ def run_all(bag, tmp_path_factory):
     # rounds at 1 s and 2 s: the last one after every scan, so the maps written are the maps
     # of each agent's last fusion
     args = [*BASE[:2], "--schedule", "periodic:1", *BASE[4:]]
-    code, res = run_keeping_result("run", bag, "--rules", ",".join(RULES), *args, "--formats",
-                                   "ply,pcd", "--export-bag", replay, "--out", out)
+    code, res = run_keeping_result(
+        "run",
+        bag,
+        "--rules",
+        ",".join(RULES),
+        *args,
+        "--formats",
+        "ply,pcd",
+        "--export-bag",
+        replay,
+        "--out",
+        out,
+    )
     assert code == 0
     return out, replay, res
 
@@ -78,8 +110,9 @@ def run_all(bag, tmp_path_factory):
 @pytest.mark.parametrize("mode", ["none", "fused", "all"])
 def test_export_modes_and_formats(bag, tmp_path, capsys, mode):
     out = tmp_path / "o"
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", *BASE, "--export", mode,
-                           "--out", out)
+    code, _, err = run_cli(
+        capsys, "run", bag, "--rules", "chernoff", *BASE, "--export", mode, "--out", out
+    )
     assert code == 0, err
     assert (out / "report.md").is_file() and (out / "summary.json").is_file()
     maps = [f"chernoff/{a}.ot" for a in AGENTS] + ["centralized.ot"]
@@ -161,12 +194,17 @@ def test_topview_grid_against_brute_force():
     want: dict = {}
     for c, s, l in zip(centers, sizes, loss):
         n = int(round(s / res))
-        ix0, iy0 = int(np.floor((c[0] - s / 2) / res + 0.5)), int(np.floor((c[1] - s / 2) / res + 0.5))
+        ix0, iy0 = (
+            int(np.floor((c[0] - s / 2) / res + 0.5)),
+            int(np.floor((c[1] - s / 2) / res + 0.5)),
+        )
         for i in range(ix0, ix0 + n):
             for j in range(iy0, iy0 + n):
                 want[(i, j)] = max(want.get((i, j), -1.0), float(l))
-    assert (x0, y0) == (-20 * res, -20 * res) and grid.shape == (round((y1 - y0) / res),
-                                                                 round((x1 - x0) / res))
+    assert (x0, y0) == (-20 * res, -20 * res) and grid.shape == (
+        round((y1 - y0) / res),
+        round((x1 - x0) / res),
+    )
     for (i, j), w in want.items():
         assert grid[j + 20, i + 20] == pytest.approx(w)
     assert np.isnan(grid).sum() == grid.size - len(want)
@@ -181,7 +219,7 @@ def test_pooled_max_keeps_the_largest_value_of_each_block():
     assert pooled.shape == (3, 4)
     for i in range(3):
         for j in range(4):
-            block = grid[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+            block = grid[3 * i : 3 * i + 3, 3 * j : 3 * j + 3]
             if np.isnan(block).all():
                 assert np.isnan(pooled[i, j])
             else:
@@ -204,8 +242,9 @@ def test_floor_is_left_out_of_top_views():
     floor = [((i + 0.5) * res, (j + 0.5) * res, -0.05) for i in range(10) for j in range(10)]
     wall = [(0.05, (j + 0.5) * res, 0.05 + 0.1 * k) for j in range(10) for k in range(1, 4)]
     c = np.array(floor + wall)
-    v = MapVoxelLoss(c, np.full(len(c), res), np.ones(len(c), np.float32),
-                     np.zeros(len(c), np.float32))
+    v = MapVoxelLoss(
+        c, np.full(len(c), res), np.ones(len(c), np.float32), np.zeros(len(c), np.float32)
+    )
     assert above_floor(v, res) == pytest.approx((0.0, np.inf))
     grid, _ = topview_grid(v, res, above_floor(v, res))
     assert grid.shape == (10, 1)  # only the wall's column is left
@@ -247,44 +286,55 @@ def test_every_fusion_is_recorded_with_its_loss(run_all):
 
 
 def _events(per_agent: dict[str, list[float]], rule: str = "r") -> list[FusionEvent]:
-    return [FusionEvent(float(i), rule, "x", a, 100, loss)
-            for a, losses in per_agent.items() for i, loss in enumerate(losses)]
+    return [
+        FusionEvent(float(i), rule, "x", a, 100, loss)
+        for a, losses in per_agent.items()
+        for i, loss in enumerate(losses)
+    ]
 
 
 def test_accumulated_loss_that_counts_messages_is_said_so():
     # constant loss per event, agents fusing 1 to 4 messages: accumulated = messages x 2 nats
-    s = event_loss_summary(_events({"a": [2.0], "b": [2.0] * 2, "c": [2.0] * 3, "d": [2.0] * 4}),
-                           ["a", "b", "c", "d"])
+    s = event_loss_summary(
+        _events({"a": [2.0], "b": [2.0] * 2, "c": [2.0] * 3, "d": [2.0] * 4}), ["a", "b", "c", "d"]
+    )
     row = s["r"]
     assert row["correlation"] == pytest.approx(1.0) and row["event_loss_cv"] == 0.0
     assert row["accumulated"] == {"a": 2.0, "b": 4.0, "c": 6.0, "d": 8.0}
     assert row["mean_loss_per_event"] == 2.0 and row["loss_per_voxel"] == pytest.approx(0.02)
     assert counts_messages(row) is True
-    assert messages_sentence(s).startswith("The accumulated loss mostly reflects the number of "
-                                           "messages an agent fused")
+    assert messages_sentence(s).startswith(
+        "The accumulated loss mostly reflects the number of messages an agent fused"
+    )
     assert "`r` 100%" in messages_sentence(s)
 
 
 def test_accumulated_loss_driven_by_per_event_loss_is_not():
     # the agent with most messages loses least: the ranking is not the message count
-    s = event_loss_summary(_events({"a": [9.0], "b": [0.1] * 4, "c": [3.0, 3.0], "d": [1.0] * 3}),
-                           ["a", "b", "c", "d"])
+    s = event_loss_summary(
+        _events({"a": [9.0], "b": [0.1] * 4, "c": [3.0, 3.0], "d": [1.0] * 3}), ["a", "b", "c", "d"]
+    )
     row = s["r"]
     assert row["correlation"] < 0 and row["event_loss_cv"] > 1
     assert counts_messages(row) is False
     assert "does not mostly reflect" in messages_sentence(s)
     # per-event losses that vary at random: the message count explains little
-    weak = event_loss_summary(_events({"a": [5.0], "b": [1.0, 2.0], "c": [0.5, 6.0, 0.2],
-                                       "d": [1.0, 0.5, 1.0, 1.0]}), ["a", "b", "c", "d"])
+    weak = event_loss_summary(
+        _events({"a": [5.0], "b": [1.0, 2.0], "c": [0.5, 6.0, 0.2], "d": [1.0, 0.5, 1.0, 1.0]}),
+        ["a", "b", "c", "d"],
+    )
     assert 0 < weak["r"]["correlation"] ** 2 < MIN_EXPLAINED
     assert counts_messages(weak["r"]) is False and "`r` " in messages_sentence(weak)
     # equal message counts: no correlation to compute, and the sentence says so
-    same = event_loss_summary(_events({"a": [1.0, 2.0], "b": [1.0, 1.0], "c": [3.0, 1.0]}),
-                              ["a", "b", "c"])
+    same = event_loss_summary(
+        _events({"a": [1.0, 2.0], "b": [1.0, 1.0], "c": [3.0, 1.0]}), ["a", "b", "c"]
+    )
     assert same["r"]["correlation"] is None and counts_messages(same["r"]) is None
     assert "cannot be told" in messages_sentence(same)
-    assert event_loss_summary([FusionEvent(0.0, "channel-filter", "a", "b", None, None)],
-                              ["a", "b"]) == {}
+    assert (
+        event_loss_summary([FusionEvent(0.0, "channel-filter", "a", "b", None, None)], ["a", "b"])
+        == {}
+    )
 
 
 # -- the per-event bag ----------------------------------------------------------------------
@@ -296,11 +346,14 @@ def test_bag_replays_every_fusion_and_ends_at_the_written_maps(run_all):
     got = read_map_bag(replay)
     start = bf.T0
     # one message per rule, receiver and instant it fused at least one message
-    want = sorted({(e["rule"], e["receiver"], start + round(e["t"] * 1e9))
-                   for e in s["fusion_events"]}, key=lambda x: x[2])
+    want = sorted(
+        {(e["rule"], e["receiver"], start + round(e["t"] * 1e9)) for e in s["fusion_events"]},
+        key=lambda x: x[2],
+    )
     assert len(got) == len(want) == s["event_bag"]["messages"]
     assert sorted((t, st) for t, st, _ in got) == sorted(
-        (f"/octofuse/{r}/{a}/octomap", st) for r, a, st in want)
+        (f"/octofuse/{r}/{a}/octomap", st) for r, a, st in want
+    )
     stamps = [st for _, st, _ in got]
     assert stamps == sorted(stamps)
     for r in RULES:
@@ -315,24 +368,60 @@ def test_bag_path_is_checked_before_the_run(bag, tmp_path, capsys):
     taken = tmp_path / "taken.mcap"
     taken.write_bytes(b"keep")
     out = tmp_path / "o"
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", *BASE,
-                           "--export-bag", taken, "--out", out)
+    code, _, err = run_cli(
+        capsys, "run", bag, "--rules", "chernoff", *BASE, "--export-bag", taken, "--out", out
+    )
     assert code == 1 and err.startswith("error: ") and "exists" in err
     assert taken.read_bytes() == b"keep" and not out.exists()
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", *BASE,
-                           "--export-bag", out / "r.mcap", "--out", out)
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        *BASE,
+        "--export-bag",
+        out / "r.mcap",
+        "--out",
+        out,
+    )
     assert code == 1 and "inside --out" in err and not out.exists()
-    code, _, err = run_cli(capsys, "run", bag, "--rules", "chernoff", *BASE, "--export-agents",
-                           "none", "--export-bag", tmp_path / "r.mcap", "--out", out)
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        *BASE,
+        "--export-agents",
+        "none",
+        "--export-bag",
+        tmp_path / "r.mcap",
+        "--out",
+        out,
+    )
     assert code == 1 and "no agent is exported" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.mcap"]
 
 
 def test_bag_of_the_exported_agents_only_as_ros1(bag, tmp_path, capsys):
     replay = tmp_path / "replay.bag"
-    code, text, err = run_cli(capsys, "run", bag, "--rules", "min-info-loss", *BASE,
-                              "--export-agents", "b", "--export", "none", "--export-bag", replay,
-                              "--out", tmp_path / "o")
+    code, text, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "min-info-loss",
+        *BASE,
+        "--export-agents",
+        "b",
+        "--export",
+        "none",
+        "--export-bag",
+        replay,
+        "--out",
+        tmp_path / "o",
+    )
     assert code == 0, err
     got = read_map_bag(replay)
     assert got and {t for t, _, _ in got} == {"/octofuse/min-info-loss/b/octomap"}
@@ -346,9 +435,21 @@ def test_bag_of_the_exported_agents_only_as_ros1(bag, tmp_path, capsys):
 
 
 def test_export_flags_round_trip_through_the_config(bag, tmp_path, capsys):
-    code, text, err = run_cli(capsys, "run", bag, "--rules", "chernoff", *BASE, "--export",
-                              "fused", "--formats", "pcd,ply", "--out", tmp_path / "o",
-                              "--dump-config")
+    code, text, err = run_cli(
+        capsys,
+        "run",
+        bag,
+        "--rules",
+        "chernoff",
+        *BASE,
+        "--export",
+        "fused",
+        "--formats",
+        "pcd,ply",
+        "--out",
+        tmp_path / "o",
+        "--dump-config",
+    )
     assert code == 0, err
     cfg = yaml.safe_load(text)
     assert cfg["export"] == "fused" and cfg["formats"] == ["pcd", "ply"]
@@ -358,10 +459,13 @@ def test_export_flags_round_trip_through_the_config(bag, tmp_path, capsys):
     assert code == 0 and again == text
 
 
-@pytest.mark.parametrize("flags, message", [
-    (["--formats", "ply,obj"], "formats = ['ply,obj']: expected one or more of ply, pcd"),
-    (["--export", "some"], "Invalid value for '--export'"),
-])
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--formats", "ply,obj"], "formats = ['ply,obj']: expected one or more of ply, pcd"),
+        (["--export", "some"], "Invalid value for '--export'"),
+    ],
+)
 def test_bad_export_flags_are_one_line(bag, tmp_path, capsys, flags, message):
     code, _, err = run_cli(capsys, "run", bag, *flags, "--out", tmp_path / "o")
     assert code in (1, 2) and message in err and "Traceback" not in err
@@ -377,18 +481,28 @@ def test_loss_histograms_counted_on_threads_draw_the_same_image(tmp_path):
     rng = np.random.default_rng(3)
 
     def agents(scale, n=3):  # each agent's loss leaves
-        return [(rng.gamma(2.0, scale, 2000).astype(np.float32),
-                 rng.integers(13, 17, 2000).astype(np.uint8)) for _ in range(n)]
+        return [
+            (
+                rng.gamma(2.0, scale, 2000).astype(np.float32),
+                rng.integers(13, 17, 2000).astype(np.uint8),
+            )
+            for _ in range(n)
+        ]
 
-    data = {"chernoff": agents(0.3), "min-info-loss": agents(0.5),
-            "empty": [(np.zeros(0, np.float32), np.zeros(0, np.uint8))]}
+    data = {
+        "chernoff": agents(0.3),
+        "min-info-loss": agents(0.5),
+        "empty": [(np.zeros(0, np.float32), np.zeros(0, np.uint8))],
+    }
     kept = {r: [(v.copy(), d.copy()) for v, d in leaves] for r, leaves in data.items()}
     one = plot(data, tmp_path / "one.png", 1)
     two = plot(data, tmp_path / "two.png", 2)
     assert one.read_bytes() == two.read_bytes()
     for r, leaves in data.items():  # the agents' values are left as they were
-        assert all(np.array_equal(v, kv) and np.array_equal(d, kd)
-                   for (v, d), (kv, kd) in zip(leaves, kept[r]))
+        assert all(
+            np.array_equal(v, kv) and np.array_equal(d, kd)
+            for (v, d), (kv, kd) in zip(leaves, kept[r])
+        )
     # the agents' leaves in one array draw the same image
     whole = {r: [tuple(np.concatenate(x) for x in zip(*leaves))] for r, leaves in data.items()}
     assert plot(whole, tmp_path / "whole.png", 2).read_bytes() == one.read_bytes()
@@ -402,8 +516,10 @@ def test_every_rule_of_the_loss_histogram_shows_beside_its_legend():
     from octofuse.outputs.loss_histogram import LossHistograms, loss_histogram_figure
 
     same = np.geomspace(1e-3, 0.1, 10)  # Bhattacharyya and Chernoff are often this close
-    hist = LossHistograms(np.linspace(0, 2, 11), {"chernoff": same, "bhattacharyya": same.copy(),
-                                                  "min-info-loss": same[::-1].copy()})
+    hist = LossHistograms(
+        np.linspace(0, 2, 11),
+        {"chernoff": same, "bhattacharyya": same.copy(), "min-info-loss": same[::-1].copy()},
+    )
     fig = loss_histogram_figure(hist)
     try:
         fig.canvas.draw()

@@ -30,8 +30,7 @@ class CountingSource(ScanSource):
 
 
 def as_tuples(scans):
-    return [(s.agent, s.stamp_ns, s.points.tobytes(), s.pose.tobytes(), s.max_range)
-            for s in scans]
+    return [(s.agent, s.stamp_ns, s.points.tobytes(), s.pose.tobytes(), s.max_range) for s in scans]
 
 
 def test_later_passes_replay_the_first_passes_scans(team_bag):

@@ -3,11 +3,11 @@ import math
 import numpy as np
 import pytest
 
+from octofuse.fusion import (
+    graph,  # noqa: E402
+    schedule,  # noqa: E402
+)
 
-
-
-from octofuse.fusion import graph  # noqa: E402
-from octofuse.fusion import schedule  # noqa: E402
 Exchange = schedule.Exchange
 
 RING8 = graph.make_graph("ring", 8)
@@ -44,8 +44,18 @@ def test_periodic_one_direction_alternates_per_round():
 
 
 def test_periodic_start_and_boundaries():
-    assert times(schedule.periodic(RING8, period_s=10, duration_s=30, start_s=0))[::16] == [0, 10, 20, 30]
-    assert times(schedule.periodic(RING8, period_s=10, duration_s=35, start_s=2.5))[::16] == [2.5, 12.5, 22.5, 32.5]
+    assert times(schedule.periodic(RING8, period_s=10, duration_s=30, start_s=0))[::16] == [
+        0,
+        10,
+        20,
+        30,
+    ]
+    assert times(schedule.periodic(RING8, period_s=10, duration_s=35, start_s=2.5))[::16] == [
+        2.5,
+        12.5,
+        22.5,
+        32.5,
+    ]
     assert schedule.periodic(RING8, period_s=10, duration_s=9) == []
     assert set(times(schedule.periodic(RING8, period_s=10, duration_s=0, start_s=0))) == {0.0}
     # rounding must not drop the last round: 3 x 0.1 is not exactly 0.3
@@ -74,8 +84,11 @@ def test_aperiodic_link_times_depend_only_on_seed_and_link():
     assert short == [e for e in long if e.time_s <= 200]  # a shorter horizon is a prefix
 
     def link_01(g):
-        return [e for e in schedule.aperiodic(g, mean_interval_s=10, duration_s=400, seed=1)
-                if {e.sender, e.receiver} == {0, 1}]
+        return [
+            e
+            for e in schedule.aperiodic(g, mean_interval_s=10, duration_s=400, seed=1)
+            if {e.sender, e.receiver} == {0, 1}
+        ]
 
     assert link_01(H38) == link_01(graph.make_graph("complete", 8))
 
@@ -93,8 +106,9 @@ def test_aperiodic_mean_gap_matches_request():
     line = graph.make_graph("line", 3)
     mean, horizon = 15.0, 300_000.0  # simulated seconds
     expected_firings = horizon / mean
-    events = schedule.aperiodic(line, mean_interval_s=mean, duration_s=horizon, seed=11,
-                                directions="one")
+    events = schedule.aperiodic(
+        line, mean_interval_s=mean, duration_s=horizon, seed=11, directions="one"
+    )
     for a, b in line.edges:
         t = np.array([e.time_s for e in events if {e.sender, e.receiver} == {a, b}])
         gaps = np.diff(np.concatenate([[0.0], t]))
@@ -147,8 +161,12 @@ def test_rounds_are_double_buffered():
 
 @pytest.mark.parametrize(
     "spec, kind, value",
-    [("periodic:10", "periodic", 10.0), ("aperiodic:15", "aperiodic", 15.0),
-     (" Periodic : 2.5 ", "periodic", 2.5), ("rounds:3", "rounds", 3.0)],
+    [
+        ("periodic:10", "periodic", 10.0),
+        ("aperiodic:15", "aperiodic", 15.0),
+        (" Periodic : 2.5 ", "periodic", 2.5),
+        ("rounds:3", "rounds", 3.0),
+    ],
 )
 def test_parse_schedule(spec, kind, value):
     s = schedule.parse_schedule(spec)
@@ -157,9 +175,11 @@ def test_parse_schedule(spec, kind, value):
 
 def test_schedule_spec_build():
     assert schedule.parse_schedule("periodic:10").build(H38, duration_s=50) == schedule.periodic(
-        H38, period_s=10, duration_s=50)
+        H38, period_s=10, duration_s=50
+    )
     assert schedule.parse_schedule("aperiodic:15").build(H38, duration_s=90, seed=3) == (
-        schedule.aperiodic(H38, mean_interval_s=15, duration_s=90, seed=3))
+        schedule.aperiodic(H38, mean_interval_s=15, duration_s=90, seed=3)
+    )
     flat = schedule.parse_schedule("rounds:2").build(H38, directions="one")
     assert flat == [e for r in schedule.rounds(H38, 2, directions="one") for e in r]
     with pytest.raises(ValueError, match="periodic schedule needs duration_s"):
@@ -169,7 +189,10 @@ def test_schedule_spec_build():
 @pytest.mark.parametrize(
     "spec, expected",
     [
-        ("sometimes:3", "unknown schedule 'sometimes:3'; valid: periodic:SECONDS, aperiodic:SECONDS, rounds:R"),
+        (
+            "sometimes:3",
+            "unknown schedule 'sometimes:3'; valid: periodic:SECONDS, aperiodic:SECONDS, rounds:R",
+        ),
         ("periodic", "needs a value, e.g. periodic:10"),
         ("aperiodic:", "needs a value, e.g. aperiodic:10"),
         ("periodic:soon", "needs a number of seconds, got 'periodic:soon'"),
@@ -192,14 +215,34 @@ def test_parse_schedule_errors(spec, expected):
     [
         (lambda: schedule.periodic(RING8, period_s=0, duration_s=10), "period_s must be > 0"),
         (lambda: schedule.periodic(RING8, period_s=1, duration_s=-1), "duration_s must be >= 0"),
-        (lambda: schedule.periodic(RING8, period_s=1, duration_s=10, start_s=-1), "start_s must be >= 0"),
-        (lambda: schedule.periodic(RING8, period_s=math.inf, duration_s=10), "period_s must be finite"),
-        (lambda: schedule.periodic(RING8, period_s="10", duration_s=10), "period_s must be a number"),
-        (lambda: schedule.periodic(RING8, period_s=1, duration_s=10, directions="two"),
-         "directions must be one of both, one, got 'two'"),
-        (lambda: schedule.aperiodic(RING8, mean_interval_s=0, duration_s=10, seed=0), "mean_interval_s must be > 0"),
-        (lambda: schedule.aperiodic(RING8, mean_interval_s=1, duration_s=10, seed=-1), "non-negative integer"),
-        (lambda: schedule.aperiodic(RING8, mean_interval_s=1, duration_s=10, seed=1.5), "non-negative integer"),
+        (
+            lambda: schedule.periodic(RING8, period_s=1, duration_s=10, start_s=-1),
+            "start_s must be >= 0",
+        ),
+        (
+            lambda: schedule.periodic(RING8, period_s=math.inf, duration_s=10),
+            "period_s must be finite",
+        ),
+        (
+            lambda: schedule.periodic(RING8, period_s="10", duration_s=10),
+            "period_s must be a number",
+        ),
+        (
+            lambda: schedule.periodic(RING8, period_s=1, duration_s=10, directions="two"),
+            "directions must be one of both, one, got 'two'",
+        ),
+        (
+            lambda: schedule.aperiodic(RING8, mean_interval_s=0, duration_s=10, seed=0),
+            "mean_interval_s must be > 0",
+        ),
+        (
+            lambda: schedule.aperiodic(RING8, mean_interval_s=1, duration_s=10, seed=-1),
+            "non-negative integer",
+        ),
+        (
+            lambda: schedule.aperiodic(RING8, mean_interval_s=1, duration_s=10, seed=1.5),
+            "non-negative integer",
+        ),
         (lambda: schedule.rounds(RING8, -1), "n_rounds must be a non-negative integer"),
         (lambda: schedule.rounds(RING8, True), "n_rounds must be a non-negative integer"),
     ],

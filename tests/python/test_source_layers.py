@@ -18,20 +18,35 @@ from hypothesis import strategies as st
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bagfactory import voxel_keys  # noqa: E402
 from conftest import random_map  # noqa: E402
-# the fixtures (prefixes, team_bag, team_scans) are used by name
-from test_channel_filter import (PERIOD, RES, Knowledge, assert_values,  # noqa: E402,F401
-                                 empty_open, prefixes, team_bag, team_scans)
-
 from octofuse import fuse_into  # noqa: E402
-from octofuse.config import SOURCE_LAYERS as SL, FuseConfig  # noqa: E402
+from octofuse.config import SOURCE_LAYERS as SL  # noqa: E402
+from octofuse.config import FuseConfig
 from octofuse.fusion.agent import Agent, MapMessage  # noqa: E402
 from octofuse.fusion.channel_filter import add_into, clamped, unclamped_copy  # noqa: E402
 from octofuse.fusion.graph import make_graph  # noqa: E402
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import insert_scans, make_build_config  # noqa: E402
-from octofuse.outputs.report import (exact_summary, findings, layers_folded,  # noqa: E402
-                                     mean_scores, memory_per_agent, memory_table)
+from octofuse.outputs.report import (  # noqa: E402
+    exact_summary,
+    findings,
+    layers_folded,
+    mean_scores,
+    memory_per_agent,
+    memory_table,
+)
+
+# the fixtures (prefixes, team_bag, team_scans) are used by name
+from test_channel_filter import (  # noqa: E402,F401
+    PERIOD,
+    RES,
+    Knowledge,
+    assert_values,
+    empty_open,
+    prefixes,
+    team_bag,
+    team_scans,
+)
 
 
 def total(maps):
@@ -59,14 +74,25 @@ class Last:
 # -- finished maps on loopy graphs -------------------------------------------------------------
 
 
-@pytest.mark.parametrize("topology,loss", [("ring", 0.0), ("complete", 0.0),
-                                           ("max-robust:3", 0.0), ("ring", 0.3)])
+@pytest.mark.parametrize(
+    "topology,loss", [("ring", 0.0), ("complete", 0.0), ("max-robust:3", 0.0), ("ring", 0.3)]
+)
 def test_finished_maps_on_loopy_graphs_sum_exactly(finished, topology, loss):
     last = Last()
     rounds = 12 if loss else 4
-    res = fuse_finished(finished, finished["r0"], FuseConfig(
-        topology=topology, schedule=f"rounds:{rounds}", rules=[SL, "naive-bayes"], loss=loss,
-        seed=2), threads=1, observer=last)
+    res = fuse_finished(
+        finished,
+        finished["r0"],
+        FuseConfig(
+            topology=topology,
+            schedule=f"rounds:{rounds}",
+            rules=[SL, "naive-bayes"],
+            loss=loss,
+            seed=2,
+        ),
+        threads=1,
+        observer=last,
+    )
     want = total(finished.values())
     if loss:
         assert res.traffic[SL].lost > 0
@@ -85,9 +111,14 @@ def test_finished_maps_on_loopy_graphs_sum_exactly(finished, topology, loss):
 def test_layers_sent_once_then_versions_only(finished):
     """Finished maps do not change: once every agent knows what the others hold, messages
     carry versions and no map."""
+
     def sent(rounds):
-        res = fuse_finished(finished, None, FuseConfig(
-            topology="complete", schedule=f"rounds:{rounds}", rules=[SL]), threads=1)
+        res = fuse_finished(
+            finished,
+            None,
+            FuseConfig(topology="complete", schedule=f"rounds:{rounds}", rules=[SL]),
+            threads=1,
+        )
         return sum(res.traffic[SL].sent.values())
 
     # the second round still sends what the first delivered at the same time over other links
@@ -98,11 +129,15 @@ def test_layers_sent_once_then_versions_only(finished):
 
 
 @pytest.mark.parametrize("topology,loss", [("ring", 0.0), ("complete", 0.0), ("ring", 0.35)])
-def test_in_time_agents_hold_exactly_the_scans_they_heard_of(team_bag, prefixes, topology,
-                                                              loss):
+def test_in_time_agents_hold_exactly_the_scans_they_heard_of(team_bag, prefixes, topology, loss):
     cfg = make_build_config(team_bag, resolution=RES)
-    fcfg = FuseConfig(topology=topology, schedule=PERIOD if not loss else "periodic:0.2",
-                      rules=[SL, "min-info-loss"], loss=loss, seed=3)
+    fcfg = FuseConfig(
+        topology=topology,
+        schedule=PERIOD if not loss else "periodic:0.2",
+        rules=[SL, "min-info-loss"],
+        loss=loss,
+        seed=3,
+    )
     fcfg.validate("fuse")
     agents = list(prefixes)
     graph = make_graph(topology, len(agents), names=agents)
@@ -174,8 +209,9 @@ def test_repeated_reordered_and_relayed_layers_count_once(team_scans, prefixes):
     assert b.compose("c").payload.num_nodes == 0
 
 
-@settings(max_examples=30, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(st.data())
 def test_any_order_of_messages_gives_the_sum_of_the_newest_layers(team_scans, prefixes, data):
     """Scans, messages composed on lossy links, and messages delivered in any order, repeated
@@ -191,7 +227,7 @@ def test_any_order_of_messages_gives_the_sum_of_the_newest_layers(team_scans, pr
         if op == "scan":
             x = data.draw(st.sampled_from(names))
             if done[x] < len(team_scans[x]):
-                insert_scans(team_scans[x][done[x]:done[x] + 1], [agents[x].scan_targets()], 1)
+                insert_scans(team_scans[x][done[x] : done[x] + 1], [agents[x].scan_targets()], 1)
                 done[x] += 1
         elif op == "send":
             x, y = data.draw(st.permutations(names))[:2]
@@ -204,8 +240,11 @@ def test_any_order_of_messages_gives_the_sum_of_the_newest_layers(team_scans, pr
             else:
                 agents[msg.receiver].apply_layers(msg.sender, msg.payload)
     for x, agent in agents.items():
-        want = [prefixes[x][done[x]]] + [prefixes[s][scans_of[s][layer.version]]
-                                         for s, layer in agent.layers.layers.items() if s != x]
+        want = [prefixes[x][done[x]]] + [
+            prefixes[s][scans_of[s][layer.version]]
+            for s, layer in agent.layers.layers.items()
+            if s != x
+        ]
         assert_values(agent.map, total(want), x)
 
 
@@ -259,8 +298,12 @@ def test_a_budget_lets_go_of_the_changes_kept_before_exactness(team_bag, prefixe
             check(t, group, net, inserted)
             nets[:] = [net]
 
-        res = simulate(cfg, FuseConfig(topology="complete", schedule=PERIOD, rules=[SL],
-                                       layers_max_bytes=budget), samples=0, observer=observe)
+        res = simulate(
+            cfg,
+            FuseConfig(topology="complete", schedule=PERIOD, rules=[SL], layers_max_bytes=budget),
+            samples=0,
+            observer=observe,
+        )
         nodes = nets[0].nodes[SL].values()
         return res, max(n.layers.bytes_held() for n in nodes)
 
@@ -279,9 +322,15 @@ def test_a_budget_lets_go_of_the_changes_kept_before_exactness(team_bag, prefixe
 def test_a_budget_folds_the_oldest_layers_conservatively(finished):
     layer = max(unclamped_copy(m).memory_bytes for m in finished.values())
     last = Last()
-    res = fuse_finished(finished, finished["r0"], FuseConfig(
-        topology="complete", schedule="rounds:3", rules=[SL], layers_max_bytes=3 * layer),
-        threads=1, observer=last)
+    res = fuse_finished(
+        finished,
+        finished["r0"],
+        FuseConfig(
+            topology="complete", schedule="rounds:3", rules=[SL], layers_max_bytes=3 * layer
+        ),
+        threads=1,
+        observer=last,
+    )
     for a in res.agents:
         n = last.net.nodes[SL][a].layers
         assert res.memory[SL][a]["folded"] == len(n.folded) > 0
@@ -304,8 +353,12 @@ def test_a_budget_folds_the_oldest_layers_conservatively(finished):
 
 def test_the_report_sets_the_layers_beside_the_other_rules(finished):
     central = clamped(total(finished.values()))
-    res = fuse_finished(finished, central, FuseConfig(
-        topology="ring", schedule="rounds:4", rules=["naive-bayes", "chernoff", SL]), threads=1)
+    res = fuse_finished(
+        finished,
+        central,
+        FuseConfig(topology="ring", schedule="rounds:4", rules=["naive-bayes", "chernoff", SL]),
+        threads=1,
+    )
     means = mean_scores(res.scores)
     assert means[SL]["kl_mean"] < means["chernoff"]["kl_mean"]
     memory = memory_per_agent(res)

@@ -68,7 +68,9 @@ def _dead_pid() -> int:
 
 
 def _leftovers(folder: Path) -> list[str]:
-    return sorted(p.name for p in folder.iterdir() if ".partial" in p.name or p.name.endswith(".old"))
+    return sorted(
+        p.name for p in folder.iterdir() if ".partial" in p.name or p.name.endswith(".old")
+    )
 
 
 def test_leftovers_of_dead_processes_are_removed_and_moved_aside_output_restored(tmp_path):
@@ -89,12 +91,16 @@ def test_leftovers_of_dead_processes_are_removed_and_moved_aside_output_restored
     (tmp_path / f".out.mcap.{dead}-0a0b0c0d.partial").mkdir()  # out.mcap's, not out's
     clean_leftovers(out)
     assert (out / "kept.txt").read_text() == "earlier output"
-    assert _leftovers(tmp_path) == sorted([mine.name, sibling.name, f".out.mcap.{dead}-0a0b0c0d.partial"])
+    assert _leftovers(tmp_path) == sorted(
+        [mine.name, sibling.name, f".out.mcap.{dead}-0a0b0c0d.partial"]
+    )
 
 
-def test_interruption_as_outputs_go_in_place_keeps_the_earlier_bag_and_folder(tmp_path, monkeypatch):
-    from octofuse.outputs.rosbag_export import MapBagWriter, MapEvent
+def test_interruption_as_outputs_go_in_place_keeps_the_earlier_bag_and_folder(
+    tmp_path, monkeypatch
+):
     from octofuse import OccupancyMap
+    from octofuse.outputs.rosbag_export import MapBagWriter, MapEvent
 
     m = OccupancyMap(0.1)
     m.insert_scan([[1.0, 0.0, 0.0]], [0.0, 0.0, 0.0])
@@ -127,9 +133,9 @@ def test_staged_file_failure_keeps_the_file_and_names_it(tmp_path):
 
 @pytest.fixture(scope="module")
 def big_map(tmp_path_factory):
-    from conftest import scan_ring
-
     import numpy as np
+
+    from conftest import scan_ring
     from octofuse import OccupancyMap
 
     rng = np.random.default_rng(3)
@@ -143,8 +149,11 @@ def big_map(tmp_path_factory):
 
 
 def _export(src: Path, out: Path, sig=None, after: float = 0.0):
-    p = subprocess.Popen([str(OCTOFUSE), "export", str(src), "--out", str(out)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p = subprocess.Popen(
+        [str(OCTOFUSE), "export", str(src), "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     if sig is not None:
         time.sleep(after)
         p.send_signal(sig)

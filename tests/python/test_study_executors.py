@@ -12,7 +12,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-
 from octofuse.config import FuseConfig, RunConfig  # noqa: E402
 from octofuse.fusion import executors  # noqa: E402
 from octofuse.fusion.executors import SerialExecutor, make_executor  # noqa: E402
@@ -30,8 +29,10 @@ def bag(tmp_path_factory):
 
 
 def config(bag) -> RunConfig:
-    return RunConfig(build=make_build_config(bag, resolution=0.2, threads=1),
-                     fuse=FuseConfig(rules=list(RULES), topology="ring", schedule=SCHEDULE))
+    return RunConfig(
+        build=make_build_config(bag, resolution=0.2, threads=1),
+        fuse=FuseConfig(rules=list(RULES), topology="ring", schedule=SCHEDULE),
+    )
 
 
 def read_csv(path: Path) -> list[dict]:
@@ -44,27 +45,36 @@ def seeded(bag, tmp_path_factory):
     """Two topologies x two seeds, serially."""
     out = tmp_path_factory.mktemp("study") / "seeded"
     lines: list[str] = []
-    run_study(config(bag), ["ring", "random:0.8"], out, seeds=[0, 1], executor="serial",
-              log=lines.append)
+    run_study(
+        config(bag), ["ring", "random:0.8"], out, seeds=[0, 1], executor="serial", log=lines.append
+    )
     return out, lines
 
 
 def test_seeds_are_an_axis_with_mean_and_spread(seeded):
     out, lines = seeded
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == [
-        "bench.csv", "bench.md", "bench_kl_mean.png", "bench_loss_mean.png", "bench_overconfidence.png"]
+        "bench.csv",
+        "bench.md",
+        "bench_kl_mean.png",
+        "bench_loss_mean.png",
+        "bench_overconfidence.png",
+    ]
     assert len(list((out / CELLS_DIR).glob("*.json"))) == 4
     rows = read_csv(out / "bench.csv")
     assert [(r["topology"], r["rule"]) for r in rows] == [
-        (t, r) for t in ("ring", "random:0.8") for r in (LOCAL, *RULES)]
+        (t, r) for t in ("ring", "random:0.8") for r in (LOCAL, *RULES)
+    ]
     cells = {(c["cell"]["topology"], c["cell"]["seed"]): c for c in load_cells([out]).values()}
     for r in rows:
         assert r["seeds"] == "2" and r["schedule"] == SCHEDULE
-        per_seed = [next(x for x in cells[(r["topology"], s)]["rows"] if x["rule"] == r["rule"])
-                    for s in (0, 1)]
+        per_seed = [
+            next(x for x in cells[(r["topology"], s)]["rows"] if x["rule"] == r["rule"])
+            for s in (0, 1)
+        ]
         kl = [x["kl_mean"] for x in per_seed]
         assert float(r["kl_mean"]) == pytest.approx(sum(kl) / 2, rel=1e-12)
-        assert float(r["kl_mean_sd"]) == pytest.approx(abs(kl[0] - kl[1]) / 2 ** 0.5, rel=1e-9)
+        assert float(r["kl_mean_sd"]) == pytest.approx(abs(kl[0] - kl[1]) / 2**0.5, rel=1e-9)
     # the aperiodic schedule depends on the seed: the two seeds are different runs
     ring = [cells[("ring", s)]["rows"] for s in (0, 1)]
     assert ring[0] != ring[1]
@@ -92,15 +102,20 @@ def test_a_cell_in_passes_has_the_rows_of_one_pass(bag, seeded, tmp_path, monkey
     import octofuse.fusion.simulate as sim
 
     passes, real = [], sim.simulate
-    monkeypatch.setattr(sim, "simulate", lambda *a, **kw: passes.append(a[1].rules) or real(*a, **kw))
+    monkeypatch.setattr(
+        sim, "simulate", lambda *a, **kw: passes.append(a[1].rules) or real(*a, **kw)
+    )
     out = tmp_path / "passes"
     cfg = config(bag)
     cfg.fuse.seed, cfg.fuse.rules_per_pass = 1, 1
     run_study(cfg, ["ring"], out, executor=SerialExecutor())
     assert passes == [[r] for r in RULES]
     one = next(iter(load_cells([out]).values()))
-    want = next(c for c in load_cells([seeded[0]]).values()
-                if (c["cell"]["topology"], c["cell"]["seed"]) == ("ring", 1))
+    want = next(
+        c
+        for c in load_cells([seeded[0]]).values()
+        if (c["cell"]["topology"], c["cell"]["seed"]) == ("ring", 1)
+    )
     assert one["rows"] == want["rows"]
     assert [r["rule"] for r in one["rows"]] == [LOCAL, *RULES]
 
@@ -114,8 +129,15 @@ def test_resume_carries_finished_cells_over(bag, seeded, tmp_path, monkeypatch):
     monkeypatch.setattr(study, "run_cell", lambda p: ran.append(p[1]) or real(p))
     out = tmp_path / "more"
     lines: list[str] = []
-    run_study(config(bag), ["ring", "random:0.8"], out, seeds=[0, 1, 2], executor="serial",
-              resume_from=[old], log=lines.append)
+    run_study(
+        config(bag),
+        ["ring", "random:0.8"],
+        out,
+        seeds=[0, 1, 2],
+        executor="serial",
+        resume_from=[old],
+        log=lines.append,
+    )
     assert [(c.topology, c.seed) for c in ran] == [("ring", 2), ("random:0.8", 2)]
     assert "resuming: 4 of 6 cell(s) already done" in lines
     assert len(list((out / CELLS_DIR).glob("*.json"))) == 6
@@ -146,10 +168,14 @@ def test_a_journal_keeps_cells_of_an_interrupted_study(bag, tmp_path, monkeypatc
     monkeypatch.setattr(study, "run_cell", interrupted)
     journal = tmp_path / "journal"
     with pytest.raises(Killed):
-        run_study(config(bag), ["ring", "line"], tmp_path / "stage1", executor="serial", journal=journal)
+        run_study(
+            config(bag), ["ring", "line"], tmp_path / "stage1", executor="serial", journal=journal
+        )
     assert len(list(journal.glob("*.json"))) == 1
     calls.clear()
-    run_study(config(bag), ["ring", "line"], tmp_path / "stage2", executor="serial", journal=journal)
+    run_study(
+        config(bag), ["ring", "line"], tmp_path / "stage2", executor="serial", journal=journal
+    )
     assert [c.topology for c in calls] == ["line"]
 
 
@@ -159,8 +185,9 @@ def test_a_failing_cell_is_reported_and_the_others_go_on(bag, tmp_path):
     out = tmp_path / "out"
     lines: list[str] = []
     cfg = config(bag)
-    run_study(cfg, ["ring"], out, bag_sets=[[str(bag)], [str(bad)]], executor="serial",
-              log=lines.append)
+    run_study(
+        cfg, ["ring"], out, bag_sets=[[str(bag)], [str(bad)]], executor="serial", log=lines.append
+    )
     rows = read_csv(out / "bench.csv")
     assert {r["bags"] for r in rows} == {str(bag)}
     failed = [x for x in lines if "FAILED" in x]
@@ -202,5 +229,9 @@ def test_asking_for_ray_by_name_without_it_is_refused(monkeypatch):
 def test_the_serial_executor_reports_errors_per_item():
     got = []
     SerialExecutor().run(lambda x: 10 // x, [1, 0, 5], got.append)
-    assert [(o.index, o.ok, o.value) for o in got] == [(0, True, 10), (1, False, None), (2, True, 2)]
+    assert [(o.index, o.ok, o.value) for o in got] == [
+        (0, True, 10),
+        (1, False, None),
+        (2, True, 2),
+    ]
     assert got[1].error.startswith("ZeroDivisionError")

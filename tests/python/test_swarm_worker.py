@@ -9,22 +9,23 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
+
 from bagfactory import voxel_keys  # noqa: E402
 from conftest import random_map  # noqa: E402
-
 from octofuse import InfoLossMap, OccupancyMap, fuse_into  # noqa: E402
 from octofuse.config import BuildConfig, FuseConfig, MapConfig  # noqa: E402
 from octofuse.fusion.agent import MapMessage  # noqa: E402
 from octofuse.fusion.channel_filter import add_into, clamped, unclamped_copy  # noqa: E402
 from octofuse.fusion.network import message_bytes  # noqa: E402
-from octofuse.fusion.wire import Kind, Message  # noqa: E402
 from octofuse.fusion.swarm import simulate_swarm  # noqa: E402
 from octofuse.fusion.swarm_worker import SwarmWorker  # noqa: E402
+from octofuse.fusion.wire import Kind, Message  # noqa: E402
 
 
 def worker(names, delta=False, cap=None, rules=("chernoff",), tree=()):
-    return SwarmWorker(0, names, MapConfig(resolution=0.1), list(rules), "copy", delta, 1, cap,
-                       tree=tree)
+    return SwarmWorker(
+        0, names, MapConfig(resolution=0.1), list(rules), "copy", delta, 1, cap, tree=tree
+    )
 
 
 def test_a_message_is_the_senders_map_and_is_fused_as_in_process():
@@ -92,5 +93,8 @@ def test_frames_that_are_damaged_or_not_for_the_receiver_are_dropped_and_counted
 
 def test_a_swarm_refuses_a_bad_number_of_samples_before_starting():
     with pytest.raises(ValueError, match="samples = -1: expected 0 to 10000"):
-        simulate_swarm(BuildConfig(bags=["no-such.bag"]),
-                       FuseConfig(rules=["chernoff"], schedule="periodic:1"), samples=-1)
+        simulate_swarm(
+            BuildConfig(bags=["no-such.bag"]),
+            FuseConfig(rules=["chernoff"], schedule="periodic:1"),
+            samples=-1,
+        )

@@ -23,14 +23,21 @@ def test_detector_sees_only_its_view_cone():
     np.testing.assert_allclose(p[2:], 0.0, atol=1e-3)  # too far, behind, outside 21.25 degrees
     rotated = det.p_detection((0.0, 0.0, math.pi / 2), [[0.0, 0.5]])
     assert rotated[0] == pytest.approx(0.9, abs=1e-3)
-    np.testing.assert_allclose(det.likelihood(False, POSE, pts) + det.likelihood(True, POSE, pts), 1.0)
+    np.testing.assert_allclose(
+        det.likelihood(False, POSE, pts) + det.likelihood(True, POSE, pts), 1.0
+    )
 
 
 def test_particle_filter_matches_grid_bayes_for_a_no_detection():
     prior = GaussianMixture.gaussian([0.6, 0.0], [[0.3, 0.0], [0.0, 0.2]])
     det = CameraDetector()
-    post = gaussian_sum_update(prior, lambda x: det.likelihood(False, POSE, x), np.random.default_rng(0),
-                               n_particles=4000, max_components=6)
+    post = gaussian_sum_update(
+        prior,
+        lambda x: det.likelihood(False, POSE, x),
+        np.random.default_rng(0),
+        n_particles=4000,
+        max_components=6,
+    )
     xs, ys = np.linspace(-2.5, 3.5, 241), np.linspace(-2.5, 2.5, 201)
     pts = np.column_stack([c.ravel() for c in np.meshgrid(xs, ys)])
     exact = prior.pdf(pts) * det.likelihood(False, POSE, pts)
@@ -38,7 +45,9 @@ def test_particle_filter_matches_grid_bayes_for_a_no_detection():
     approx = post.pdf(pts)
     approx /= approx.sum()
     kl = float(np.sum(exact * np.log(np.maximum(exact, 1e-300) / approx)))
-    kl_prior = float(np.sum(exact * np.log(np.maximum(exact, 1e-300) / (prior.pdf(pts) / prior.pdf(pts).sum()))))
+    kl_prior = float(
+        np.sum(exact * np.log(np.maximum(exact, 1e-300) / (prior.pdf(pts) / prior.pdf(pts).sum())))
+    )
     assert kl < 0.6 * kl_prior  # much closer to the exact posterior than the prior is
     assert post.pdf([0.6, 0.0]) < 0.5 * prior.pdf([0.6, 0.0])  # mass left the view cone
     assert 1 < post.n_components <= 6
@@ -61,14 +70,27 @@ def test_paths_stay_in_the_lab_and_robot_one_stands_still():
     for setting, n in (("3-robots", 3), ("8-robots", 8)):
         poses = robot_paths(setting, 65)
         assert poses.shape == (n, 66, 3)
-        assert np.all((poses[..., 0] >= 0) & (poses[..., 0] <= 15) & (poses[..., 1] >= 0) & (poses[..., 1] <= 8))
+        assert np.all(
+            (poses[..., 0] >= 0)
+            & (poses[..., 0] <= 15)
+            & (poses[..., 1] >= 0)
+            & (poses[..., 1] <= 8)
+        )
         assert np.ptp(poses[0], axis=0).max() == 0.0
 
 
 @pytest.fixture(scope="module")
 def short_run():
-    return simulate("3-robots", rules=("naive-bayes", "chernoff"), duration=8, comm_period=4,
-                    n_samples=200, particles=150, max_components=6, grid_step=0.25)
+    return simulate(
+        "3-robots",
+        rules=("naive-bayes", "chernoff"),
+        duration=8,
+        comm_period=4,
+        n_samples=200,
+        particles=150,
+        max_components=6,
+        grid_step=0.25,
+    )
 
 
 def test_short_search_measures_every_scheme(short_run):
@@ -88,12 +110,28 @@ def test_short_search_measures_every_scheme(short_run):
 
 def test_run_writes_outputs_in_place(tmp_path):
     out = tmp_path / "search"
-    res = run_target_search(out, setting="3-robots", rules=("chernoff",), duration=2, comm_period=2,
-                            n_samples=100, particles=100, max_components=4, grid_step=0.5, figures=True)
+    res = run_target_search(
+        out,
+        setting="3-robots",
+        rules=("chernoff",),
+        duration=2,
+        comm_period=2,
+        n_samples=100,
+        particles=100,
+        max_components=4,
+        grid_step=0.5,
+        figures=True,
+    )
     assert res.out_dir == out
     names = {p.name for p in out.iterdir()}
-    assert {"report.md", "summary.json", "final_beliefs_robot1.png", "info_gain.png", "kl_to_central.png",
-            "omega.png"} <= names
+    assert {
+        "report.md",
+        "summary.json",
+        "final_beliefs_robot1.png",
+        "info_gain.png",
+        "kl_to_central.png",
+        "omega.png",
+    } <= names
     summary = json.loads((out / "summary.json").read_text())
     assert summary["schemes"] == ["centralized", "no-sharing", "chernoff"]
     assert "wep_band" in summary["findings"]
@@ -101,8 +139,10 @@ def test_run_writes_outputs_in_place(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["search"]  # no staging folder left behind
 
 
-@pytest.mark.parametrize("kwargs, match", [({"setting": "5-robots"}, "setting"),
-                                           ({"rules": ("entropy-weighted-chernoff",)}, "negative")])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"setting": "5-robots"}, "setting"), ({"rules": ("entropy-weighted-chernoff",)}, "negative")],
+)
 def test_bad_arguments_raise(tmp_path, kwargs, match):
     with pytest.raises(ValueError, match=match):
         run_target_search(tmp_path / "x", **kwargs)

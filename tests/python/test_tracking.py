@@ -12,7 +12,14 @@ from octofuse.targets.tracking_report import run_tracking
 def test_schedule_orders_measurements_before_messages():
     events = schedule(TrackingConfig(duration=1.4))
     at_14 = [(e.kind, e.node) for e in events if e.time == pytest.approx(1.4)]
-    assert at_14 == [("measure", 0), ("measure", 1), ("measure", 2), ("measure", 3), ("send", 0), ("send", 2)]
+    assert at_14 == [
+        ("measure", 0),
+        ("measure", 1),
+        ("measure", 2),
+        ("measure", 3),
+        ("send", 0),
+        ("send", 2),
+    ]
     assert [e.time for e in events] == sorted(e.time for e in events)
     sends = [e for e in events if e.kind == "send" and e.node == 1]
     assert [e.time for e in sends] == pytest.approx([0.45, 0.9, 1.35])
@@ -22,15 +29,23 @@ def test_short_run_writes_its_report(tmp_path):
     out = tmp_path / "tracking"
     result = run_tracking(out, duration=0.8, seed=3)
     names = sorted(p.name for p in out.iterdir())
-    assert names == [".octofuse-output", "beliefs.png", "entropy.png", "error.png", "report.md",
-                     "summary.json"]
+    assert names == [
+        ".octofuse-output",
+        "beliefs.png",
+        "entropy.png",
+        "error.png",
+        "report.md",
+        "summary.json",
+    ]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["families"].keys() == result.summary["families"].keys()
     assert {"expoly", "gaussian"} <= summary["families"].keys()
-    for name, fam in summary["families"].items():
+    for fam in summary["families"].items():
         assert fam["fusions"] == 6  # nodes 1, 3 send at 0.35 and 0.7 s; nodes 2, 4 at 0.45 s
         assert fam["rms_error"] is None  # the run ends within the burn-in second
-        assert np.isfinite(fam["rms_error_before_burn_in"]) and fam["rms_error_before_burn_in"] < 5.0
+        assert (
+            np.isfinite(fam["rms_error_before_burn_in"]) and fam["rms_error_before_burn_in"] < 5.0
+        )
         assert all(np.isfinite(node["final_renyi2"]) for node in fam["per_node"].values())
     assert summary["families"]["expoly"]["bytes_per_message"]["max"] == 112
     assert summary["families"]["gaussian"]["bytes_per_message"]["max"] == 40
@@ -49,11 +64,16 @@ def test_unknown_family_is_rejected(tmp_path):
 def test_track_prints_its_key_figures(tmp_path, capsys):
     from bagfactory import run_cli
 
-    code, out, err = run_cli(capsys, "track", "--duration", "1.5", "--families", "gaussian",
-                             "--out", tmp_path / "t")
+    code, out, err = run_cli(
+        capsys, "track", "--duration", "1.5", "--families", "gaussian", "--out", tmp_path / "t"
+    )
     assert code == 0, err
     fam = json.loads((tmp_path / "t" / "summary.json").read_text())["families"]["gaussian"]
     row = next(line for line in out.splitlines() if line.startswith("│ gaussian"))
     assert [c.strip() for c in row.split("│")[1:-1]] == [
-        "gaussian", f"{fam['rms_error']:.3f}", str(fam["fusions"]), "40"]
+        "gaussian",
+        f"{fam['rms_error']:.3f}",
+        str(fam["fusions"]),
+        "40",
+    ]
     assert out.rstrip().endswith(f"report: {tmp_path / 't' / 'report.md'}")

@@ -14,7 +14,6 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
-
 from octofuse.maps.infoloss import Leaves  # noqa: E402
 from octofuse.view.difference import AGREEING, MISSED, OVER_CONFIDENT, difference_voxels  # noqa: E402
 from octofuse.view.events import events_of, until  # noqa: E402
@@ -27,8 +26,9 @@ RULES = ["naive-bayes", "chernoff", "min-info-loss"]
 
 def grid_voxels(keys, values, size=RES) -> Voxels:
     keys = np.asarray(keys, dtype=np.float64)
-    return Voxels((keys + 0.5) * size, np.full(len(keys), size),
-                  np.asarray(values, dtype=np.float32))
+    return Voxels(
+        (keys + 0.5) * size, np.full(len(keys), size), np.asarray(values, dtype=np.float32)
+    )
 
 
 # -- level of detail ------------------------------------------------------------------------
@@ -42,8 +42,10 @@ def test_merging_keeps_the_largest_value_of_each_cell():
     want: dict = {}
     for k, value in zip(np.floor(keys / 4).astype(int).tolist(), v.values):
         want[tuple(k)] = max(want.get(tuple(k), -1.0), float(value))
-    got = {tuple(np.floor(c / (4 * RES)).astype(int).tolist()): float(x)
-           for c, x in zip(merged.centers, merged.values)}
+    got = {
+        tuple(np.floor(c / (4 * RES)).astype(int).tolist()): float(x)
+        for c, x in zip(merged.centers, merged.values)
+    }
     assert got == pytest.approx(want)
     assert np.all(merged.sizes == pytest.approx(4 * RES))
 
@@ -51,8 +53,11 @@ def test_merging_keeps_the_largest_value_of_each_cell():
 def test_larger_voxels_are_kept_as_they_are():
     small = grid_voxels([[0, 0, 0], [1, 0, 0]], [1.0, 2.0])
     big = Voxels(np.array([[3.2, 3.2, 3.2]]), np.array([1.6]), np.array([7.0], np.float32))
-    both = Voxels(np.vstack([small.centers, big.centers]), np.append(small.sizes, big.sizes),
-                  np.append(small.values, big.values))
+    both = Voxels(
+        np.vstack([small.centers, big.centers]),
+        np.append(small.sizes, big.sizes),
+        np.append(small.values, big.values),
+    )
     merged = merged_into_cells(both, 2 * RES)
     assert sorted(merged.values.tolist()) == [2.0, 7.0]
     assert sorted(merged.sizes.tolist()) == pytest.approx([2 * RES, 1.6])
@@ -65,8 +70,9 @@ def test_a_budget_bounds_the_voxels_drawn_and_spends_it_near_the_focus(budget):
     d = within_budget(v, budget, RES, focus=(0.0, 0.0, 0.0))  # a corner of the map
     assert d.merged == (budget < len(v))
     assert d.voxels.values.max() == v.values.max()  # the largest value is never averaged away
-    assert np.sum(d.voxels.sizes ** 3) == pytest.approx(
-        len(v) * RES ** 3)  # the voxels drawn fill the map's volume, no more, no less
+    assert np.sum(d.voxels.sizes**3) == pytest.approx(
+        len(v) * RES**3
+    )  # the voxels drawn fill the map's volume, no more, no less
     if not d.merged:
         assert len(d.voxels) == len(v)
         return
@@ -94,21 +100,25 @@ def test_each_voxel_takes_its_class_against_the_centralized_map():
     agent = leaves([[0, 0, 0], [1, 0, 0], [2, 0, 0], [4, 0, 0]], [1.05, -0.5, 3.5, 0.4])
     d = difference_voxels(agent, central, RES, tol=0.1)
     got = {int(round(c[0] / RES - 0.5)): int(k) for c, k in zip(d.centers, d.values)}
-    assert got == {0: AGREEING,  # both occupied, nearly as certain
-                   1: MISSED,  # the agent holds it free
-                   2: OVER_CONFIDENT,  # the agent holds it occupied, and more surely than free
-                   3: MISSED,  # the agent does not know it
-                   4: OVER_CONFIDENT}  # only the agent knows it, and holds it occupied
+    assert got == {
+        0: AGREEING,  # both occupied, nearly as certain
+        1: MISSED,  # the agent holds it free
+        2: OVER_CONFIDENT,  # the agent holds it occupied, and more surely than free
+        3: MISSED,  # the agent does not know it
+        4: OVER_CONFIDENT,
+    }  # only the agent knows it, and holds it occupied
 
 
 # -- events ---------------------------------------------------------------------------------
 
 
 def test_events_up_to_an_instant_sum_traffic_per_link_and_loss_per_agent():
-    events = [{"t": 2.0, "rule": "r", "sender": "a", "receiver": "b", "voxels": 10, "loss": 1.5},
-              {"t": 1.0, "rule": "r", "sender": "b", "receiver": "a", "voxels": 4, "loss": 0.5},
-              {"t": 1.5, "rule": "s", "sender": "a", "receiver": "b", "voxels": 9, "loss": 9.0},
-              {"t": 3.0, "rule": "r", "sender": "b", "receiver": "c", "voxels": 7, "loss": None}]
+    events = [
+        {"t": 2.0, "rule": "r", "sender": "a", "receiver": "b", "voxels": 10, "loss": 1.5},
+        {"t": 1.0, "rule": "r", "sender": "b", "receiver": "a", "voxels": 4, "loss": 0.5},
+        {"t": 1.5, "rule": "s", "sender": "a", "receiver": "b", "voxels": 9, "loss": 9.0},
+        {"t": 3.0, "rule": "r", "sender": "b", "receiver": "c", "voxels": 7, "loss": None},
+    ]
     mine = events_of(events, "r")
     assert [e["t"] for e in mine] == [1.0, 2.0, 3.0]
     now = until(mine, 2)
@@ -126,13 +136,29 @@ def test_events_up_to_an_instant_sum_traffic_per_link_and_loss_per_agent():
 def run_folder(tmp_path_factory):
     robots = bf.team(3)
     bag = bf.robot_recording(robots, bf.team_times(robots, 4)).write(
-        tmp_path_factory.mktemp("bag") / "team", "mcap")
+        tmp_path_factory.mktemp("bag") / "team", "mcap"
+    )
     out = tmp_path_factory.mktemp("run") / "out"
     from octofuse.cli import main
 
-    code = main(["run", str(bag), "--rules", ",".join(RULES), "--topology", "ring",
-                 "--schedule", "periodic:1", "--resolution", str(RES), "--samples", "0",
-                 "--out", str(out)])
+    code = main(
+        [
+            "run",
+            str(bag),
+            "--rules",
+            ",".join(RULES),
+            "--topology",
+            "ring",
+            "--schedule",
+            "periodic:1",
+            "--resolution",
+            str(RES),
+            "--samples",
+            "0",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     return out
 
@@ -143,7 +169,8 @@ def test_a_run_folder_holds_what_the_page_shows(run_folder):
     assert src.rules == RULES and src.agents == summary["agents"] and src.has_central()
     assert len(src.links) == 3 and set(sum(src.links, ())) == set(src.agents)
     assert src.events == summary["fusion_events"] and src.loss_range == tuple(
-        summary["exports"]["range"])
+        summary["exports"]["range"]
+    )
     assert src.resolution == RES
     for rule in RULES:
         assert src.agents_of(rule) == src.agents
@@ -154,8 +181,9 @@ def test_a_run_folder_holds_what_the_page_shows(run_folder):
     assert (src.loss("naive-bayes", src.agents[0]).values == 0).all()  # naive Bayes loses nothing
     d = src.difference("naive-bayes", src.agents[0])
     assert set(np.unique(d.values).tolist()) <= {OVER_CONFIDENT, MISSED, AGREEING}
-    assert (d.values == OVER_CONFIDENT).sum() > (src.difference("chernoff", src.agents[0]).values
-                                                 == OVER_CONFIDENT).sum()
+    assert (d.values == OVER_CONFIDENT).sum() > (
+        src.difference("chernoff", src.agents[0]).values == OVER_CONFIDENT
+    ).sum()
 
 
 def test_a_folder_without_a_summary_is_refused(tmp_path, capsys):
@@ -283,9 +311,12 @@ def test_the_command_prints_the_pages_address(run_folder):
     pytest.importorskip("viser")
     port = free_port()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    with subprocess.Popen([sys.executable, "-m", "octofuse", "view", str(run_folder),
-                           "--port", str(port)], stdout=subprocess.PIPE, text=True,
-                          env=env) as proc:
+    with subprocess.Popen(
+        [sys.executable, "-m", "octofuse", "view", str(run_folder), "--port", str(port)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    ) as proc:
         try:
             line = proc.stdout.readline()
         finally:

@@ -48,14 +48,19 @@ def test_hypothesis_count_is_the_smallest_that_succeeds(p_in, success, c):
         assert 1 - (1 - p_in**c) ** (k - 1) < success + 1e-12
 
 
-@pytest.mark.parametrize("edges, iterations", [(RING, 150), (lambda t: EVEN if t % 2 else ODD, 400)],
-                         ids=["fixed", "switching"])
+@pytest.mark.parametrize(
+    "edges, iterations",
+    [(RING, 150), (lambda t: EVEN if t % 2 else ODD, 400)],
+    ids=["fixed", "switching"],
+)
 def test_dynamic_vote_finds_the_inliers(edges, iterations):
     x, cov = network()
     res = dynamic_vote(x, cov, edges, seed_sets=[[6], [2], [7]], iterations=iterations)
     assert res.winner == 1 and np.all(res.robot_winner == 1)
     np.testing.assert_array_equal(res.inliers, TRUE_INLIERS)
-    np.testing.assert_allclose(res.estimate, np.broadcast_to(ml(x[:N_IN], cov[:N_IN]), (8, 2)), atol=1e-6)
+    np.testing.assert_allclose(
+        res.estimate, np.broadcast_to(ml(x[:N_IN], cov[:N_IN]), (8, 2)), atol=1e-6
+    )
     np.testing.assert_allclose(res.votes[1], N_IN / 8, atol=1e-6)
     assert res.votes[0].max() < 0.5 and res.votes[2].max() < 0.5  # outlier-seeded hypotheses lose
 
@@ -108,7 +113,9 @@ def test_residual_covariance_by_monte_carlo():
     members = np.array([True, True, True, False, False])
     cov_ml = np.linalg.inv(info[members].sum(0))
     e = np.einsum("nij,snj->sni", np.linalg.cholesky(cov), rng.normal(size=(samples, n, d)))
-    theta = np.einsum("ij,sj->si", cov_ml, np.einsum("nij,snj->sni", info[members], e[:, members]).sum(1))
+    theta = np.einsum(
+        "ij,sj->si", cov_ml, np.einsum("nij,snj->sni", info[members], e[:, members]).sum(1)
+    )
     for i in (0, 4):
         emp = np.cov((e[:, i] - theta).T)
         expected = residual_covariance(cov[i], cov_ml, members[i])
@@ -156,22 +163,25 @@ def test_max_consensus_picks_the_largest_numbers():
     assert rounds <= 4 and messages[0] == rounds * 16
 
 
-@pytest.mark.parametrize("change, match", [
-    (dict(x=np.zeros((8, 2, 1))), "x must have shape"),
-    (dict(covariances=np.ones((8, 3, 3))), "covariances must have shape"),
-    (dict(covariances=np.tile(np.diag([1.0, -1.0]), (8, 1, 1))), "not positive definite"),
-    (dict(covariances=np.tile([[1.0, 0.5], [0.0, 1.0]], (8, 1, 1))), "not symmetric"),
-    (dict(x=np.full((8, 2), np.nan)), "non-finite"),
-    (dict(p_in=1.5), "p_in"),
-    (dict(success=1.0), "success"),
-    (dict(c=0), "c must be"),
-    (dict(c=9), "c = 9"),
-    (dict(iterations=-1), "iterations"),
-    (dict(edges=[(0, 8)]), "outside 0..7"),
-    (dict(edges=[(3, 3)]), "self-loop"),
-    (dict(edges=[(0, 1)]), "disconnected"),
-    (dict(seed_sets=[[0], [12]]), "seed_sets"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(x=np.zeros((8, 2, 1))), "x must have shape"),
+        (dict(covariances=np.ones((8, 3, 3))), "covariances must have shape"),
+        (dict(covariances=np.tile(np.diag([1.0, -1.0]), (8, 1, 1))), "not positive definite"),
+        (dict(covariances=np.tile([[1.0, 0.5], [0.0, 1.0]], (8, 1, 1))), "not symmetric"),
+        (dict(x=np.full((8, 2), np.nan)), "non-finite"),
+        (dict(p_in=1.5), "p_in"),
+        (dict(success=1.0), "success"),
+        (dict(c=0), "c must be"),
+        (dict(c=9), "c = 9"),
+        (dict(iterations=-1), "iterations"),
+        (dict(edges=[(0, 8)]), "outside 0..7"),
+        (dict(edges=[(3, 3)]), "self-loop"),
+        (dict(edges=[(0, 1)]), "disconnected"),
+        (dict(seed_sets=[[0], [12]]), "seed_sets"),
+    ],
+)
 def test_bad_input_raises_a_clear_error(change, match):
     x, cov = network()
     kwargs = dict(x=x, covariances=cov, edges=RING, seed=0) | change

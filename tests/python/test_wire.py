@@ -4,14 +4,30 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from octofuse.fusion.wire import (HEADER_BYTES, Encoding, Kind, LayerBlob, Message,
-                                  WireError, decode, decode_layers, encode_layers)
+from octofuse.fusion.wire import (
+    HEADER_BYTES,
+    Encoding,
+    Kind,
+    LayerBlob,
+    Message,
+    WireError,
+    decode,
+    decode_layers,
+    encode_layers,
+)
 
 names = st.text(min_size=0, max_size=20)
 messages = st.builds(
-    Message, fleet=names, rule=names, sender=names, receiver=names,
-    seq=st.integers(0, 2**64 - 1), ack=st.integers(0, 2**64 - 1),
-    kind=st.sampled_from([Kind.WHOLE, Kind.DELTA]), payload=st.binary(max_size=300))
+    Message,
+    fleet=names,
+    rule=names,
+    sender=names,
+    receiver=names,
+    seq=st.integers(0, 2**64 - 1),
+    ack=st.integers(0, 2**64 - 1),
+    kind=st.sampled_from([Kind.WHOLE, Kind.DELTA]),
+    payload=st.binary(max_size=300),
+)
 
 
 @given(messages)
@@ -72,11 +88,19 @@ def test_names_and_numbers_out_of_range_are_refused_when_encoding():
         Message("f", "r", "a", "b", -1, 0, Kind.WHOLE).encode()
 
 
-layer_lists = st.lists(st.one_of(
-    st.builds(LayerBlob, source=names, version=st.integers(0, 2**64 - 1),
-              base=st.integers(0, 2**64 - 1), data=st.binary(max_size=60)),
-    st.builds(LayerBlob, source=names, version=st.integers(0, 2**64 - 1),
-              held=st.just(True))), max_size=5)
+layer_lists = st.lists(
+    st.one_of(
+        st.builds(
+            LayerBlob,
+            source=names,
+            version=st.integers(0, 2**64 - 1),
+            base=st.integers(0, 2**64 - 1),
+            data=st.binary(max_size=60),
+        ),
+        st.builds(LayerBlob, source=names, version=st.integers(0, 2**64 - 1), held=st.just(True)),
+    ),
+    max_size=5,
+)
 
 
 @given(layer_lists)

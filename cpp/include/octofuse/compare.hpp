@@ -20,11 +20,11 @@ enum VoxelClass : int { kOccupied = 0, kFree = 1, kUnknown = 2 };
 struct Comparison {
   /// confusion[reference class][map class], voxel counts
   std::array<std::array<double, 3>, 3> confusion{};
-  double kl_sum = 0.0;           ///< sum of KL(p_ref || p_map) over voxels the reference knows
-                                 ///< (an unknown map voxel counts as p = 0.5)
-  double both_known = 0.0;       ///< voxels both maps know
-  double overconfident = 0.0;    ///< of those: |l_map| > |l_ref| + tol
-  double abs_diff_sum = 0.0;     ///< sum of |l_map - l_ref| over voxels both know
+  double kl_sum = 0.0;         ///< sum of KL(p_ref || p_map) over voxels the reference knows
+                               ///< (an unknown map voxel counts as p = 0.5)
+  double both_known = 0.0;     ///< voxels both maps know
+  double overconfident = 0.0;  ///< of those: |l_map| > |l_ref| + tol
+  double abs_diff_sum = 0.0;   ///< sum of |l_map - l_ref| over voxels both know
 };
 
 /// A reference map as compare_maps reads it: its nodes' values and children in one array,

@@ -18,7 +18,7 @@ struct ScanInput {
   const void* xyz = nullptr;  ///< n x 3 points, float or double (see is_double)
   bool is_double = true;
   std::size_t n = 0;
-  double pose[16];            ///< row-major 4x4 sensor-to-map transform
+  double pose[16];  ///< row-major 4x4 sensor-to-map transform
   double max_range = -1.0;
   std::vector<OccupancyMap*> targets;  ///< maps this scan updates (all of equal resolution)
   /// true: the points are in the map frame and only the translation of `pose` is used (the
@@ -49,9 +49,8 @@ struct RayItems {
 /// (ScanCheck) first: throws std::invalid_argument naming the scan and point row if a ray
 /// cannot be traced, or if threads is not in 1..kMaxThreads. With `fast`, the items of
 /// the fast mode (insert_fast.hpp), which apply_rays() applies scan by scan.
-RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid,
-                    unsigned threads, bool targeted_only = false,
-                    const FastInsert* fast = nullptr);
+RayItems trace_rays(const std::vector<ScanInput>& scans, const OccupancyMap& grid, unsigned threads,
+                    bool targeted_only = false, const FastInsert* fast = nullptr);
 
 /// Applies `items.per_scan[i]` to every map of `targets[i]`: each map receives its scans in
 /// batch order, several in one walk of its tree (a voxel's updates in scan order: the same
@@ -72,7 +71,7 @@ void insert_batch(const std::vector<ScanInput>& scans, unsigned threads,
 /// the same map as OccupancyMap::insert_scan() (OctoMap's insertPointCloud), with the same
 /// checks and messages (std::invalid_argument naming the point row; no change then).
 template <class Real>
-void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n,
-                         const double origin[3], double max_range);
+void insert_scan_batched(OccupancyMap& map, const Real* xyz, std::size_t n, const double origin[3],
+                         double max_range);
 
 }  // namespace octofuse

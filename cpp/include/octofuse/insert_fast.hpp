@@ -52,10 +52,10 @@ struct FastInsert {
 
 /// One map-frame scan traced for the fast mode, to apply to any maps of its grid.
 struct FastScan {
-  std::vector<float> ends;          ///< each ray's end (cut to the maximum range), x y z
-  float origin[3] = {0, 0, 0};      ///< the sensor
-  unsigned levels = 0;              ///< FastInsert::coarse_levels
-  unsigned threads = 1;             ///< FastInsert::threads
+  std::vector<float> ends;           ///< each ray's end (cut to the maximum range), x y z
+  float origin[3] = {0, 0, 0};       ///< the sensor
+  unsigned levels = 0;               ///< FastInsert::coarse_levels
+  unsigned threads = 1;              ///< FastInsert::threads
   std::vector<std::uint64_t> cells;  ///< the cells cleared whole (cell codes, ascending)
   /// the update: items in ascending code order (the codes and hit flag of key_codes.hpp, and
   /// cells: the code of their first voxel with bit 62 set)
@@ -74,12 +74,12 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
 
 /// One scan of a batch for trace_fast_batch().
 struct FastInput {
-  std::vector<float> pts;        ///< map-frame points, x y z
+  std::vector<float> pts;  ///< map-frame points, x y z
   float origin[3] = {0, 0, 0};
   double max_range = -1.0;
   const OccupancyTree* map = nullptr;  ///< trace_fast()'s `map` (not changed meanwhile)
-  std::string where;             ///< prefix of error messages
-  bool skip = true;              ///< no scan here (no result)
+  std::string where;                   ///< prefix of error messages
+  bool skip = true;                    ///< no scan here (no result)
 };
 
 /// Traces a batch of scans for the fast mode, in parallel on `threads` threads (all checked

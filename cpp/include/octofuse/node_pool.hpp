@@ -83,8 +83,8 @@ class BlockPool {
   }
 
   struct Stats {
-    std::size_t slab_bytes;  ///< bytes taken from the system
-    std::size_t free_blocks;  ///< free blocks in the slabs (not counting threads' lists)
+    std::size_t slab_bytes;     ///< bytes taken from the system
+    std::size_t free_blocks;    ///< free blocks in the slabs (not counting threads' lists)
     std::size_t blocks_in_use;  ///< not free in the slabs (blocks on threads' lists included)
   };
   static Stats stats();

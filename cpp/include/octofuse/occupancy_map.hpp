@@ -30,11 +30,11 @@ inline constexpr double kMaxResolution = 1e3;
 
 /// Sensor model and clamping of an occupancy map, as probabilities.
 struct MapParams {
-  double resolution = 0.05;    ///< edge length of the finest voxel in metres
-  double prob_hit = 0.7;       ///< P(occupied | hit)
-  double prob_miss = 0.4;      ///< P(occupied | ray passed through)
-  double clamp_min = 0.1192;   ///< lower clamping threshold (probability)
-  double clamp_max = 0.971;    ///< upper clamping threshold (probability)
+  double resolution = 0.05;   ///< edge length of the finest voxel in metres
+  double prob_hit = 0.7;      ///< P(occupied | hit)
+  double prob_miss = 0.4;     ///< P(occupied | ray passed through)
+  double clamp_min = 0.1192;  ///< lower clamping threshold (probability)
+  double clamp_max = 0.971;   ///< upper clamping threshold (probability)
 
   /// Throws std::invalid_argument naming the offending value if the parameters are unusable.
   void validate() const;
@@ -51,9 +51,9 @@ inline bool of_class(float log_odds, LeafClass which) {
 
 /// Leaves of a tree as flat arrays (structure of arrays).
 struct LeafArrays {
-  std::vector<double> centers;  ///< 3 * n, x y z interleaved
-  std::vector<double> sizes;    ///< n, edge length in metres
-  std::vector<float> values;    ///< n, stored value (log-odds for occupancy maps)
+  std::vector<double> centers;       ///< 3 * n, x y z interleaved
+  std::vector<double> sizes;         ///< n, edge length in metres
+  std::vector<float> values;         ///< n, stored value (log-odds for occupancy maps)
   std::vector<std::uint8_t> depths;  ///< n, tree depth of the leaf (16 = finest)
 };
 

@@ -16,22 +16,26 @@ namespace octofuse {
 
 /// The fusion rules. The numeric values are stable (they cross the Python boundary).
 enum class Rule : std::uint8_t {
-  NaiveBayes = 0,          ///< l = l_a + l_b - l_0 (assumes independence; baseline)
-  Bhattacharyya = 1,       ///< w = 1/2
-  MinEntropy = 2,          ///< argmin_w H(p_w): the endpoint with the larger |l - 0|
-  Chernoff = 3,            ///< KL(p_w || p_a) = KL(p_w || p_b), closed form
+  NaiveBayes = 0,               ///< l = l_a + l_b - l_0 (assumes independence; baseline)
+  Bhattacharyya = 1,            ///< w = 1/2
+  MinEntropy = 2,               ///< argmin_w H(p_w): the endpoint with the larger |l - 0|
+  Chernoff = 3,                 ///< KL(p_w || p_a) = KL(p_w || p_b), closed form
   EntropyWeightedChernoff = 4,  ///< KL(p_w||p_a)/H(p_a) = KL(p_w||p_b)/H(p_b), root finding
   KldWeightedChernoff = 5,      ///< KL(p_a||p_0) KL(p_w||p_a) = KL(p_b||p_0) KL(p_w||p_b)
-  MinInfoLoss = 6,         ///< argmin_w KL(p_NB || p_w): l_NB projected onto [l_a, l_b]
+  MinInfoLoss = 6,              ///< argmin_w KL(p_NB || p_w): l_NB projected onto [l_a, l_b]
 };
 
 /// Number of rules in `Rule`.
 inline constexpr int kNumRules = 7;
 
 /// Canonical rule names (command line, configuration, Python), indexed by `Rule`.
-inline constexpr const char* kRuleNames[kNumRules] = {
-    "naive-bayes", "bhattacharyya", "min-entropy", "chernoff",
-    "entropy-weighted-chernoff", "kld-weighted-chernoff", "min-info-loss"};
+inline constexpr const char* kRuleNames[kNumRules] = {"naive-bayes",
+                                                      "bhattacharyya",
+                                                      "min-entropy",
+                                                      "chernoff",
+                                                      "entropy-weighted-chernoff",
+                                                      "kld-weighted-chernoff",
+                                                      "min-info-loss"};
 
 /// Name of a rule.
 inline const char* rule_name(Rule r) { return kRuleNames[static_cast<int>(r)]; }
@@ -122,9 +126,7 @@ constexpr bool is_weighted_chernoff(Rule r) {
 /// Whether R fuses a pair in the order (lower, higher) whatever order it comes in: the rules
 /// whose arithmetic is not symmetric in a and b as written (a closed form or a root finding),
 /// so that fusing (a, b) and (b, a) gives the same bits.
-constexpr bool fuses_lower_first(Rule r) {
-  return r == Rule::Chernoff || is_weighted_chernoff(r);
-}
+constexpr bool fuses_lower_first(Rule r) { return r == Rule::Chernoff || is_weighted_chernoff(r); }
 
 /// Whether R's fused value and loss do not depend on the order of the pair, bit for bit:
 /// every rule but min-entropy (whose ties prefer a). Naive Bayes, Bhattacharyya and

@@ -110,31 +110,31 @@ static_assert(sizeof(OccupancyNode) == detail::NodePool::kBlock &&
 
 // The three places OctoMap allocates and frees the arrays of child pointers, for octofuse's
 // trees: the same code with the arrays in ChildrenPool.
-#define OCTOFUSE_POOLED_CHILDREN(NODE, BASE)                                              \
-  template <>                                                                            \
-  inline void octomap::OcTreeBaseImpl<NODE, BASE>::allocNodeChildren(NODE* node) {       \
-    node->children =                                                                     \
-        static_cast<AbstractOcTreeNode**>(octofuse::detail::ChildrenPool::allocate());   \
-    for (unsigned i = 0; i < 8; ++i) node->children[i] = nullptr;                        \
-  }                                                                                      \
-  template <>                                                                            \
-  inline bool octomap::OcTreeBaseImpl<NODE, BASE>::pruneNode(NODE* node) {               \
-    if (!isNodeCollapsible(node)) return false;                                          \
-    node->copyData(*(getNodeChild(node, 0)));                                            \
-    for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);                           \
-    octofuse::detail::ChildrenPool::release(node->children);                             \
-    node->children = nullptr;                                                            \
-    return true;                                                                         \
-  }                                                                                      \
-  template <>                                                                            \
-  inline void octomap::OcTreeBaseImpl<NODE, BASE>::deleteNodeRecurs(NODE* node) {        \
-    if (node->children != nullptr) {                                                     \
-      for (unsigned i = 0; i < 8; ++i)                                                   \
+#define OCTOFUSE_POOLED_CHILDREN(NODE, BASE)                                                       \
+  template <>                                                                                      \
+  inline void octomap::OcTreeBaseImpl<NODE, BASE>::allocNodeChildren(NODE* node) {                 \
+    node->children =                                                                               \
+        static_cast<AbstractOcTreeNode**>(octofuse::detail::ChildrenPool::allocate());             \
+    for (unsigned i = 0; i < 8; ++i) node->children[i] = nullptr;                                  \
+  }                                                                                                \
+  template <>                                                                                      \
+  inline bool octomap::OcTreeBaseImpl<NODE, BASE>::pruneNode(NODE* node) {                         \
+    if (!isNodeCollapsible(node)) return false;                                                    \
+    node->copyData(*(getNodeChild(node, 0)));                                                      \
+    for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);                                     \
+    octofuse::detail::ChildrenPool::release(node->children);                                       \
+    node->children = nullptr;                                                                      \
+    return true;                                                                                   \
+  }                                                                                                \
+  template <>                                                                                      \
+  inline void octomap::OcTreeBaseImpl<NODE, BASE>::deleteNodeRecurs(NODE* node) {                  \
+    if (node->children != nullptr) {                                                               \
+      for (unsigned i = 0; i < 8; ++i)                                                             \
         if (node->children[i] != nullptr) deleteNodeRecurs(static_cast<NODE*>(node->children[i])); \
-      octofuse::detail::ChildrenPool::release(node->children);                           \
-      node->children = nullptr;                                                          \
-    }                                                                                    \
-    delete node;                                                                         \
+      octofuse::detail::ChildrenPool::release(node->children);                                     \
+      node->children = nullptr;                                                                    \
+    }                                                                                              \
+    delete node;                                                                                   \
   }
 
 OCTOFUSE_POOLED_CHILDREN(octofuse::OccupancyNode, octomap::AbstractOccupancyOcTree)

@@ -120,7 +120,7 @@ class ArenaTree : public Base {
       if (this->root != nullptr) free_pool_nodes(this->root);
     } else if (arena_->live_nodes() != this->tree_size) {
       Base::clear();  // the pools' nodes go back one by one; the arena's are only counted
-    }  // else every node is the arena's: its slabs go at once
+    }                 // else every node is the arena's: its slabs go at once
     this->root = nullptr;
     this->tree_size = 0;
     this->size_changed = true;

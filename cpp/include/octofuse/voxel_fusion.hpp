@@ -142,15 +142,15 @@ class VoxelFusion {
     return {v.value, v.loss};
   }
   double lmin_, lmax_;
-  detail::PairMemo<Stored> memo_;  // not used by naive-bayes
+  detail::PairMemo<Stored> memo_;                       // not used by naive-bayes
   std::unique_ptr<detail::ValueMemo<double>> factors_;  // the weighted Chernoff rules only
 };
 
 /// Calls f(VoxelFusion<R, U>&) for the run-time rule and policy: the one dispatch of every
 /// tree walk, made once per walk, outside the voxel loop.
 template <class F>
-decltype(auto) with_voxel_fusion(Rule rule, UnknownPolicy unknown, float clamp_min,
-                                 float clamp_max, F&& f) {
+decltype(auto) with_voxel_fusion(Rule rule, UnknownPolicy unknown, float clamp_min, float clamp_max,
+                                 F&& f) {
   return with_rule(rule, [&](auto r) -> decltype(auto) {
     constexpr Rule R = decltype(r)::value;
     if (unknown == UnknownPolicy::Prior) {

@@ -11,7 +11,6 @@ process noise is the approximation of :meth:`ExPoly2D.diffuse`.
 from __future__ import annotations
 
 import math
-
 from math import comb
 
 import numpy as np
@@ -107,8 +106,10 @@ class ExPoly2D:
             raise ValueError(f"sharpness a must be positive and finite, got {a}")
         k = a / (z * z) if z * z > 0.0 else math.inf
         if not (math.isfinite(k) and math.isfinite(a * z * z) and k > 0.0):
-            raise ValueError(f"measured_range={measured_range!r} with a={a!r}: the "
-                             "coefficients a / range^2 and a range^2 must be finite and positive")
+            raise ValueError(
+                f"measured_range={measured_range!r} with a={a!r}: the "
+                "coefficients a / range^2 and a range^2 must be finite and positive"
+            )
         c = np.zeros((5, 5))  # k (u^2 + v^2)^2 - 2a (u^2 + v^2) + a z^2 around the sensor
         c[4, 0], c[0, 4], c[2, 2] = k, k, 2 * k
         c[2, 0], c[0, 2], c[0, 0] = -2 * a, -2 * a, a * z * z
@@ -289,5 +290,8 @@ def predict_coefficients_1d(a, F: float, Bu: float) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     n = a.size
     return np.array(
-        [sum(a[j] * comb(j, i) * F ** (-j) * (-Bu) ** (j - i) for j in range(i, n)) for i in range(n)]
+        [
+            sum(a[j] * comb(j, i) * F ** (-j) * (-Bu) ** (j - i) for j in range(i, n))
+            for i in range(n)
+        ]
     )

@@ -48,7 +48,9 @@ def _objective(belief: ExPoly2D, coeffs: np.ndarray, target: np.ndarray) -> floa
     return belief.log_normaliser() + float(coeffs @ target)
 
 
-def _moments_under_affine(target: np.ndarray, terms, degree: int, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _moments_under_affine(
+    target: np.ndarray, terms, degree: int, A: np.ndarray, b: np.ndarray
+) -> np.ndarray:
     """Raw moments of ``u = A x + b`` from the raw moments ``target`` of ``x``."""
     lookup = dict(zip(terms, target))
     lookup[(0, 0)] = 1.0
@@ -98,7 +100,7 @@ def _newton(coeffs, goal, terms, degree, max_iter, tol):
     f = _objective(belief, coeffs, goal)
     residual, it, mu = np.inf, 0, None
     best = (np.inf, coeffs, belief)
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
         g = belief.grid()
         X, Y = g.mesh
         phi = np.stack([(X**i * Y**j).ravel() for i, j in terms])

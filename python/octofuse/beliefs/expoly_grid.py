@@ -95,7 +95,13 @@ def derivatives(c: np.ndarray) -> tuple[np.ndarray, ...]:
     """Coefficients of ``P_x, P_y, P_xx, P_xy, P_yy`` (padded to the shape of ``c``)."""
     n = c.shape[0]
     cx, cy = npoly.polyder(c, axis=0), npoly.polyder(c, axis=1)
-    parts = (cx, cy, npoly.polyder(cx, axis=0), npoly.polyder(cx, axis=1), npoly.polyder(cy, axis=1))
+    parts = (
+        cx,
+        cy,
+        npoly.polyder(cx, axis=0),
+        npoly.polyder(cx, axis=1),
+        npoly.polyder(cy, axis=1),
+    )
     out = []
     for p in parts:
         padded = np.zeros((n, n))
@@ -107,7 +113,11 @@ def derivatives(c: np.ndarray) -> tuple[np.ndarray, ...]:
 def gradient_hessian(c: np.ndarray, x, y, derivs=None):
     """Gradient ``(gx, gy)`` and Hessian ``(hxx, hxy, hyy)`` of ``P`` at points."""
     cx, cy, cxx, cxy, cyy = derivatives(c) if derivs is None else derivs
-    return (evaluate(cx, x, y), evaluate(cy, x, y)), (evaluate(cxx, x, y), evaluate(cxy, x, y), evaluate(cyy, x, y))
+    return (evaluate(cx, x, y), evaluate(cy, x, y)), (
+        evaluate(cxx, x, y),
+        evaluate(cxy, x, y),
+        evaluate(cyy, x, y),
+    )
 
 
 def support_radius(c: np.ndarray, k: int, form_min: float) -> float:
@@ -165,7 +175,9 @@ def locate_support(c: np.ndarray, k: int, form_min: float, rounds: int = 5):
             for di in (-1, 0, 1):
                 for dj in (-1, 0, 1):
                     if di or dj:
-                        is_min &= inner <= V[1 + di : V.shape[0] - 1 + di, 1 + dj : V.shape[1] - 1 + dj]
+                        is_min &= (
+                            inner <= V[1 + di : V.shape[0] - 1 + di, 1 + dj : V.shape[1] - 1 + dj]
+                        )
             idx = np.argwhere(is_min)
             idx = idx[np.argsort(inner[is_min])][:6] + 1
             if idx.size:
@@ -229,7 +241,9 @@ class GridDensity:
         return mean, cov
 
 
-def grid_density(c: np.ndarray, k: int, form_min: float, n: int = GRID_POINTS, box=None) -> GridDensity:
+def grid_density(
+    c: np.ndarray, k: int, form_min: float, n: int = GRID_POINTS, box=None
+) -> GridDensity:
     """Sample ``exp(-P)`` on an ``n x n`` grid over its located support (or over ``box``)."""
     x0, x1, y0, y1 = locate_support(c, k, form_min) if box is None else box
     x, y = np.linspace(x0, x1, n), np.linspace(y0, y1, n)

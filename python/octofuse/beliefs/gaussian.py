@@ -115,7 +115,9 @@ class Gaussian:
 
     def renyi2_entropy(self) -> float:
         """``-log integral p^2 = (d/2) log(4 pi) + (1/2) log det cov`` (nats)."""
-        return float(0.5 * self.dim * np.log(4 * np.pi) - 0.5 * np.linalg.slogdet(self.info_matrix)[1])
+        return float(
+            0.5 * self.dim * np.log(4 * np.pi) - 0.5 * np.linalg.slogdet(self.info_matrix)[1]
+        )
 
     @property
     def message_bytes(self) -> int:

@@ -86,8 +86,11 @@ class GaussianMixture:
         return f"GaussianMixture(n_components={self.n_components}, dim={self.dim})"
 
     def to_dict(self) -> dict:
-        return {"weights": self.weights.tolist(), "means": self.means.tolist(),
-                "covariances": self.covariances.tolist()}
+        return {
+            "weights": self.weights.tolist(),
+            "means": self.means.tolist(),
+            "covariances": self.covariances.tolist(),
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> GaussianMixture:
@@ -96,8 +99,10 @@ class GaussianMixture:
             raise TypeError(f"from_dict expects a mapping, got {type(d).__name__}")
         missing = [k for k in ("weights", "means", "covariances") if k not in d]
         if missing:
-            raise ValueError(f"mixture dict lacks {', '.join(missing)}: expected the keys weights, "
-                             "means and covariances")
+            raise ValueError(
+                f"mixture dict lacks {', '.join(missing)}: expected the keys weights, "
+                "means and covariances"
+            )
         return cls(d["weights"], d["means"], d["covariances"])
 
     # -- evaluation -----------------------------------------------------------------------
@@ -143,8 +148,10 @@ class GaussianMixture:
             cov = np.einsum("m,mij->ij", self.weights, self.covariances)
             cov += np.einsum("m,mi,mj->ij", self.weights, diff, diff)
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-            raise ValueError("the mixture's mean or covariance overflows float64 (components "
-                             "too far apart or too wide); rescale its units")
+            raise ValueError(
+                "the mixture's mean or covariance overflows float64 (components "
+                "too far apart or too wide); rescale its units"
+            )
         return mean, cov
 
     # -- closed-form products ---------------------------------------------------------------

@@ -77,7 +77,9 @@ def log_det_cholesky(chol: np.ndarray) -> np.ndarray:
     return 2.0 * np.log(np.diagonal(chol, axis1=-2, axis2=-1)).sum(-1)
 
 
-def logpdf_cholesky(x: np.ndarray, means: np.ndarray, inv_chol: np.ndarray, log_det: np.ndarray) -> np.ndarray:
+def logpdf_cholesky(
+    x: np.ndarray, means: np.ndarray, inv_chol: np.ndarray, log_det: np.ndarray
+) -> np.ndarray:
     """Component log densities ``(M, N)`` from the inverse Cholesky factors ``L^-1`` ``(M, d, d)``."""
     d = x.shape[1]
     z = np.matmul(x[None, :, :], np.swapaxes(inv_chol, 1, 2))  # L^-1 x, shape (M, N, d)
@@ -104,7 +106,9 @@ def _combine(prec_a, prec_b, mean_a, mean_b, wa: float, wb: float):
     info = wa * prec_a + wb * prec_b
     cov = np.linalg.inv(info)
     cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
-    vec = wa * np.einsum("pij,pj->pi", prec_a, mean_a) + wb * np.einsum("pij,pj->pi", prec_b, mean_b)
+    vec = wa * np.einsum("pij,pj->pi", prec_a, mean_a) + wb * np.einsum(
+        "pij,pj->pi", prec_b, mean_b
+    )
     return np.einsum("pij,pj->pi", cov, vec), cov
 
 
@@ -122,8 +126,9 @@ def product(a: M, b: M) -> tuple[M, float, np.ndarray]:
     s = a.covariances[q] + b.covariances[r]
     chol = np.linalg.cholesky(s)
     diff = (a.means[q] - b.means[r])[:, None, :]
-    log_z = logpdf_cholesky(np.zeros((1, a.dim)), diff[:, 0, :], np.linalg.inv(chol),
-                            log_det_cholesky(chol))[:, 0]
+    log_z = logpdf_cholesky(
+        np.zeros((1, a.dim)), diff[:, 0, :], np.linalg.inv(chol), log_det_cholesky(chol)
+    )[:, 0]
     with np.errstate(divide="ignore"):
         log_w = np.log(a.weights[q]) + np.log(b.weights[r]) + log_z
     log_norm = float(logsumexp(log_w))

@@ -59,7 +59,16 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .base import check_weight
-from .mixture_algebra import M, Mixture, as_rng, check_pair, foci, kl_divergence, logsumexp0, product
+from .mixture_algebra import (
+    M,
+    Mixture,
+    as_rng,
+    check_pair,
+    foci,
+    kl_divergence,
+    logsumexp0,
+    product,
+)
 from .mixture_omega import OMEGA_RULES, WepCosts, choose_omega
 from .mixture_reduction import runnalls_reduce, weighted_em
 
@@ -84,7 +93,9 @@ class MixtureFusion:
     method: str
     ess: float  #: effective sample size of the omega-search weights at ``omega``
     n_samples: int
-    restarts: int  #: which draw of the omega search was kept (0: the first; more after low-ESS restarts)
+    restarts: (
+        int  #: which draw of the omega search was kept (0: the first; more after low-ESS restarts)
+    )
     kl_to_a: float  #: KL(p_w || p_a)
     kl_to_b: float  #: KL(p_w || p_b)
     info_loss: float  #: KL(p_NB || p_w), the approximate information loss of paper 000 eq. 9
@@ -94,9 +105,23 @@ class MixtureFusion:
     std_error: float = math.nan
 
     def summary(self) -> dict:
-        out = {k: getattr(self, k) for k in ("omega", "rule", "method", "ess", "n_samples", "restarts",
-                                            "kl_to_a", "kl_to_b", "info_loss", "info_a", "info_b",
-                                            "std_error")}
+        out = {
+            k: getattr(self, k)
+            for k in (
+                "omega",
+                "rule",
+                "method",
+                "ess",
+                "n_samples",
+                "restarts",
+                "kl_to_a",
+                "kl_to_b",
+                "info_loss",
+                "info_a",
+                "info_b",
+                "std_error",
+            )
+        }
         out["n_components"] = self.mixture.n_components
         return out
 
@@ -108,7 +133,9 @@ def check_rule(rule: str) -> str:
             "entropy, and differential entropy can be zero or negative; use kld-weighted-chernoff"
         )
     if rule not in MIXTURE_RULES:
-        raise ValueError(f"unknown mixture fusion rule {rule!r}; valid rules are: {', '.join(MIXTURE_RULES)}")
+        raise ValueError(
+            f"unknown mixture fusion rule {rule!r}; valid rules are: {', '.join(MIXTURE_RULES)}"
+        )
     return rule
 
 
@@ -116,9 +143,11 @@ def importance_density(a: M, b: M, w_bar: float) -> M:
     """``(1 - 2 eps) FOCI(w_bar) + eps p_a + eps p_b``: the defensive omega-search density."""
     f = foci(a, b, w_bar)
     parts = [(1.0 - 2.0 * DEFENSIVE_SHARE, f), (DEFENSIVE_SHARE, a), (DEFENSIVE_SHARE, b)]
-    return type(a)(np.concatenate([s * m.weights for s, m in parts]),
-                   np.concatenate([m.means for _, m in parts]),
-                   np.concatenate([m.covariances for _, m in parts]))
+    return type(a)(
+        np.concatenate([s * m.weights for s, m in parts]),
+        np.concatenate([m.means for _, m in parts]),
+        np.concatenate([m.covariances for _, m in parts]),
+    )
 
 
 def _draw(a, b, w_bar, n, rng):
@@ -127,8 +156,20 @@ def _draw(a, b, w_bar, n, rng):
     return x, WepCosts(a.logpdf(x), b.logpdf(x), g.logpdf(x))
 
 
-def search_omega(a, b, rule, n_samples, rng, *, nb_mean_diff=None, info_a=None, info_b=None,
-                 omega=None, ess_fraction=0.2, max_restarts=3):
+def search_omega(
+    a,
+    b,
+    rule,
+    n_samples,
+    rng,
+    *,
+    nb_mean_diff=None,
+    info_a=None,
+    info_b=None,
+    omega=None,
+    ess_fraction=0.2,
+    max_restarts=3,
+):
     """Algorithm 1 of paper 000: returns ``(omega, samples, costs, restarts)``."""
     w_bar = 0.5 if omega is None else omega
     best = None
@@ -231,7 +272,9 @@ def fuse_mixtures(
     a, b = _without_zero_weights(a), _without_zero_weights(b)
     rule = check_rule(rule)
     if method not in MIXTURE_METHODS:
-        raise ValueError(f"unknown mixture fusion method {method!r}; valid methods are: {', '.join(MIXTURE_METHODS)}")
+        raise ValueError(
+            f"unknown mixture fusion method {method!r}; valid methods are: {', '.join(MIXTURE_METHODS)}"
+        )
     adaptive = n_samples is None
     n_samples = ADAPTIVE_START if adaptive else _count("n_samples", n_samples, 10)
     if pair_samples is not None:
@@ -245,7 +288,9 @@ def fuse_mixtures(
         check_pair(a, prior)
     if omega is not None:
         omega = check_weight(omega)
-    n_max = check_size(a, b, n_samples, pair_samples, method, ADAPTIVE_MAX if adaptive else n_samples)
+    n_max = check_size(
+        a, b, n_samples, pair_samples, method, ADAPTIVE_MAX if adaptive else n_samples
+    )
     rng = as_rng(seed)
     info_a = info_b = math.nan
     if prior is not None:
@@ -255,21 +300,47 @@ def fuse_mixtures(
 
     if rule == "naive-bayes" and omega is None:
         fused = _finite(runnalls_reduce(nb, max_components))
-        return MixtureFusion(fused, math.nan, rule, method, math.nan, n_samples, 0,
-                             math.nan, math.nan, 0.0, info_a, info_b)
+        return MixtureFusion(
+            fused,
+            math.nan,
+            rule,
+            method,
+            math.nan,
+            n_samples,
+            0,
+            math.nan,
+            math.nan,
+            0.0,
+            info_a,
+            info_b,
+        )
 
     while True:
         x_nb = nb.sample(n_samples, rng)
         nb_a, nb_b = a.logpdf(x_nb), b.logpdf(x_nb)
         nb_diff, nb_log_a, nb_log_b = nb_a - nb_b, float(np.mean(nb_a)), float(np.mean(nb_b))
         w, x, costs, restarts = search_omega(
-            a, b, rule, n_samples, rng, nb_mean_diff=nb_log_a - nb_log_b, info_a=info_a,
-            info_b=info_b, omega=omega, ess_fraction=ess_fraction, max_restarts=max_restarts)
-        std_error = 0.0 if omega is not None else _omega_std_error(costs, rule, nb_diff, info_a, info_b)
+            a,
+            b,
+            rule,
+            n_samples,
+            rng,
+            nb_mean_diff=nb_log_a - nb_log_b,
+            info_a=info_a,
+            info_b=info_b,
+            omega=omega,
+            ess_fraction=ess_fraction,
+            max_restarts=max_restarts,
+        )
+        std_error = (
+            0.0 if omega is not None else _omega_std_error(costs, rule, nb_diff, info_a, info_b)
+        )
         if not adaptive or std_error <= omega_tol or n_samples >= n_max:
             break
         # the count the standard error asks for (it falls as 1 / sqrt(n)), at least doubled
-        wanted = n_samples * (std_error / omega_tol) ** 2 * 1.2 if math.isfinite(std_error) else n_max
+        wanted = (
+            n_samples * (std_error / omega_tol) ** 2 * 1.2 if math.isfinite(std_error) else n_max
+        )
         n_samples = int(min(max(wanted, 2 * n_samples), n_max))
     if costs.flat or w == 1.0:  # equal densities (p_w is either of them for every w), or w = 1
         fused = a
@@ -284,10 +355,21 @@ def fuse_mixtures(
         n_pair = pair_samples if pair_samples is not None else max(64, n_samples // 4)
         fused = moment_match(a, b, w, n_pair, rng)
     fused = _finite(runnalls_reduce(fused, max_components))
-    return MixtureFusion(fused, float(w), rule, method, costs.ess(w), n_samples, restarts,
-                         costs.kl_to_a(w), costs.kl_to_b(w),
-                         costs.info_loss(w, nb_log_a, nb_log_b, log_z_nb), info_a, info_b,
-                         std_error)
+    return MixtureFusion(
+        fused,
+        float(w),
+        rule,
+        method,
+        costs.ess(w),
+        n_samples,
+        restarts,
+        costs.kl_to_a(w),
+        costs.kl_to_b(w),
+        costs.info_loss(w, nb_log_a, nb_log_b, log_z_nb),
+        info_a,
+        info_b,
+        std_error,
+    )
 
 
 def _count(name: str, value, least: int) -> int:
@@ -307,8 +389,9 @@ def _memory() -> float:
         return float("inf")
 
 
-def check_size(a: M, b: M, n_samples: int, pair_samples: int | None, method: str,
-               n_max: int) -> int:
+def check_size(
+    a: M, b: M, n_samples: int, pair_samples: int | None, method: str, n_max: int
+) -> int:
     """Refuse, before any work, a fusion of ``a`` and ``b`` too large to finish: more than
     ``MAX_PAIRS`` component pairs, or arrays of more than half of the machine's memory with
     ``n_samples`` draws (``ValueError`` naming the argument). Returns the largest draw count
@@ -318,7 +401,8 @@ def check_size(a: M, b: M, n_samples: int, pair_samples: int | None, method: str
     if pairs > MAX_PAIRS:
         raise ValueError(
             f"a has {ma} components and b {mb}: fusing them needs {pairs} component pairs, more than "
-            f"{MAX_PAIRS}; reduce them first (GaussianMixture.reduce(k), k * k <= {MAX_PAIRS})")
+            f"{MAX_PAIRS}; reduce them first (GaussianMixture.reduce(k), k * k <= {MAX_PAIRS})"
+        )
     budget = 0.5 * _memory()
 
     def need(n: int) -> float:  # the largest arrays alive at once, float64, with temporaries
@@ -328,12 +412,18 @@ def check_size(a: M, b: M, n_samples: int, pair_samples: int | None, method: str
         return max(search, match, 8.0 * pairs * pairs)
 
     if need(n_samples) > budget:
-        what = ("pair_samples" if pair_samples is not None and method == "moment-match"
-                and need(n_samples) > 8.0 * n_samples * (pairs + ma + mb) * (d + 2) else "n_samples")
+        what = (
+            "pair_samples"
+            if pair_samples is not None
+            and method == "moment-match"
+            and need(n_samples) > 8.0 * n_samples * (pairs + ma + mb) * (d + 2)
+            else "n_samples"
+        )
         raise ValueError(
             f"fusing a ({ma} components) and b ({mb}) with n_samples={n_samples} needs about "
             f"{need(n_samples) / 1e9:.3g} GB, more than half of this machine's {2 * budget / 1e9:.3g} GB; "
-            f"lower {what} or reduce the mixtures first")
+            f"lower {what} or reduce the mixtures first"
+        )
     while n_max > n_samples and need(n_max) > budget:
         n_max //= 2
     return max(n_max, n_samples)
@@ -349,15 +439,19 @@ def _omega_std_error(costs, rule, nb_diff, info_a, info_b) -> float:
     for k in range(BATCHES):
         idx = np.arange(k, n, BATCHES)
         try:
-            omegas.append(choose_omega(costs.subset(idx), rule, float(np.mean(nb_diff[idx])),
-                                       info_a, info_b))
+            omegas.append(
+                choose_omega(costs.subset(idx), rule, float(np.mean(nb_diff[idx])), info_a, info_b)
+            )
         except ValueError:  # a batch without finite costs
             return math.inf
     return float(np.std(omegas, ddof=1) / math.sqrt(BATCHES))
 
 
 def _finite(m: M) -> M:
-    if not (np.all(np.isfinite(m.weights)) and np.all(np.isfinite(m.means))
-            and np.all(np.isfinite(m.covariances))):
+    if not (
+        np.all(np.isfinite(m.weights))
+        and np.all(np.isfinite(m.means))
+        and np.all(np.isfinite(m.covariances))
+    ):
         raise ValueError("the fused mixture is not finite (the inputs' scales overflow float64)")
     return m

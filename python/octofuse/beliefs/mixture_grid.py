@@ -27,7 +27,10 @@ class Grid2D:
 
     @property
     def axes(self) -> tuple[np.ndarray, np.ndarray]:
-        return (np.linspace(self.lo[0], self.hi[0], self.n), np.linspace(self.lo[1], self.hi[1], self.n))
+        return (
+            np.linspace(self.lo[0], self.hi[0], self.n),
+            np.linspace(self.lo[1], self.hi[1], self.n),
+        )
 
     @property
     def points(self) -> np.ndarray:
@@ -37,15 +40,27 @@ class Grid2D:
 
     @property
     def cell_area(self) -> float:
-        return ((self.hi[0] - self.lo[0]) / (self.n - 1)) * ((self.hi[1] - self.lo[1]) / (self.n - 1))
+        return ((self.hi[0] - self.lo[0]) / (self.n - 1)) * (
+            (self.hi[1] - self.lo[1]) / (self.n - 1)
+        )
 
     @staticmethod
     def covering(*mixtures: GaussianMixture, n: int = 300, sigmas: float = 6.0) -> Grid2D:
         """A square-celled box holding every component's mean +- ``sigmas`` standard deviations."""
-        lo = np.min([np.min(m.means - sigmas * np.sqrt(np.diagonal(m.covariances, axis1=1, axis2=2)), 0)
-                     for m in mixtures], axis=0)
-        hi = np.max([np.max(m.means + sigmas * np.sqrt(np.diagonal(m.covariances, axis1=1, axis2=2)), 0)
-                     for m in mixtures], axis=0)
+        lo = np.min(
+            [
+                np.min(m.means - sigmas * np.sqrt(np.diagonal(m.covariances, axis1=1, axis2=2)), 0)
+                for m in mixtures
+            ],
+            axis=0,
+        )
+        hi = np.max(
+            [
+                np.max(m.means + sigmas * np.sqrt(np.diagonal(m.covariances, axis1=1, axis2=2)), 0)
+                for m in mixtures
+            ],
+            axis=0,
+        )
         return Grid2D((float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1])), int(n))
 
 
@@ -64,8 +79,14 @@ class GridFusion:
     info_loss: float
 
 
-def grid_fuse(a: GaussianMixture, b: GaussianMixture, rule: str, grid: Grid2D,
-              prior: GaussianMixture | None = None, omega: float | None = None) -> GridFusion:
+def grid_fuse(
+    a: GaussianMixture,
+    b: GaussianMixture,
+    rule: str,
+    grid: Grid2D,
+    prior: GaussianMixture | None = None,
+    omega: float | None = None,
+) -> GridFusion:
     """The rule's omega and the fused density, both by integration on ``grid``."""
     if a.dim != 2 or b.dim != 2:
         raise ValueError("grid fusion is for 2-D mixtures")
@@ -83,7 +104,13 @@ def grid_fuse(a: GaussianMixture, b: GaussianMixture, rule: str, grid: Grid2D,
     if prior is not None:
         log_p0 = prior.logpdf(pts)
         info_a, info_b = grid_kl(log_a, log_p0), grid_kl(log_b, log_p0)
-    w = omega if omega is not None else choose_omega(costs, rule, float(nb @ (log_a - log_b)), info_a, info_b)
+    w = (
+        omega
+        if omega is not None
+        else choose_omega(costs, rule, float(nb @ (log_a - log_b)), info_a, info_b)
+    )
     log_w = w * log_a + (1.0 - w) * log_b
     log_f = log_w - logsumexp(log_w) - log_cell
-    return GridFusion(float(w), log_f, grid_kl(log_f, log_a), grid_kl(log_f, log_b), grid_kl(log_nb, log_w))
+    return GridFusion(
+        float(w), log_f, grid_kl(log_f, log_a), grid_kl(log_f, log_b), grid_kl(log_nb, log_w)
+    )

@@ -33,7 +33,9 @@ class WepCosts:
 
     def __init__(self, log_a: np.ndarray, log_b: np.ndarray, log_g: np.ndarray) -> None:
         log_a, log_b, log_g = (np.asarray(v, dtype=float) for v in (log_a, log_b, log_g))
-        if not (np.all(np.isfinite(log_a)) and np.all(np.isfinite(log_b)) and np.all(np.isfinite(log_g))):
+        if not (
+            np.all(np.isfinite(log_a)) and np.all(np.isfinite(log_b)) and np.all(np.isfinite(log_g))
+        ):
             raise ValueError("log densities at the importance samples must be finite")
         self.n = log_a.shape[0]
         self._raw = (log_a, log_b, log_g)
@@ -44,7 +46,7 @@ class WepCosts:
         self.log_g = log_g
         self.diff = self.a - self.b
 
-    def subset(self, index) -> "WepCosts":
+    def subset(self, index) -> WepCosts:
         """The costs of the samples ``index`` alone (batch estimates of the standard error)."""
         return WepCosts(*(v[index] for v in self._raw))
 
@@ -116,7 +118,9 @@ def choose_omega(
     common prior, for ``kld-weighted-chernoff``. Equal densities give w = 1/2 for every rule.
     """
     if rule not in OMEGA_RULES:
-        raise ValueError(f"rule {rule!r} does not choose a weight; choose one of {', '.join(OMEGA_RULES)}")
+        raise ValueError(
+            f"rule {rule!r} does not choose a weight; choose one of {', '.join(OMEGA_RULES)}"
+        )
     if rule == "bhattacharyya" or costs.flat:
         return 0.5
     if rule == "chernoff":  # argmin log c(w): the w with E_w[D] = 0, i.e. equal KLDs

@@ -31,7 +31,9 @@ class WeightChoice(NamedTuple):
     cost: float  #: the cost at w
 
 
-def bracket_minimise(f: Callable[[float], float], scan: int = 11, tol: float = 1e-3) -> tuple[float, float]:
+def bracket_minimise(
+    f: Callable[[float], float], scan: int = 11, tol: float = 1e-3
+) -> tuple[float, float]:
     """Minimise ``f`` on [0, 1]: the best of ``scan`` even points, then golden sections
     between its neighbours down to width ``tol``. Returns ``(w, f(w))``."""
     ws = np.linspace(0.0, 1.0, scan)

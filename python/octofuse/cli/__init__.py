@@ -17,13 +17,11 @@ import os
 import signal
 import sys
 import warnings
-from typing import Optional
 
 import click
 
 from ..interrupts import begin_command, cut_short, exit_code, interruption, raise_if_interrupted
-from . import (belief_commands, fleet_commands, map_commands,  # noqa: F401  (register commands)
-               network_commands, view_commands)
+from . import belief_commands, fleet_commands, map_commands, network_commands, view_commands  # noqa: F401  (register commands)
 from .options import CliError, cli, run_config
 
 __all__ = ["cli", "entry", "main", "run_config", "CliError"]
@@ -44,7 +42,7 @@ def entry() -> None:
     sys.exit(code)
 
 
-def main(argv: Optional[list[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run the CLI: usage errors exit 2 with click's message, bad input 1 with one line,
     an interruption 130; never a traceback (``OCTOFUSE_DEBUG=1`` shows one for a bug). An
     error after a Ctrl-C is the Ctrl-C's (a library turned it into an error of its own)."""
@@ -72,8 +70,10 @@ def main(argv: Optional[list[str]] = None) -> int:
         # a bug in octofuse, not bad input
         if os.environ.get("OCTOFUSE_DEBUG"):
             raise
-        _error(f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
-               "for the traceback")
+        _error(
+            f"internal error ({type(e).__name__}: {_message(e)}); rerun with OCTOFUSE_DEBUG=1 "
+            "for the traceback"
+        )
         return 70
     return 0
 
@@ -83,7 +83,10 @@ def _bad_input(e: BaseException) -> bool:
     modules are imported only if they ran)."""
     if isinstance(e, (CliError, ValueError, OSError, KeyError, MemoryError, RecursionError)):
         return True
-    for module, name in (("octofuse.scans.bags", "BagError"), ("octofuse.scans.tf", "TransformError")):
+    for module, name in (
+        ("octofuse.scans.bags", "BagError"),
+        ("octofuse.scans.tf", "TransformError"),
+    ):
         cls = getattr(sys.modules.get(module), name, None)
         if cls is not None and isinstance(e, cls):
             return True

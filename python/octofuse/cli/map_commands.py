@@ -7,8 +7,20 @@ from pathlib import Path
 import click
 
 from ..maps.registration import MAX_CONFLICT, MIN_FITNESS
-from .options import (Progress, bag_arguments, build_options, cli, config_options, console,
-                      dump_config, need_bags, need_out, out_option, run_config, say)
+from .options import (
+    Progress,
+    bag_arguments,
+    build_options,
+    cli,
+    config_options,
+    console,
+    dump_config,
+    need_bags,
+    need_out,
+    out_option,
+    run_config,
+    say,
+)
 
 
 @cli.command()
@@ -18,7 +30,8 @@ from .options import (Progress, bag_arguments, build_options, cli, config_option
 @out_option
 def build(bags, **p):
     """Build every agent's map and the centralized map from bags."""
-    from ..maps.build import build as build_maps_from, write_maps
+    from ..maps.build import build as build_maps_from
+    from ..maps.build import write_maps
     from ..outputs.staging import check_replaceable, staged_folder
     from ..outputs.tables import build_table, skip_notes
 
@@ -39,10 +52,18 @@ def build(bags, **p):
 
 @cli.command()
 @click.argument("src", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="file to write: .ply/.pcd cloud, or .ot/.bt map")
-@click.option("--all-voxels", is_flag=True, help="map clouds: every known voxel, not only occupied ones")
-@click.option("--cmap", help="matplotlib colour map", show_default="viridis for maps, inferno for heat maps")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="file to write: .ply/.pcd cloud, or .ot/.bt map",
+)
+@click.option(
+    "--all-voxels", is_flag=True, help="map clouds: every known voxel, not only occupied ones"
+)
+@click.option(
+    "--cmap", help="matplotlib colour map", show_default="viridis for maps, inferno for heat maps"
+)
 def export(src, out, all_voxels, cmap):
     """Write a map or an information-loss file as a PLY/PCD point cloud, or convert .ot/.bt."""
     from ..outputs.export import export_map
@@ -65,18 +86,39 @@ def info(maps):
 @cli.command("fuse-maps")
 @click.argument("maps", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--rule", default="min-info-loss", help="fusion rule")
-@click.option("--unknown", type=click.Choice(["copy", "prior"]), default="copy",
-              help="voxels known to one map only")
-@click.option("--frame", multiple=True, help="NAME=x,y,z,roll,pitch,yaw: the rigid transform from "
-              "map NAME's frame (its file name without suffix) into the common frame; metres, radians")
-@click.option("--resolution", type=float, help="voxel size of the fused map",
-              show_default="the coarsest input's")
-@click.option("--strict", is_flag=True, help="refuse maps of different resolutions instead of resampling")
-@click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
-              help="also write the fused map as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or "
-                   "a ROS 2 bag folder) for RViz and Foxglove")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="fused map to write (.ot or .bt)")
+@click.option(
+    "--unknown",
+    type=click.Choice(["copy", "prior"]),
+    default="copy",
+    help="voxels known to one map only",
+)
+@click.option(
+    "--frame",
+    multiple=True,
+    help="NAME=x,y,z,roll,pitch,yaw: the rigid transform from "
+    "map NAME's frame (its file name without suffix) into the common frame; metres, radians",
+)
+@click.option(
+    "--resolution",
+    type=float,
+    help="voxel size of the fused map",
+    show_default="the coarsest input's",
+)
+@click.option(
+    "--strict", is_flag=True, help="refuse maps of different resolutions instead of resampling"
+)
+@click.option(
+    "--export-bag",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="also write the fused map as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or "
+    "a ROS 2 bag folder) for RViz and Foxglove",
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="fused map to write (.ot or .bt)",
+)
 def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, out):
     """Fuse map files (A.ot B.ot ... -> OUT.ot), each in its own frame and resolution."""
     from ..maps.frames import fuse_map_files, parse_frame
@@ -95,9 +137,14 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
 
         bag = MapBagWriter(export_bag)
     try:
-        fused, _, stats = fuse_map_files(list(maps), rule=rule, unknown=unknown,
-                                         frames=frames or None, resolution=resolution,
-                                         strict=strict)
+        fused, _, stats = fuse_map_files(
+            list(maps),
+            rule=rule,
+            unknown=unknown,
+            frames=frames or None,
+            resolution=resolution,
+            strict=strict,
+        )
         with staged_file(out, also=() if bag is None else (bag.put_in_place,)) as tmp:
             fused.save(tmp)
             if bag is not None:
@@ -109,19 +156,29 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
         if bag is not None:
             bag.abort()  # nothing once in place
     d = stats.as_dict()
-    say(f"wrote {out}: {fused.num_leaves} leaves at {fused.resolution:g} m; " +
-        ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items()))
+    say(
+        f"wrote {out}: {fused.num_leaves} leaves at {fused.resolution:g} m; "
+        + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
+    )
 
 
 @cli.command()
 @click.argument("a", type=click.Path(path_type=Path))
 @click.argument("b", type=click.Path(path_type=Path))
 @click.option("--planar", is_flag=True, help="ground robots: estimate x, y, z and yaw only")
-@click.option("--min-fitness", type=click.FloatRange(0.0, 1.0), default=MIN_FITNESS,
-              help="refuse an alignment with fewer matching voxels than this fraction")
-@click.option("--max-conflict", type=click.FloatRange(0.0, 1.0), default=MAX_CONFLICT,
-              help="refuse an alignment that puts more of B's occupied voxels than this fraction "
-                   "where A saw free space")
+@click.option(
+    "--min-fitness",
+    type=click.FloatRange(0.0, 1.0),
+    default=MIN_FITNESS,
+    help="refuse an alignment with fewer matching voxels than this fraction",
+)
+@click.option(
+    "--max-conflict",
+    type=click.FloatRange(0.0, 1.0),
+    default=MAX_CONFLICT,
+    help="refuse an alignment that puts more of B's occupied voxels than this fraction "
+    "where A saw free space",
+)
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def align(a, b, planar, min_fitness, max_conflict, as_json):
     """Estimate the rigid transform that takes map B's frame into map A's (occupied voxels)."""
@@ -130,12 +187,19 @@ def align(a, b, planar, min_fitness, max_conflict, as_json):
     from ..maps.occupancy import OccupancyMap
     from ..maps.registration import register
 
-    r = register(OccupancyMap.load(a), OccupancyMap.load(b), planar=planar, min_fitness=min_fitness,
-                 max_conflict=max_conflict)
+    r = register(
+        OccupancyMap.load(a),
+        OccupancyMap.load(b),
+        planar=planar,
+        min_fitness=min_fitness,
+        max_conflict=max_conflict,
+    )
     d = r.as_dict()
     if as_json:
         click.echo(json.dumps(d))
     else:
-        say(f"B -> A: x {d['x']:.4f} m, y {d['y']:.4f} m, z {d['z']:.4f} m, roll {d['roll']:.5f}, "
+        say(
+            f"B -> A: x {d['x']:.4f} m, y {d['y']:.4f} m, z {d['z']:.4f} m, roll {d['roll']:.5f}, "
             f"pitch {d['pitch']:.5f}, yaw {d['yaw']:.5f} rad; fitness {d['fitness']:.3f}, "
-            f"conflict {d['conflict']:.3f}")
+            f"conflict {d['conflict']:.3f}"
+        )

@@ -6,33 +6,69 @@ from __future__ import annotations
 import contextlib
 import shutil
 from pathlib import Path
-from typing import Optional
 
 import click
 
 from ..config import RunConfig
-from .options import (_DEFAULT, CliError, ListOption, NameList, Progress, _options,
-                      bag_arguments, build_options, cli, config_options, console, dump_config,
-                      exchange_options, export_options, frame_options, map_rule_names,
-                      need_bags, need_out, out_option, passes_option, rule_option, run_config,
-                      say, topology_option)
-
+from .options import (
+    _DEFAULT,
+    CliError,
+    ListOption,
+    NameList,
+    Progress,
+    _options,
+    bag_arguments,
+    build_options,
+    cli,
+    config_options,
+    console,
+    dump_config,
+    exchange_options,
+    export_options,
+    frame_options,
+    map_rule_names,
+    need_bags,
+    need_out,
+    out_option,
+    passes_option,
+    rule_option,
+    run_config,
+    say,
+    topology_option,
+)
 
 export_bag_option = _options(
-    click.option("--export-bag", type=click.Path(dir_okay=False, path_type=Path),
-                 help="also write every exported agent's map after each fusion it received, per "
-                      "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
-                      "folder) to replay the run in RViz or Foxglove"),
-    click.option("--bag-every", type=click.IntRange(min=1), default=1, show_default=True,
-                 metavar="N",
-                 help="--export-bag: an agent's map at every N-th fusion it receives"),
-    click.option("--bag-clouds-only", is_flag=True,
-                 help="--export-bag: occupied voxels only (PointCloud2, what a viewer such as "
-                      "Foxglove shows), not the whole octomaps"))
+    click.option(
+        "--export-bag",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help="also write every exported agent's map after each fusion it received, per "
+        "rule, as octomap_msgs/Octomap + PointCloud2 (.mcap, .bag or a ROS 2 bag "
+        "folder) to replay the run in RViz or Foxglove",
+    ),
+    click.option(
+        "--bag-every",
+        type=click.IntRange(min=1),
+        default=1,
+        show_default=True,
+        metavar="N",
+        help="--export-bag: an agent's map at every N-th fusion it receives",
+    ),
+    click.option(
+        "--bag-clouds-only",
+        is_flag=True,
+        help="--export-bag: occupied voxels only (PointCloud2, what a viewer such as "
+        "Foxglove shows), not the whole octomaps",
+    ),
+)
 
 
-def _run_and_report(cfg: RunConfig, title: str, command: str,
-                    export_bag: Optional[Path] = None, bag_options: Optional[dict] = None) -> None:
+def _run_and_report(
+    cfg: RunConfig,
+    title: str,
+    command: str,
+    export_bag: Path | None = None,
+    bag_options: dict | None = None,
+) -> None:
     from ..fusion.simulate import simulate, simulate_in_rule_groups
     from ..maps.truth import Scene
     from ..outputs.libraries import import_once_under_way
@@ -46,9 +82,13 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
     if export_bag is not None:
         if cfg.export_agents == "none":
             raise CliError("--export-bag: no agent is exported (--export-agents none)")
-        bag = _event_bag(export_bag, cfg, out,
-                         lambda agents: _export_agents(cfg.export_agents, agents),
-                         **(bag_options or {}))
+        bag = _event_bag(
+            export_bag,
+            cfg,
+            out,
+            lambda agents: _export_agents(cfg.export_agents, agents),
+            **(bag_options or {}),
+        )
     with _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
@@ -60,14 +100,30 @@ def _run_and_report(cfg: RunConfig, title: str, command: str,
                 src = stack.enter_context(ScanSource(cfg.build))
                 bag.start_ns = src.bags.start_ns or 0
                 bag.expected = _bag_messages(cfg, src, bag.every)
-                passes = _one_group(lambda: simulate(
-                    cfg.build, cfg.fuse, samples=cfg.samples, truth=truth, progress=bar,
-                    source=src, observer=bag, keep_loss_leaves=True))
+                passes = _one_group(
+                    lambda: simulate(
+                        cfg.build,
+                        cfg.fuse,
+                        samples=cfg.samples,
+                        truth=truth,
+                        progress=bar,
+                        source=src,
+                        observer=bag,
+                        keep_loss_leaves=True,
+                    )
+                )
             else:
-                passes = simulate_in_rule_groups(cfg.build, cfg.fuse, samples=cfg.samples,
-                                                 truth=truth, progress=bar, keep_loss_leaves=True)
+                passes = simulate_in_rule_groups(
+                    cfg.build,
+                    cfg.fuse,
+                    samples=cfg.samples,
+                    truth=truth,
+                    progress=bar,
+                    keep_loss_leaves=True,
+                )
             res, written = write_rule_groups(
-                passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents))
+                passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents)
+            )
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     screen = console()
     screen.print(scores_table(res, title, width=screen.width))
@@ -98,8 +154,9 @@ def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
     written, parts = None, []
     for part in results:
         if written is None:
-            written = MapExports(stage, cfg, cfg.fuse.rules, export_agents(part.agents),
-                                 threads=cfg.build.workers)
+            written = MapExports(
+                stage, cfg, cfg.fuse.rules, export_agents(part.agents), threads=cfg.build.workers
+            )
         written.add(part)
         # the rules' maps freed on every thread: the next rules' maps reuse their memory; the
         # losses a map carries go with it, its loss map is freed next
@@ -119,17 +176,26 @@ def _one_group(run):
     yield run()
 
 
-def _event_bag(path: Path, cfg: RunConfig, out: Path, select, bag_every: int = 1,
-               bag_clouds_only: bool = False):
+def _event_bag(
+    path: Path, cfg: RunConfig, out: Path, select, bag_every: int = 1, bag_clouds_only: bool = False
+):
     """The per-event bag of ``--export-bag`` with the maps of the agents ``select(agents)``,
     checked and opened before the run."""
     from ..outputs.event_bag import FusionEventBag
 
     if path.absolute() == out.absolute() or out.absolute() in path.absolute().parents:
-        raise CliError(f"--export-bag '{path}' is inside --out '{out}', which is replaced "
-                       "whole; give a path outside it")
-    return FusionEventBag(path, frame_id=cfg.build.fixed_frame.strip("/"), select=select,
-                          every=bag_every, clouds_only=bag_clouds_only, say=say)
+        raise CliError(
+            f"--export-bag '{path}' is inside --out '{out}', which is replaced "
+            "whole; give a path outside it"
+        )
+    return FusionEventBag(
+        path,
+        frame_id=cfg.build.fixed_frame.strip("/"),
+        select=select,
+        every=bag_every,
+        clouds_only=bag_clouds_only,
+        say=say,
+    )
 
 
 def _bag_messages(cfg: RunConfig, src, every: int) -> int:
@@ -169,7 +235,9 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
     names = spec.split(",")  # parsed on the command line: no empty item, none twice
     bad = [n for n in names if n not in agents]
     if bad:
-        raise CliError(f"--export-agents: unknown agent(s) {', '.join(bad)}; agents: {', '.join(agents)}")
+        raise CliError(
+            f"--export-agents: unknown agent(s) {', '.join(bad)}; agents: {', '.join(agents)}"
+        )
     return names
 
 
@@ -180,17 +248,28 @@ def _export_agents(spec: str, agents: list[str]) -> list[str]:
 @exchange_options
 @frame_options
 @build_options
-@click.option("--samples", type=click.IntRange(0, 10_000), help="points in time at which KL is recorded",
-              show_default=str(_DEFAULT.samples))
-@click.option("--export-agents", type=NameList(what="AGENT", metavar="A[,...]"),
-              help="agents whose maps and heat maps are written: all, first, none or names",
-              show_default=_DEFAULT.export_agents)
+@click.option(
+    "--samples",
+    type=click.IntRange(0, 10_000),
+    help="points in time at which KL is recorded",
+    show_default=str(_DEFAULT.samples),
+)
+@click.option(
+    "--export-agents",
+    type=NameList(what="AGENT", metavar="A[,...]"),
+    help="agents whose maps and heat maps are written: all, first, none or names",
+    show_default=_DEFAULT.export_agents,
+)
 @export_options
 @export_bag_option
 @passes_option(_DEFAULT.fuse.rules_per_pass)
-@click.option("--robust/--no-robust", default=None, show_default="off",
-              help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
-                   "its time and parameters: fuse.robust in --config)")
+@click.option(
+    "--robust/--no-robust",
+    default=None,
+    show_default="off",
+    help="vote out a robot whose map disagrees with its neighbours' (dynamic voting; "
+    "its time and parameters: fuse.robust in --config)",
+)
 @config_options
 @out_option
 def run(bags, export_bag, **p):
@@ -200,8 +279,13 @@ def run(bags, export_bag, **p):
         return dump_config(cfg)
     need_bags(cfg, "octofuse run BAG... --rule R --topology T --out DIR")
     need_out(cfg, p["out"])
-    _run_and_report(cfg, "octofuse run", "run", export_bag=export_bag,
-                    bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")})
+    _run_and_report(
+        cfg,
+        "octofuse run",
+        "run",
+        export_bag=export_bag,
+        bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")},
+    )
 
 
 #: the demo's 9 rules in 3 passes over the bag: at most 4 rules' maps held at once (with 8
@@ -215,16 +299,29 @@ def bundled_dataset() -> Path:
     for cand in (here / "data" / "lab8.bag", here.parents[1] / "data" / "lab8.bag"):
         if cand.is_file():
             return cand
-    raise CliError("the bundled dataset lab8.bag was not found (reinstall octofuse, or run "
-                   "`octofuse run data/lab8.bag ...` from the source checkout)")
+    raise CliError(
+        "the bundled dataset lab8.bag was not found (reinstall octofuse, or run "
+        "`octofuse run data/lab8.bag ...` from the source checkout)"
+    )
 
 
 @cli.command()
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("octofuse-demo"),
-              help="output folder")
-@click.option("--rule", "--rules", "rule", multiple=True, cls=ListOption,
-              type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
-              help="rules, comma separated", show_default="all,channel-filter,source-layers")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("octofuse-demo"),
+    help="output folder",
+)
+@click.option(
+    "--rule",
+    "--rules",
+    "rule",
+    multiple=True,
+    cls=ListOption,
+    type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
+    help="rules, comma separated",
+    show_default="all,channel-filter,source-layers",
+)
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @export_options
@@ -233,28 +330,59 @@ def bundled_dataset() -> Path:
 def demo(export_bag, **p):
     """The paper's setting on the bundled dataset: 8 robots, max-robust:3, every rule."""
     bag = bundled_dataset()
-    cfg = run_config(p, bags=[bag], defaults={
-        "fuse": {"rules": ["all", "channel-filter", "source-layers"], "topology": "max-robust:3",
-                 "schedule": "aperiodic:20", "rules_per_pass": DEMO_RULES_PER_PASS},
-        "samples": 8, "export_agents": "first"})
-    say(f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
-        "aperiodic exchanges, every rule")
-    _run_and_report(cfg, "octofuse demo: 8 robots, max-robust:3", "demo", export_bag=export_bag,
-                    bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")})
+    cfg = run_config(
+        p,
+        bags=[bag],
+        defaults={
+            "fuse": {
+                "rules": ["all", "channel-filter", "source-layers"],
+                "topology": "max-robust:3",
+                "schedule": "aperiodic:20",
+                "rules_per_pass": DEMO_RULES_PER_PASS,
+            },
+            "samples": 8,
+            "export_agents": "first",
+        },
+    )
+    say(
+        f"octofuse demo: {bag.name} (simulated 15 x 8 m lab, 8 robots, 120 s), max-robust:3, "
+        "aperiodic exchanges, every rule"
+    )
+    _run_and_report(
+        cfg,
+        "octofuse demo: 8 robots, max-robust:3",
+        "demo",
+        export_bag=export_bag,
+        bag_options={k: p[k] for k in ("bag_every", "bag_clouds_only")},
+    )
 
 
 @cli.command("fuse")
 @click.argument("maps_dir", type=click.Path(path_type=Path))
 @rule_option
 @topology_option
-@click.option("--rounds", type=click.IntRange(1, 10_000), help="synchronous rounds of exchanges",
-              show_default="3")
-@click.option("--directions", type=click.Choice(["both", "one"]), help="messages on a link",
-              show_default="both")
-@click.option("--unknown", type=click.Choice(["copy", "prior"]), help="voxels known to one map only",
-              show_default="copy")
+@click.option(
+    "--rounds",
+    type=click.IntRange(1, 10_000),
+    help="synchronous rounds of exchanges",
+    show_default="3",
+)
+@click.option(
+    "--directions",
+    type=click.Choice(["both", "one"]),
+    help="messages on a link",
+    show_default="both",
+)
+@click.option(
+    "--unknown",
+    type=click.Choice(["copy", "prior"]),
+    help="voxels known to one map only",
+    show_default="copy",
+)
 @click.option("--seed", type=int, help="seed of random topologies", show_default="0")
-@click.option("--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON")
+@click.option(
+    "--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON"
+)
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
 @frame_options
 @export_options
@@ -269,8 +397,11 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
     from ..outputs.report import write_outputs
     from ..outputs.staging import check_replaceable
 
-    cfg = run_config({**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
-                     bags=[maps_dir], defaults={"fuse": {"schedule": "rounds:3"}})
+    cfg = run_config(
+        {**p, "schedule": None if rounds is None else f"rounds:{rounds}"},
+        bags=[maps_dir],
+        defaults={"fuse": {"schedule": "rounds:3"}},
+    )
     if p["dump_config"]:
         return dump_config(cfg)
     out = check_replaceable(need_out(cfg, p["out"]))
@@ -278,28 +409,39 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
         raise CliError(f"maps folder '{maps_dir}' does not exist")
     files = sorted(f for f in maps_dir.glob("*.ot") if f.stem != "centralized")
     if len(files) < 2:
-        raise CliError(f"'{maps_dir}' holds {len(files)} agent map(s) (*.ot besides centralized.ot); "
-                       "fusion needs at least 2")
+        raise CliError(
+            f"'{maps_dir}' holds {len(files)} agent map(s) (*.ot besides centralized.ot); "
+            "fusion needs at least 2"
+        )
     maps = {f.stem: OccupancyMap.load(f) for f in files}
     central_path = maps_dir / "centralized.ot"
     central = OccupancyMap.load(central_path) if central_path.is_file() else None
     truth = Scene.find(cfg.truth, [])
     title = f"octofuse fuse: {cfg.fuse.schedule.partition(':')[2]} rounds over {cfg.fuse.topology}"
     every = lambda agents: agents  # noqa: E731  (every agent's maps are written)
-    bag = (_event_bag(export_bag, cfg, out, every, p["bag_every"], p["bag_clouds_only"])
-           if export_bag is not None else None)
+    bag = (
+        _event_bag(export_bag, cfg, out, every, p["bag_every"], p["bag_clouds_only"])
+        if export_bag is not None
+        else None
+    )
     with _staged_with_bag(out, "fuse", bag) as stage:
         if bag is not None:  # every rule in one group, the bag written round by round
-            groups = _one_group(lambda: fuse_finished(maps, central, cfg.fuse, truth=truth,
-                                                      threads=cfg.build.workers, observer=bag))
+            groups = _one_group(
+                lambda: fuse_finished(
+                    maps, central, cfg.fuse, truth=truth, threads=cfg.build.workers, observer=bag
+                )
+            )
         else:  # a few rules at a time: their maps written, then freed before the next
-            groups = fuse_finished_in_rule_groups(maps, central, cfg.fuse, truth=truth,
-                                                  threads=cfg.build.workers)
+            groups = fuse_finished_in_rule_groups(
+                maps, central, cfg.fuse, truth=truth, threads=cfg.build.workers
+            )
         res, written = write_rule_groups(groups, stage, cfg, every)
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     _say_alignment(res)
-    say(f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
-        f"({len(res.events)} messages); report: {out / 'report.md'}")
+    say(
+        f"fused {len(maps)} maps with {', '.join(cfg.fuse.rules)} over {cfg.fuse.topology} "
+        f"({len(res.events)} messages); report: {out / 'report.md'}"
+    )
     if bag is not None:
         say(f"bag: {bag.path} ({bag.messages} map messages)")
 
@@ -307,18 +449,34 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
 @cli.command()
 @bag_arguments
 @rule_option
-@click.option("--topologies", type=NameList(what="TOPOLOGY"), default="ring,max-robust:3",
-              help="comma separated topologies")
-@click.option("--schedules", type=NameList(what="SCHEDULE"),
-              help="comma separated schedules, a study axis", show_default="--schedule")
-@click.option("--seeds", type=NameList(item=int, what="SEED"),
-              help="comma separated seeds, a study axis (mean and spread in the tables)",
-              show_default="--seed")
-@click.option("--executor", type=click.Choice(["auto", "serial", "ray"]), default="auto",
-              help="where the cells run (auto: a local Ray when Ray is installed)")
+@click.option(
+    "--topologies",
+    type=NameList(what="TOPOLOGY"),
+    default="ring,max-robust:3",
+    help="comma separated topologies",
+)
+@click.option(
+    "--schedules",
+    type=NameList(what="SCHEDULE"),
+    help="comma separated schedules, a study axis",
+    show_default="--schedule",
+)
+@click.option(
+    "--seeds",
+    type=NameList(item=int, what="SEED"),
+    help="comma separated seeds, a study axis (mean and spread in the tables)",
+    show_default="--seed",
+)
+@click.option(
+    "--executor",
+    type=click.Choice(["auto", "serial", "ray"]),
+    default="auto",
+    help="where the cells run (auto: a local Ray when Ray is installed)",
+)
 @click.option("--ray-address", help="join this Ray cluster instead of starting a local Ray")
-@click.option("--resume", is_flag=True, help="reuse the finished cells of --out and of an "
-              "interrupted run")
+@click.option(
+    "--resume", is_flag=True, help="reuse the finished cells of --out and of an interrupted run"
+)
 @exchange_options
 @frame_options
 @passes_option(_DEFAULT.fuse.rules_per_pass)
@@ -343,10 +501,19 @@ def bench(bags, topologies, schedules, seeds, executor, ray_address, resume, **p
     if not resume:
         shutil.rmtree(journal, ignore_errors=True)
     with staged_folder(out, "bench") as stage:
-        run_study(cfg, topo, stage, truth=Scene.find(cfg.truth, cfg.build.bags),
-                  progress=Progress, log=say, seeds=seed_list,
-                  schedules=list(schedules) if schedules else None,
-                  executor=executor, ray_address=ray_address,
-                  resume_from=[out, journal] if resume else [], journal=journal)
+        run_study(
+            cfg,
+            topo,
+            stage,
+            truth=Scene.find(cfg.truth, cfg.build.bags),
+            progress=Progress,
+            log=say,
+            seeds=seed_list,
+            schedules=list(schedules) if schedules else None,
+            executor=executor,
+            ray_address=ray_address,
+            resume_from=[out, journal] if resume else [],
+            journal=journal,
+        )
     shutil.rmtree(journal, ignore_errors=True)
     say(f"wrote {out / 'bench.csv'}, {out / 'bench.md'} and plots")

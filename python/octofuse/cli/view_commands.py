@@ -15,14 +15,32 @@ from .options import CliError, cli, say
 
 @cli.command()
 @click.argument("folder", type=click.Path(file_okay=False, path_type=Path), required=False)
-@click.option("--fleet", "fleet_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="show a running fleet instead (its fleet.yaml): the agents' maps as they grow")
-@click.option("--host", default="127.0.0.1", show_default=True,
-              help="address to listen on (0.0.0.0: every network interface)")
-@click.option("--port", type=click.IntRange(1, 65535), default=8080, show_default=True,
-              help="port (the next free one if taken)")
-@click.option("--budget", type=click.IntRange(1000), default=300_000, show_default=True,
-              help="voxels drawn at most: finer voxels merge into coarser octree cells")
+@click.option(
+    "--fleet",
+    "fleet_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="show a running fleet instead (its fleet.yaml): the agents' maps as they grow",
+)
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="address to listen on (0.0.0.0: every network interface)",
+)
+@click.option(
+    "--port",
+    type=click.IntRange(1, 65535),
+    default=8080,
+    show_default=True,
+    help="port (the next free one if taken)",
+)
+@click.option(
+    "--budget",
+    type=click.IntRange(1000),
+    default=300_000,
+    show_default=True,
+    help="voxels drawn at most: finer voxels merge into coarser octree cells",
+)
 def view(folder, fleet_file, host, port, budget):
     """Show the maps, events and scores of a run's output folder (or a running fleet's maps)
     in a web page."""

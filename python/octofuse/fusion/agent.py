@@ -17,7 +17,6 @@ the newest layer of every source.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 from ..config import CHANNEL_FILTER, EXACT_MODES, SOURCE_LAYERS
 from ..maps.infoloss import InfoLossMap
@@ -43,29 +42,45 @@ class MapMessage:
     payload: OccupancyMap | LayeredPayload
     delta: bool  #: applied voxel by voxel (the payload holds changed voxels only)
 
-    def encode(self, fleet: str = "", payload: Optional[bytes] = None) -> bytes:
+    def encode(self, fleet: str = "", payload: bytes | None = None) -> bytes:
         """The message as one frame (:mod:`.wire`); ``payload``: the payload's bytes (an
         ``.ot`` stream, or source layers), if they were written already."""
-        encoding = (Encoding.LAYERS if isinstance(self.payload, LayeredPayload)
-                    else Encoding.OCTOMAP_OT)
-        return Message(fleet, self.rule, self.sender, self.receiver, self.seq, self.ack,
-                       Kind.DELTA if self.delta else Kind.WHOLE,
-                       payload if payload is not None else self.payload.to_bytes(),
-                       encoding).encode()
+        encoding = (
+            Encoding.LAYERS if isinstance(self.payload, LayeredPayload) else Encoding.OCTOMAP_OT
+        )
+        return Message(
+            fleet,
+            self.rule,
+            self.sender,
+            self.receiver,
+            self.seq,
+            self.ack,
+            Kind.DELTA if self.delta else Kind.WHOLE,
+            payload if payload is not None else self.payload.to_bytes(),
+            encoding,
+        ).encode()
 
     @classmethod
-    def decode(cls, frame: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> "MapMessage":
+    def decode(cls, frame: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> MapMessage:
         """The message of a frame; ``WireError`` if the frame is not one, and the map
         stream's error if its payload is not a map."""
         msg = decode(frame, max_payload)
         if msg.encoding == Encoding.LAYERS:
-            return cls(msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack,
-                       LayeredPayload.from_bytes(msg.payload), msg.kind == Kind.DELTA)
+            return cls(
+                msg.sender,
+                msg.receiver,
+                msg.rule,
+                msg.seq,
+                msg.ack,
+                LayeredPayload.from_bytes(msg.payload),
+                msg.kind == Kind.DELTA,
+            )
         payload = OccupancyMap.from_bytes(msg.payload)
         if msg.rule == CHANNEL_FILTER:
             open_map(payload)  # contributions are unclamped (a stream keeps no clamping)
-        return cls(msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack, payload,
-                   msg.kind == Kind.DELTA)
+        return cls(
+            msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack, payload, msg.kind == Kind.DELTA
+        )
 
 
 class Agent:
@@ -78,12 +93,12 @@ class Agent:
         if self.exact:
             open_map(map)  # clamping breaks the additivity exact fusion needs
         #: source layers: the layers (the own one: the map given), ``map`` their sum
-        self.layers: Optional[Layers] = None
+        self.layers: Layers | None = None
         if rule == SOURCE_LAYERS:
             self.map = unclamped_copy(map)
             self.layers = Layers(name, map, self.map, layers_max_bytes)
         self.links: dict[str, Link] = {}
-        self._loss: Optional[InfoLossMap] = None
+        self._loss: InfoLossMap | None = None
 
     def link(self, neighbour: str) -> Link:
         """The state of the link to ``neighbour`` (made on first use)."""
@@ -93,7 +108,7 @@ class Agent:
         return link
 
     @property
-    def loss(self) -> Optional[InfoLossMap]:
+    def loss(self) -> InfoLossMap | None:
         """The information lost by this agent's fusions, carried by its map (none for the
         channel filter, which loses nothing); made on first use."""
         if self.exact:
@@ -116,8 +131,14 @@ class Agent:
         return [self.map] if self.layers is None else [self.map, self.layers.own]
 
     # -- sending -----------------------------------------------------------------------------
-    def compose(self, to: str, *, delta: bool = False, reliable: bool = True,
-                state: Optional[OccupancyMap] = None) -> MapMessage:
+    def compose(
+        self,
+        to: str,
+        *,
+        delta: bool = False,
+        reliable: bool = True,
+        state: OccupancyMap | None = None,
+    ) -> MapMessage:
         """The message for neighbour ``to`` now: the map (``state`` if given: the map as it was
         at an earlier moment), or the channel filter's contribution; with ``delta``, only what
         changed since the snapshot the neighbour is known to hold. Source layers send the
@@ -126,13 +147,20 @@ class Agent:
         if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
             self._advanced([c for c in [self.layers.publish()] if c is not None])
             parts = self.layers.parts_for(link.known)
-            seq = link.sent_layers([(p.source, p.version) for p in parts if p.map is not None],
-                                   reliable=reliable)
+            seq = link.sent_layers(
+                [(p.source, p.version) for p in parts if p.map is not None], reliable=reliable
+            )
             self._forget_caught_up()
             self.fit_budget()
-            return MapMessage(self.name, to, self.rule, seq, link.applied,
-                              LayeredPayload(parts, self.map.resolution),
-                              any(p.base for p in parts))
+            return MapMessage(
+                self.name,
+                to,
+                self.rule,
+                seq,
+                link.applied,
+                LayeredPayload(parts, self.map.resolution),
+                any(p.base for p in parts),
+            )
         if self.exact:
             snapshot = unclamped_copy(self.map)
             if link.received is not None:
@@ -145,12 +173,17 @@ class Agent:
         seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable)
         if self.exact and payload is not snapshot:
             open_map(payload)
-        return MapMessage(self.name, to, self.rule, seq, link.applied, payload,
-                          delta and not whole)
+        return MapMessage(self.name, to, self.rule, seq, link.applied, payload, delta and not whole)
 
     # -- receiving ---------------------------------------------------------------------------
-    def deliver(self, msg: MapMessage, *, unknown: str = "copy", threads: int = 1,
-                moved: Optional[OccupancyMap] = None) -> bool:
+    def deliver(
+        self,
+        msg: MapMessage,
+        *,
+        unknown: str = "copy",
+        threads: int = 1,
+        moved: OccupancyMap | None = None,
+    ) -> bool:
         """Apply ``msg`` (``moved``: its payload moved into this agent's frame, if the sender
         maps in another). False if it was not newer than the last applied on its link, which
         then changes nothing."""
@@ -169,8 +202,9 @@ class Agent:
         elif self.exact:
             self.apply_contribution(msg.sender, payload, msg.delta)
         else:
-            fuse_into(self.map, payload, rule=self.rule, unknown=unknown, loss=self.loss,
-                      threads=threads)
+            fuse_into(
+                self.map, payload, rule=self.rule, unknown=unknown, loss=self.loss, threads=threads
+            )
         return True
 
     def apply_contribution(self, sender: str, payload: OccupancyMap, delta: bool) -> None:
@@ -180,8 +214,9 @@ class Agent:
         if delta:
             if link.received is None:
                 m = self.map
-                link.received = open_map(OccupancyMap(m.resolution, m.prob_hit, m.prob_miss,
-                                                      m.clamping))
+                link.received = open_map(
+                    OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping)
+                )
             self.map.assign_delta(link.received, payload)
             return
         add_into(self.map, payload)
@@ -228,15 +263,21 @@ class Agent:
                 link.forget_changes()
             self.layers.fold_to_budget()
 
-    def exchange_with(self, other: "Agent", *, unknown: str = "copy") -> tuple[int, int]:
+    def exchange_with(self, other: Agent, *, unknown: str = "copy") -> tuple[int, int]:
         """A two-way exchange of whole maps, both fused in one walk (a per-voxel rule, both
         agents in one frame). Returns the leaves of this agent's and ``other``'s map as sent
         (the two messages' voxels)."""
         for a, b in ((self, other), (other, self)):
             seq, _ = a.link(b.name).outgoing(a.map, delta=False, reliable=True)
             b.link(a.name).accept(seq)
-        return exchange_maps(self.map, other.map, rule=self.rule, unknown=unknown,
-                             loss_a=self.loss, loss_b=other.loss)
+        return exchange_maps(
+            self.map,
+            other.map,
+            rule=self.rule,
+            unknown=unknown,
+            loss_a=self.loss,
+            loss_b=other.loss,
+        )
 
     def held_maps(self) -> list[OccupancyMap]:
         """The maps the links hold, and source layers' layers (for memory accounting)."""

@@ -31,8 +31,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -54,13 +54,13 @@ class LinkAlignment:
 
     sender: str
     receiver: str
-    matrix: Optional[np.ndarray] = None  #: sender's frame -> receiver's frame; None: not aligned
-    time_s: Optional[float] = None  #: time of the message it aligned on
+    matrix: np.ndarray | None = None  #: sender's frame -> receiver's frame; None: not aligned
+    time_s: float | None = None  #: time of the message it aligned on
     attempts: int = 0  #: registrations tried (the last one succeeded if aligned)
     messages: int = 0  #: delivered messages while not aligned
     fitness: float = 0.0
     refusal: str = ""  #: why the last refused registration refused
-    reference: Optional[np.ndarray] = None  #: the transform the agent frames give, if any
+    reference: np.ndarray | None = None  #: the transform the agent frames give, if any
     conflict: float = 0.0
     confirmed_by: str = ""  #: what confirmed the estimate
     seconds: float = 0.0  #: wall time of the link's registrations
@@ -72,9 +72,15 @@ class LinkAlignment:
         return self.matrix is None and self.attempts >= MAX_ATTEMPTS
 
     def as_dict(self) -> dict:
-        d = {"sender": self.sender, "receiver": self.receiver, "aligned": self.matrix is not None,
-             "time_s": self.time_s, "attempts": self.attempts, "fitness": self.fitness,
-             "seconds": self.seconds}
+        d = {
+            "sender": self.sender,
+            "receiver": self.receiver,
+            "aligned": self.matrix is not None,
+            "time_s": self.time_s,
+            "attempts": self.attempts,
+            "fitness": self.fitness,
+            "seconds": self.seconds,
+        }
         if self.matrix is None:
             d["refusal"] = self.refusal
             if self.candidates:
@@ -87,7 +93,7 @@ class LinkAlignment:
         return d
 
 
-def moved(m, T: Optional[np.ndarray], resolution: Optional[float] = None):
+def moved(m, T: np.ndarray | None, resolution: float | None = None):
     """``m`` moved by ``T`` (None: not moved) onto a grid of ``resolution`` (default: its own);
     ``m`` itself when nothing changes. Point sampling (``resampling="nearest"``): maps moved
     between frames at every exchange keep their surfaces' thickness and known extent."""
@@ -107,26 +113,36 @@ def transform_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[float,
 class AgentFrames:
     """The frames of a run's agents and the per-link alignment state."""
 
-    def __init__(self, agents: Sequence[str], frames: Mapping[str, np.ndarray] | None = None,
-                 align: str = "off"):
+    def __init__(
+        self,
+        agents: Sequence[str],
+        frames: Mapping[str, np.ndarray] | None = None,
+        align: str = "off",
+    ):
         self.agents = list(agents)
         frames = dict(frames or {})
         unknown = [n for n in frames if n not in self.agents]
         if unknown:
-            raise ValueError(f"fuse.agent_frames: unknown agent '{unknown[0]}' (agents: "
-                             f"{', '.join(self.agents)})")
+            raise ValueError(
+                f"fuse.agent_frames: unknown agent '{unknown[0]}' (agents: "
+                f"{', '.join(self.agents)})"
+            )
         if align not in ALIGN_MODES:
             raise ValueError(f"fuse.align = {align!r}: expected one of {', '.join(ALIGN_MODES)}")
         #: agent -> its frame into the common frame; identity frames are left out
-        self.frames = {a: np.asarray(T, dtype=float) for a, T in frames.items()
-                       if not np.array_equal(T, np.eye(4))}
+        self.frames = {
+            a: np.asarray(T, dtype=float)
+            for a, T in frames.items()
+            if not np.array_equal(T, np.eye(4))
+        }
         self.align = align
         self.links: dict[tuple[str, str], LinkAlignment] = {}
 
     @classmethod
-    def from_config(cls, agents: Sequence[str], fuse_cfg) -> "AgentFrames":
-        return cls(agents, {f.name: pose_matrix(*f.pose) for f in fuse_cfg.agent_frames},
-                   fuse_cfg.align)
+    def from_config(cls, agents: Sequence[str], fuse_cfg) -> AgentFrames:
+        return cls(
+            agents, {f.name: pose_matrix(*f.pose) for f in fuse_cfg.agent_frames}, fuse_cfg.align
+        )
 
     @property
     def active(self) -> bool:
@@ -137,11 +153,14 @@ class AgentFrames:
         """A message from ``s`` is fused by ``d`` as it is (no transform, no alignment)."""
         return self.align == "off" and self.reference(s, d) is None
 
-    def reference(self, s: str, d: str) -> Optional[np.ndarray]:
+    def reference(self, s: str, d: str) -> np.ndarray | None:
         """``T_d^-1 @ T_s`` from the agent frames; None when the two share a frame."""
         Ts, Td = self.frames.get(s), self.frames.get(d)
-        if Ts is None and Td is None or (Ts is not None and Td is not None
-                                         and np.array_equal(Ts, Td)):
+        if (
+            Ts is None
+            and Td is None
+            or (Ts is not None and Td is not None and np.array_equal(Ts, Td))
+        ):
             return None
         eye = np.eye(4)
         return invert(eye if Td is None else Td) @ (eye if Ts is None else Ts)
@@ -185,8 +204,9 @@ class AgentFrames:
             t0 = time.perf_counter()
             try:
                 # a new RANSAC seed at each attempt, on grown maps: a second estimate
-                reg = register(maps[d], maps[s], planar=self.align == "planar",
-                               seed=link.attempts - 1)
+                reg = register(
+                    maps[d], maps[s], planar=self.align == "planar", seed=link.attempts - 1
+                )
             except ValueError as e:
                 link.refusal = str(e)
                 continue
@@ -199,7 +219,8 @@ class AgentFrames:
         if link is None:
             ref = self.reference(s, d)
             link = self.links[(s, d)] = LinkAlignment(
-                s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None)
+                s, d, reference=(np.eye(4) if ref is None else ref) if self.frames else None
+            )
         return link
 
     @staticmethod
@@ -215,16 +236,20 @@ class AgentFrames:
                 link.confirmed_by, link.refusal, link.candidates = what, "", []
                 return
         link.candidates.append(estimate)
-        link.refusal = ("not confirmed: " + ("no second estimate yet" if not others else
-                        "the estimates disagree by " + ", ".join(
-                            "{:.2f} m / {:.1f} deg".format(*transform_error(T, U)) for U, _ in others)))
+        link.refusal = "not confirmed: " + (
+            "no second estimate yet"
+            if not others
+            else "the estimates disagree by "
+            + ", ".join("{:.2f} m / {:.1f} deg".format(*transform_error(T, U)) for U, _ in others)
+        )
 
     def report(self) -> list[dict]:
         """Per link (sorted): whether and when it aligned, its estimate and error."""
         return [self.links[k].as_dict() for k in sorted(self.links)]
 
-    def scan_targets(self, scans: Sequence, targets: Sequence[list],
-                     common: Sequence) -> tuple[list, list]:
+    def scan_targets(
+        self, scans: Sequence, targets: Sequence[list], common: Sequence
+    ) -> tuple[list, list]:
         """Scans and their target maps with the maps of the common frame (``common``: the
         centralized map, and its unclamped twin) added: a scan of an agent in the common
         frame also goes into them; one of an agent with its own frame is followed by a copy
@@ -255,24 +280,30 @@ def alignment_lines(alignment: Sequence[dict]) -> list[str]:
         link = f"align {d['sender']} -> {d['receiver']}"
         if d["aligned"]:
             e = d["estimate"]
-            line = (f"{link}: x {e['x']:.2f} m, y {e['y']:.2f} m, z {e['z']:.2f} m, yaw "
-                    f"{math.degrees(e['yaw']):.1f} deg at t = {d['time_s']:g} s; fitness "
-                    f"{d['fitness']:.2f}, conflict {d.get('conflict', 0.0):.1%}, confirmed by "
-                    f"{d.get('confirmed_by') or 'its registration'}")
+            line = (
+                f"{link}: x {e['x']:.2f} m, y {e['y']:.2f} m, z {e['z']:.2f} m, yaw "
+                f"{math.degrees(e['yaw']):.1f} deg at t = {d['time_s']:g} s; fitness "
+                f"{d['fitness']:.2f}, conflict {d.get('conflict', 0.0):.1%}, confirmed by "
+                f"{d.get('confirmed_by') or 'its registration'}"
+            )
             if "error_m" in d:
                 line += f"; error {d['error_m']:.2f} m, {d['error_deg']:.1f} deg"
         elif d["attempts"]:
-            line = (f"{link}: refused, not fused ({d['attempts']} registration(s)): "
-                    f"{' '.join(str(d.get('refusal', '')).split())}")
+            line = (
+                f"{link}: refused, not fused ({d['attempts']} registration(s)): "
+                f"{' '.join(str(d.get('refusal', '')).split())}"
+            )
         else:
             line = f"{link}: no message delivered, not aligned"
         out.append(line)
     if alignment:
         tries = sum(d["attempts"] for d in alignment)
         secs = sum(d.get("seconds", 0.0) for d in alignment)
-        out.append(f"alignment: {sum(d['aligned'] for d in alignment)} of {len(alignment)} links "
-                   f"aligned; {tries} registration(s) (at most {MAX_ATTEMPTS} per link) took "
-                   f"{secs:.1f} s")
+        out.append(
+            f"alignment: {sum(d['aligned'] for d in alignment)} of {len(alignment)} links "
+            f"aligned; {tries} registration(s) (at most {MAX_ATTEMPTS} per link) took "
+            f"{secs:.1f} s"
+        )
     return out
 
 
@@ -281,29 +312,45 @@ def frames_section(frames: Mapping[str, np.ndarray], alignment: Sequence[dict]) 
     lines = ["## Agent frames", ""]
     for a, T in frames.items():
         p = matrix_pose(T)
-        lines.append(f"- `{a}` -> common frame: x {p['x']:.3f} m, y {p['y']:.3f} m, z "
-                     f"{p['z']:.3f} m, roll {math.degrees(p['roll']):.2f}, pitch "
-                     f"{math.degrees(p['pitch']):.2f}, yaw {math.degrees(p['yaw']):.2f} deg")
+        lines.append(
+            f"- `{a}` -> common frame: x {p['x']:.3f} m, y {p['y']:.3f} m, z "
+            f"{p['z']:.3f} m, roll {math.degrees(p['roll']):.2f}, pitch "
+            f"{math.degrees(p['pitch']):.2f}, yaw {math.degrees(p['yaw']):.2f} deg"
+        )
     if frames:
-        lines += ["", "Every other agent maps in the common frame; messages are moved into the "
-                  "receiver's frame, scores are taken in the common frame.", ""]
+        lines += [
+            "",
+            "Every other agent maps in the common frame; messages are moved into the "
+            "receiver's frame, scores are taken in the common frame.",
+            "",
+        ]
     if alignment:
         with_error = any("error_m" in d for d in alignment)
         head = "| link | aligned at | tries | fitness | x m | y m | z m | yaw deg |"
-        lines += ["Alignment on first contact (messages on a link are fused once it aligned):",
-                  "", head + (" error m | error deg |" if with_error else ""),
-                  "|" + "---|" * (8 + 2 * with_error)]
+        lines += [
+            "Alignment on first contact (messages on a link are fused once it aligned):",
+            "",
+            head + (" error m | error deg |" if with_error else ""),
+            "|" + "---|" * (8 + 2 * with_error),
+        ]
         for d in alignment:
             link = f"`{d['sender']}` -> `{d['receiver']}`"
             if not d["aligned"]:
                 lines.append(f"| {link} | never | {d['attempts']} |" + " |" * (5 + 2 * with_error))
                 continue
             e = d["estimate"]
-            row = (f"| {link} | {d['time_s']:g} | {d['attempts']} | {d['fitness']:.2f} | "
-                   f"{e['x']:.3f} | {e['y']:.3f} | {e['z']:.3f} | {math.degrees(e['yaw']):.2f} |")
+            row = (
+                f"| {link} | {d['time_s']:g} | {d['attempts']} | {d['fitness']:.2f} | "
+                f"{e['x']:.3f} | {e['y']:.3f} | {e['z']:.3f} | {math.degrees(e['yaw']):.2f} |"
+            )
             if with_error:
                 row += f" {d['error_m']:.3f} | {d['error_deg']:.2f} |"
             lines.append(row)
-        lines += ["", "Per link, on the terminal as in this list:", "",
-                  *(f"- {x}" for x in alignment_lines(alignment)), ""]
+        lines += [
+            "",
+            "Per link, on the terminal as in this list:",
+            "",
+            *(f"- {x}" for x in alignment_lines(alignment)),
+            "",
+        ]
     return lines

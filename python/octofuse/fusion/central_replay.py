@@ -5,7 +5,6 @@ against its snapshots as the first pass took them."""
 from __future__ import annotations
 
 from concurrent.futures import Future
-from typing import Optional
 
 from ..maps.occupancy import OccupancyMap
 
@@ -18,8 +17,8 @@ class CentralReplay:
 
     def __init__(self, passes: int):
         self.passes = passes
-        self.map: Optional[OccupancyMap] = None  # the first pass's map, once it is mapped
-        self._snapshots: list[Optional[Future]] = []
+        self.map: OccupancyMap | None = None  # the first pass's map, once it is mapped
+        self._snapshots: list[Future | None] = []
         self._pass = 0
         self._next = 0
 
@@ -38,8 +37,10 @@ class CentralReplay:
         """The next snapshot as the first pass took it."""
         k = self._next
         if k >= len(self._snapshots) or self._snapshots[k] is None:
-            raise RuntimeError(f"central replay: pass {self._pass + 1} takes snapshot {k + 1}, "
-                               f"the first pass took {len(self._snapshots)}")
+            raise RuntimeError(
+                f"central replay: pass {self._pass + 1} takes snapshot {k + 1}, "
+                f"the first pass took {len(self._snapshots)}"
+            )
         snapshot = self._snapshots[k]
         if self._pass == self.passes - 1:
             self._snapshots[k] = None
@@ -51,8 +52,9 @@ class CentralReplay:
         if self._pass == 0:
             self.map = central
         elif self._next != len(self._snapshots):
-            raise RuntimeError(f"central replay: pass {self._pass + 1} took {self._next} of "
-                               f"the first pass's {len(self._snapshots)} snapshots")
+            raise RuntimeError(
+                f"central replay: pass {self._pass + 1} took {self._next} of "
+                f"the first pass's {len(self._snapshots)} snapshots"
+            )
         self._pass += 1
         self._next = 0
-

@@ -59,8 +59,16 @@ from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import fuse_into, subtract_into
 from .graph import Graph, make_graph
 
-__all__ = ["CHANNEL_FILTER", "add_into", "clamped", "negated", "open_map", "spanning_tree",
-           "subtract_into", "unclamped_copy"]
+__all__ = [
+    "CHANNEL_FILTER",
+    "add_into",
+    "clamped",
+    "negated",
+    "open_map",
+    "spanning_tree",
+    "subtract_into",
+    "unclamped_copy",
+]
 
 
 # -- log-odds arithmetic on maps ------------------------------------------------------------
@@ -118,7 +126,8 @@ def spanning_tree(graph: Graph, how: str = "bfs") -> tuple[tuple[int, int], ...]
         raise ValueError(
             f"the channel filter needs a graph without loops: topology {graph.spec or 'given'!r} "
             f"has {len(edges)} links on {n} agents (a tree has {n - 1}); use spanning_tree: bfs, "
-            "or a file with the tree's links")
+            "or a file with the tree's links"
+        )
     if how == "bfs":
         ecc = [max(_hops(graph, s)) for s in range(n)]
         root = min(range(n), key=lambda s: (ecc[s], s))
@@ -133,14 +142,18 @@ def spanning_tree(graph: Graph, how: str = "bfs") -> tuple[tuple[int, int], ...]
         return tuple(sorted(tree))
     given = make_graph(str(how), n, names=graph.names)
     if len(given.edges) != n - 1:
-        raise ValueError(f"spanning tree file '{how}' has {len(given.edges)} links on {n} agents: "
-                         f"a tree has {n - 1}")
+        raise ValueError(
+            f"spanning tree file '{how}' has {len(given.edges)} links on {n} agents: "
+            f"a tree has {n - 1}"
+        )
     extra = [e for e in given.edges if e not in set(edges)]
     if extra:
         a, b = extra[0]
         name = (lambda k: graph.names[k]) if graph.names else str
-        raise ValueError(f"spanning tree file '{how}': link {name(a)} - {name(b)} is not a link "
-                         f"of the topology {graph.spec!r}")
+        raise ValueError(
+            f"spanning tree file '{how}': link {name(a)} - {name(b)} is not a link "
+            f"of the topology {graph.spec!r}"
+        )
     return tuple(given.edges)
 
 

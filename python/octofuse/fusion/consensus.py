@@ -60,14 +60,17 @@ def diameter(adjacency: np.ndarray) -> int:
         grown = reach | (reach.astype(np.int64) @ adj.astype(np.int64) > 0)
         if (grown == reach).all():
             cut = np.flatnonzero(~reach[0]).tolist()
-            raise ValueError(f"the communication graph is disconnected: robots {cut} cannot reach robot 0")
+            raise ValueError(
+                f"the communication graph is disconnected: robots {cut} cannot reach robot 0"
+            )
         reach = grown
         hops += 1
     return hops
 
 
-def select_seeds(numbers: np.ndarray, c: int, topology: Topology, rounds: int | None,
-                 max_rounds: int) -> tuple[np.ndarray, int, int]:
+def select_seeds(
+    numbers: np.ndarray, c: int, topology: Topology, rounds: int | None, max_rounds: int
+) -> tuple[np.ndarray, int, int]:
     """Seed robots of every hypothesis by max consensus on random numbers.
 
     ``numbers`` (B, K, N) holds each robot's random number per hypothesis. Every robot keeps the
@@ -84,8 +87,10 @@ def select_seeds(numbers: np.ndarray, c: int, topology: Topology, rounds: int | 
     t, messages = 0, np.zeros(b, dtype=np.int64)
     while t < rounds if rounds is not None else not np.all(known == target[:, :, None, :]):
         if t >= max_rounds:
-            raise ValueError(f"seed selection did not agree within {max_rounds} rounds: "
-                             "the changing topology is not jointly connected often enough")
+            raise ValueError(
+                f"seed selection did not agree within {max_rounds} rounds: "
+                "the changing topology is not jointly connected often enough"
+            )
         adj = np.asarray(topology(t), dtype=bool)
         heard = adj | np.eye(n, dtype=bool)  # (B, N, N): robot i hears j
         messages += adj.sum(axis=(-2, -1))
@@ -129,8 +134,14 @@ def estimates(p: np.ndarray, q: np.ndarray, floor: np.ndarray) -> tuple[np.ndarr
     return theta, valid
 
 
-def information_consensus(info: np.ndarray, vec: np.ndarray, members: np.ndarray, topology: Topology,
-                          iterations: int, t0: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def information_consensus(
+    info: np.ndarray,
+    vec: np.ndarray,
+    members: np.ndarray,
+    topology: Topology,
+    iterations: int,
+    t0: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Distributed ML of the ``members`` (B, K, N) of each set: states start at
     ``[Λ_i^-1, Λ_i^-1 x_i]`` for members and zero otherwise (eq. 5) and are averaged ``iterations``
     rounds (eq. 2). Returns every robot's estimate (B, K, N, d), whether it is defined (B, K, N),

@@ -15,12 +15,15 @@ import contextlib
 import importlib.util
 import time
 import traceback
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Optional, Protocol, Sequence
+from typing import Any, Protocol
 
 EXECUTORS = ("auto", "serial", "ray")
-RAY_MISSING = ("executor 'ray': Ray is not installed (pip install 'octofuse[ray]'); "
-               "use --executor serial or auto to run without it")
+RAY_MISSING = (
+    "executor 'ray': Ray is not installed (pip install 'octofuse[ray]'); "
+    "use --executor serial or auto to run without it"
+)
 
 
 @dataclass
@@ -39,13 +42,16 @@ class Outcome:
 class Executor(Protocol):
     name: str
 
-    def run(self, fn: Callable[[Any], Any], payloads: Sequence[Any],
-            on_outcome: Callable[[Outcome], None]) -> None:
+    def run(
+        self,
+        fn: Callable[[Any], Any],
+        payloads: Sequence[Any],
+        on_outcome: Callable[[Outcome], None],
+    ) -> None:
         """Run ``fn(payload)`` for every payload; call ``on_outcome`` once per payload, in
         the order they finish, in the calling thread."""
 
-    def close(self) -> None:
-        ...
+    def close(self) -> None: ...
 
 
 def _one_line(e: BaseException) -> str:
@@ -65,8 +71,15 @@ class SerialExecutor:
             try:
                 value = fn(p)
             except Exception as e:  # noqa: BLE001 - reported, the other items go on
-                on_outcome(Outcome(i, False, error=_one_line(e), details=traceback.format_exc(),
-                                   seconds=time.perf_counter() - t0))
+                on_outcome(
+                    Outcome(
+                        i,
+                        False,
+                        error=_one_line(e),
+                        details=traceback.format_exc(),
+                        seconds=time.perf_counter() - t0,
+                    )
+                )
             else:
                 on_outcome(Outcome(i, True, value=value, seconds=time.perf_counter() - t0))
 
@@ -83,8 +96,9 @@ def ray_available() -> bool:
 
 
 @contextlib.contextmanager
-def ray_session(address: Optional[str] = None, num_cpus: Optional[int] = None,
-                runtime_env: Optional[dict] = None) -> Iterator[Any]:
+def ray_session(
+    address: str | None = None, num_cpus: int | None = None, runtime_env: dict | None = None
+) -> Iterator[Any]:
     """The ``ray`` module with a running runtime: an already initialised one is used (and
     left running); otherwise a local one (``address=None``, ``num_cpus`` CPUs) or the cluster
     at ``address`` is joined for the duration of the block."""
@@ -114,21 +128,29 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address: Optional[str] = None, *, num_cpus: Optional[int] = None,
-                 cpus: float = 1, memory: Optional[int] = None, max_retries: int = 0,
-                 runtime_env: Optional[dict] = None):
+    def __init__(
+        self,
+        address: str | None = None,
+        *,
+        num_cpus: int | None = None,
+        cpus: float = 1,
+        memory: int | None = None,
+        max_retries: int = 0,
+        runtime_env: dict | None = None,
+    ):
         import ray  # noqa: F401 - fail here, not in the middle of a study
 
         self.address, self.num_cpus, self.cpus, self.memory = address, num_cpus, cpus, memory
         self.max_retries, self.runtime_env = max_retries, runtime_env
-        self._session: Optional[contextlib.ExitStack] = None
+        self._session: contextlib.ExitStack | None = None
         self._ray = None
 
     def _start(self):
         if self._ray is None:
             self._session = contextlib.ExitStack()
             self._ray = self._session.enter_context(
-                ray_session(self.address, self.num_cpus, self.runtime_env))
+                ray_session(self.address, self.num_cpus, self.runtime_env)
+            )
         return self._ray
 
     def run(self, fn, payloads, on_outcome) -> None:
@@ -149,8 +171,15 @@ class RayExecutor:
                         ok, value, error, details, seconds = ray.get(ref)
                         on_outcome(Outcome(i, ok, value, error, details, seconds))
                     except ray.exceptions.RayError as e:  # worker died, out of memory, ...
-                        on_outcome(Outcome(i, False, error=_ray_error(e), details=str(e),
-                                           seconds=time.perf_counter() - started))
+                        on_outcome(
+                            Outcome(
+                                i,
+                                False,
+                                error=_ray_error(e),
+                                details=str(e),
+                                seconds=time.perf_counter() - started,
+                            )
+                        )
         except BaseException:
             for ref in pending:
                 ray.cancel(ref, force=True)
@@ -180,8 +209,13 @@ def _ray_error(e: BaseException) -> str:
     return f"{name}: {text[:300]}"
 
 
-def make_executor(kind: str = "auto", *, address: Optional[str] = None,
-                  log: Optional[Callable[[str], None]] = None, **ray_options) -> Executor:
+def make_executor(
+    kind: str = "auto",
+    *,
+    address: str | None = None,
+    log: Callable[[str], None] | None = None,
+    **ray_options,
+) -> Executor:
     """``serial``, ``ray`` or ``auto`` (Ray when it is installed, else serial). Asking for Ray
     by name (``ray``, or an ``address``) without it installed raises ``ValueError``
     (:data:`RAY_MISSING`): an executor named explicitly runs or the command stops."""

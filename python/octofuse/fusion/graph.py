@@ -118,9 +118,7 @@ class Graph:
         }
 
 
-def make_graph(
-    spec: str, n: int, *, seed: int = 0, names: Sequence[str] | None = None
-) -> Graph:
+def make_graph(spec: str, n: int, *, seed: int = 0, names: Sequence[str] | None = None) -> Graph:
     """Build the connected communication graph described by ``spec`` on ``n`` agents.
 
     ``seed`` only matters for ``random:P``; ``names`` (one per agent) label the nodes and are how
@@ -134,8 +132,13 @@ def make_graph(
     kind, _, param = spec.partition(":")
     kind = kind.strip().lower()
     builders = {
-        "ring": _ring, "line": _line, "star": _star, "complete": _complete,
-        "grid": _grid, "random": _random, "max-robust": _max_robust,
+        "ring": _ring,
+        "line": _line,
+        "star": _star,
+        "complete": _complete,
+        "grid": _grid,
+        "random": _random,
+        "max-robust": _max_robust,
     }
     if kind in builders:
         edges = builders[kind](n, param.strip(), seed)
@@ -295,7 +298,8 @@ def _from_file(path: Path, n: int, names: tuple[str, ...] | None) -> Graph:
         if re.fullmatch(r"\d+", text) and int(text) < n:
             return int(text)
         known = (
-            f"known names: {', '.join(names)}" if names is not None
+            f"known names: {', '.join(names)}"
+            if names is not None
             else "no agent names were given, so nodes must be 0-based indices"
         )
         raise ValueError(f"{where}: unknown node {text!r} ({known}; or an index 0..{n - 1})")
@@ -338,7 +342,9 @@ def _read_yaml(path: Path) -> tuple[list | None, list[tuple[str, tuple]]]:
     except yaml.YAMLError as err:
         raise ValueError(f"{path}: not valid YAML ({err})") from None
     if not isinstance(doc, dict) or "edges" not in doc:
-        raise ValueError(f"{path}: expected a mapping with 'edges: [[a, b], ...]' (and optional 'nodes')")
+        raise ValueError(
+            f"{path}: expected a mapping with 'edges: [[a, b], ...]' (and optional 'nodes')"
+        )
     unknown = sorted(set(doc) - {"nodes", "edges"})
     if unknown:
         raise ValueError(f"{path}: unknown keys {unknown}; expected 'nodes' and 'edges'")
@@ -407,7 +413,9 @@ def _check_int(what: str, value: object, *, minimum: int) -> int:
     return int(value)
 
 
-def _check_names(names: Iterable[str] | None, n: int, where: str = "names") -> tuple[str, ...] | None:
+def _check_names(
+    names: Iterable[str] | None, n: int, where: str = "names"
+) -> tuple[str, ...] | None:
     if names is None:
         return None
     names = tuple(names)

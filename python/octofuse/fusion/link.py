@@ -17,7 +17,6 @@ source layers keep, per source, the version the neighbour is known to hold (:att
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 from ..maps.occupancy import OccupancyMap
 
@@ -32,11 +31,11 @@ class Link:
     #: the newest sequence number applied from the neighbour (0: none)
     applied: int = 0
     #: with deltas: the snapshot the next delta is taken against (known to be held there)
-    baseline: Optional[OccupancyMap] = None
+    baseline: OccupancyMap | None = None
     #: with deltas on a lossy link: the snapshots sent and not acknowledged yet (seq -> map)
     pending: dict[int, OccupancyMap] = field(default_factory=dict)
     #: the channel filter's common information: the neighbour's last applied contribution
-    received: Optional[OccupancyMap] = None
+    received: OccupancyMap | None = None
     #: after a restart (this agent's or the neighbour's): send whole maps until the first of
     #: them (its sequence number here) is acknowledged
     resync: int = 0
@@ -46,13 +45,15 @@ class Link:
     #: a lossless link, acknowledged, or named by the neighbour) and the steps of this agent's
     #: layer since (from version, to version, the voxels that changed; None: not known, the
     #: next goes whole). A step's map is shared by every link that needs it
-    known: dict[str, tuple[int, Optional[list[tuple[int, int, OccupancyMap]]]]] = field(
-        default_factory=dict)
+    known: dict[str, tuple[int, list[tuple[int, int, OccupancyMap]] | None]] = field(
+        default_factory=dict
+    )
     #: source layers on a lossy link: the versions sent and not acknowledged yet (seq -> them)
     pending_layers: dict[int, list[tuple[str, int]]] = field(default_factory=dict)
 
-    def outgoing(self, snapshot: OccupancyMap, *, delta: bool,
-                 reliable: bool) -> tuple[int, OccupancyMap]:
+    def outgoing(
+        self, snapshot: OccupancyMap, *, delta: bool, reliable: bool
+    ) -> tuple[int, OccupancyMap]:
         """The next message's sequence number and payload for ``snapshot`` (what the agent
         sends now, a map of its own): the snapshot itself, or with ``delta`` its voxels changed
         since :attr:`baseline`. The snapshot becomes the baseline (``reliable``) or waits for
@@ -99,8 +100,10 @@ class Link:
         that end by it are not needed."""
         held, steps = self.known.get(source, (0, None))
         if version > held:
-            self.known[source] = (version, None if steps is None
-                                  else [x for x in steps if x[1] > version])
+            self.known[source] = (
+                version,
+                None if steps is None else [x for x in steps if x[1] > version],
+            )
 
     def advanced(self, source: str, old: int, new: int, delta) -> None:
         """This agent's layer of ``source`` went from version ``old`` to ``new``; ``delta()``
@@ -146,6 +149,10 @@ class Link:
 
     def maps(self) -> list[OccupancyMap]:
         """The maps this link holds (for memory accounting)."""
-        held = [self.baseline, self.received, *self.pending.values(),
-                *(m for _, steps in self.known.values() for _, _, m in steps or ())]
+        held = [
+            self.baseline,
+            self.received,
+            *self.pending.values(),
+            *(m for _, steps in self.known.values() for _, _, m in steps or ()),
+        ]
         return [m for m in held if m is not None]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Optional, Sequence
 
 from ..config import CHANNEL_FILTER, EXACT_MODES, FuseConfig
 from ..maps.infoloss import InfoLossMap
@@ -23,14 +23,20 @@ def message_bytes(m: OccupancyMap) -> int:
     return 5 * m.num_nodes
 
 
-
 class Network:
     """Per rule, every robot's :class:`~.agent.Agent`, driven through groups of simultaneous
     messages on one process's threads, with their traffic and timings."""
 
-    def __init__(self, agents, rules, fcfg: FuseConfig, make_map: Callable[[], OccupancyMap],
-                 threads: int, tree: Optional[Sequence[tuple[int, int]]] = None,
-                 frames: Optional[AgentFrames] = None):
+    def __init__(
+        self,
+        agents,
+        rules,
+        fcfg: FuseConfig,
+        make_map: Callable[[], OccupancyMap],
+        threads: int,
+        tree: Sequence[tuple[int, int]] | None = None,
+        frames: AgentFrames | None = None,
+    ):
         self.agents, self.rules, self.cfg = agents, rules, fcfg
         self.frames = frames or AgentFrames(agents)
         if CHANNEL_FILTER in rules and tree is None:
@@ -51,8 +57,10 @@ class Network:
 
     def _start(self, maps: dict[str, dict[str, OccupancyMap]]) -> None:
         """Every rule's agents on ``maps`` (rule -> agent -> map, fused in place)."""
-        self.nodes = {r: {a: Agent(a, r, m, self.cfg.layers_max_bytes) for a, m in per.items()}
-                      for r, per in maps.items()}
+        self.nodes = {
+            r: {a: Agent(a, r, m, self.cfg.layers_max_bytes) for a, m in per.items()}
+            for r, per in maps.items()
+        }
         #: rule -> agent -> the agent's map (the channel filter's unclamped)
         self.fused = {r: {a: n.map for a, n in per.items()} for r, per in self.nodes.items()}
 
@@ -83,13 +91,21 @@ class Network:
         """Per rule and agent: bytes of the map and of the per-link state (each map measured
         once, on the network's threads); with source layers, the per-link state holds the
         layers, and ``layers`` and ``folded`` count the layers held and folded."""
-        held = {(r, a): (n.map, n.held_maps()) for r, per in self.nodes.items()
-                for a, n in per.items()}
+        held = {
+            (r, a): (n.map, n.held_maps()) for r, per in self.nodes.items() for a, n in per.items()
+        }
         maps = list({id(m): m for own, links in held.values() for m in (own, *links)}.values())
         size = dict(zip(map(id, maps), thread_map(lambda m: m.memory_bytes, maps, self.threads)))
-        out = {r: {a: {"map": size[id(held[r, a][0])],
-                       "links": sum(size[id(m)] for m in held[r, a][1])}
-                   for a in self.agents} for r in self.rules}
+        out = {
+            r: {
+                a: {
+                    "map": size[id(held[r, a][0])],
+                    "links": sum(size[id(m)] for m in held[r, a][1]),
+                }
+                for a in self.agents
+            }
+            for r in self.rules
+        }
         for r, per in self.nodes.items():
             for a, n in per.items():
                 if n.layers is not None:
@@ -113,8 +129,10 @@ class Network:
     def align(self, group: Sequence[Exchange]) -> None:
         """Align the links of a group's messages that have not aligned yet (with
         ``fuse.align``), on the first rule's maps; before any rule exchanges the group."""
-        self.frames.align_links([(self.agents[e.sender], self.agents[e.receiver], e.lost, e.time_s)
-                                 for e in group], self.fused[self.rules[0]])
+        self.frames.align_links(
+            [(self.agents[e.sender], self.agents[e.receiver], e.lost, e.time_s) for e in group],
+            self.fused[self.rules[0]],
+        )
 
     def exchange_rule(self, r: str, group: Sequence[Exchange]) -> None:
         """One rule's messages of a group (after :meth:`align`); rules may run in parallel."""
@@ -136,8 +154,15 @@ class Network:
             self.pool.shutdown()
             self.pool = None
 
-    def _count(self, r: str, s: str, d: str, m: OccupancyMap, lost: bool = False,
-               leaves: Optional[dict] = None) -> None:
+    def _count(
+        self,
+        r: str,
+        s: str,
+        d: str,
+        m: OccupancyMap,
+        lost: bool = False,
+        leaves: dict | None = None,
+    ) -> None:
         """Counts a message ``m`` from ``s`` to ``d``. ``leaves``: leaf counts of the maps
         sent so far in the group (a sender's unchanged map sent again is not counted again)."""
         if leaves is None:
@@ -149,8 +174,9 @@ class Network:
                 leaves[id(m)] = (m, n)
         self._count_sizes(r, s, d, message_bytes(m), n, lost)
 
-    def _count_sizes(self, r: str, s: str, d: str, nbytes: int, n_leaves: int,
-                     lost: bool = False) -> None:
+    def _count_sizes(
+        self, r: str, s: str, d: str, nbytes: int, n_leaves: int, lost: bool = False
+    ) -> None:
         """Counts a message of ``nbytes`` (OctoMap's stream) and ``n_leaves`` voxels."""
         tr = self.traffic[r]
         tr.sent[s] += nbytes
@@ -215,10 +241,16 @@ class Network:
         k = 0
         while k < len(ev_names):
             s, d = ev_names[k]
-            two_way = (k + 1 < len(ev_names) and ev_names[k + 1] == (d, s)
-                       and s not in modified and d not in modified
-                       and self.frames.plain(s, d) and self.frames.plain(d, s)
-                       and not group[k].lost and not group[k + 1].lost)
+            two_way = (
+                k + 1 < len(ev_names)
+                and ev_names[k + 1] == (d, s)
+                and s not in modified
+                and d not in modified
+                and self.frames.plain(s, d)
+                and self.frames.plain(d, s)
+                and not group[k].lost
+                and not group[k + 1].lost
+            )
             if two_way:
                 sends_left[s] -= 1
                 sends_left[d] -= 1
@@ -244,8 +276,14 @@ class Network:
             state = start.get(s) if s in modified else None
             sends_left[s] -= 1
             if not self.frames.aligned(s, d):  # sent, but no transform to fuse it with yet
-                self._count(r, s, d, state if state is not None else maps[s],
-                            lost=group[k].lost, leaves=leaves)
+                self._count(
+                    r,
+                    s,
+                    d,
+                    state if state is not None else maps[s],
+                    lost=group[k].lost,
+                    leaves=leaves,
+                )
                 self.add_time("exchange", t0)
                 k += 1
                 continue
@@ -267,15 +305,18 @@ class Network:
             modified.add(d)
             k += 1
 
-    def _record(self, r: str, e: Exchange, receiver: Agent, before: Optional[tuple]) -> None:
+    def _record(self, r: str, e: Exchange, receiver: Agent, before: tuple | None) -> None:
         """Append the fusion of message ``e`` (its loss: the receiver's loss map less its
         totals ``before``; none for the channel filter)."""
         loss = None
         if before is not None:
             voxels, total = _loss_totals(receiver.loss)
             loss = voxels - before[0], max(0.0, total - before[1])
-        self.traffic[r].fusions.append(FusionEvent(
-            e.time_s, r, self.agents[e.sender], self.agents[e.receiver], *(loss or (None, None))))
+        self.traffic[r].fusions.append(
+            FusionEvent(
+                e.time_s, r, self.agents[e.sender], self.agents[e.receiver], *(loss or (None, None))
+            )
+        )
 
     def loss_map(self, rule: str, agent: str) -> InfoLossMap:
         """The information lost by ``agent``'s fusions under ``rule`` (empty if none)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from typing import Callable, Iterator, Optional
+from collections.abc import Callable, Iterator
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
@@ -13,14 +13,20 @@ from .agent_frames import AgentFrames
 from .graph import make_graph
 from .network import Network
 from .results import SimResult, rule_groups, score_result
-from .schedule import drop_messages, parse_schedule, rounds as make_rounds
+from .schedule import drop_messages, parse_schedule
+from .schedule import rounds as make_rounds
 
 
-def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
-                  fuse_cfg: FuseConfig, *, truth=None, threads: int = 0,
-                  score_local: bool = True,
-                  observer: Optional[Callable[[float, list, Network, dict], None]] = None
-                  ) -> SimResult:
+def fuse_finished(
+    maps: dict[str, OccupancyMap],
+    central: OccupancyMap | None,
+    fuse_cfg: FuseConfig,
+    *,
+    truth=None,
+    threads: int = 0,
+    score_local: bool = True,
+    observer: Callable[[float, list, Network, dict], None] | None = None,
+) -> SimResult:
     """Fuse finished maps over the graph for the rounds of ``fuse_cfg.schedule``
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
     start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
@@ -37,8 +43,10 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
     rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind != "rounds":
-        raise ValueError(f"schedule {fuse_cfg.schedule!r}: finished maps are fused in rounds "
-                         "(rounds:N); aperiodic and periodic schedules need the bags (`run`)")
+        raise ValueError(
+            f"schedule {fuse_cfg.schedule!r}: finished maps are fused in rounds "
+            "(rounds:N); aperiodic and periodic schedules need the bags (`run`)"
+        )
     threads = threads or os.cpu_count() or 1
     agents = list(maps)
     if len(agents) < 2:
@@ -58,8 +66,15 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
 
         tree = spanning_tree(graph, fuse_cfg.spanning_tree)
     first = next(iter(maps.values()))
-    net = Network(agents, rules, fuse_cfg, lambda: OccupancyMap(first.resolution), threads,
-                  tree=tree, frames=frames)
+    net = Network(
+        agents,
+        rules,
+        fuse_cfg,
+        lambda: OccupancyMap(first.resolution),
+        threads,
+        tree=tree,
+        frames=frames,
+    )
     net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
     for k, rnd in enumerate(rounds):
@@ -68,23 +83,42 @@ def fuse_finished(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap]
             observer(float(k), rnd, net, {})
     net.close()
     fused, unclamped = net.result_maps()
-    res = SimResult(agents, rules, graph, [e for r in rounds for e in r],
-                    central, dict(maps), fused,
-                    {r: {a: net.loss_map(r, a) for a in agents} for r in rules},
-                    net.traffic, [], net.timings, memory=net.memory(), tree=tree,
-                    unclamped=unclamped, frames=frames.frames, alignment=frames.report())
+    res = SimResult(
+        agents,
+        rules,
+        graph,
+        [e for r in rounds for e in r],
+        central,
+        dict(maps),
+        fused,
+        {r: {a: net.loss_map(r, a) for a in agents} for r in rules},
+        net.traffic,
+        [],
+        net.timings,
+        memory=net.memory(),
+        tree=tree,
+        unclamped=unclamped,
+        frames=frames.frames,
+        alignment=frames.report(),
+    )
     if central is not None:
         t0 = time.perf_counter()
-        res.scores = score_result(res, fuse_cfg.overconfidence_tol, truth, threads,
-                                  local=score_local)
+        res.scores = score_result(
+            res, fuse_cfg.overconfidence_tol, truth, threads, local=score_local
+        )
         res.timings["scoring (wall)"] = time.perf_counter() - t0
     res.timings["total"] = time.perf_counter() - t_all
     return res
 
 
-def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optional[OccupancyMap],
-                                 fuse_cfg: FuseConfig, *, truth=None,
-                                 threads: int = 0) -> Iterator[SimResult]:
+def fuse_finished_in_rule_groups(
+    maps: dict[str, OccupancyMap],
+    central: OccupancyMap | None,
+    fuse_cfg: FuseConfig,
+    *,
+    truth=None,
+    threads: int = 0,
+) -> Iterator[SimResult]:
     """:func:`fuse_finished` a few rules at a time (one per thread, side by side), so that a
     caller can write those rules' maps and free them before the next ones run: the rules' maps
     never meet, so every rule's result is the one of the run with all rules. The agents' own
@@ -92,5 +126,11 @@ def fuse_finished_in_rule_groups(maps: dict[str, OccupancyMap], central: Optiona
     every rule runs in one group (:func:`~octofuse.fusion.results.rule_groups`)."""
     threads = threads or os.cpu_count() or 1
     for k, group in enumerate(rule_groups(fuse_cfg, threads)):
-        yield fuse_finished(maps, central, dataclasses.replace(fuse_cfg, rules=group),
-                            truth=truth, threads=threads, score_local=k == 0)
+        yield fuse_finished(
+            maps,
+            central,
+            dataclasses.replace(fuse_cfg, rules=group),
+            truth=truth,
+            threads=threads,
+            score_local=k == 0,
+        )

@@ -37,8 +37,10 @@ MAX_EXCHANGES = 100_000
 
 def _check_count(what: str, count: float) -> None:
     if not count <= MAX_EXCHANGES:
-        raise ValueError(f"{what} would create {count:.3g} exchanges, more than the "
-                         f"{MAX_EXCHANGES:,} a run can use; choose a longer interval or fewer rounds")
+        raise ValueError(
+            f"{what} would create {count:.3g} exchanges, more than the "
+            f"{MAX_EXCHANGES:,} a run can use; choose a longer interval or fewer rounds"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,8 +68,10 @@ def drop_messages(events, loss: float, seed: int) -> list[Exchange]:
     if loss == 0.0 or not events:
         return events
     draws = np.random.default_rng([int(seed), 1055]).random(len(events))
-    return [Exchange(e.time_s, e.sender, e.receiver, True) if u < loss else e
-            for e, u in zip(events, draws.tolist())]
+    return [
+        Exchange(e.time_s, e.sender, e.receiver, True) if u < loss else e
+        for e, u in zip(events, draws.tolist())
+    ]
 
 
 #: what happens at an instant of a run in time, in the order it happens there: the robust vote
@@ -81,43 +85,54 @@ def check_samples(samples: int) -> None:
         raise ValueError(f"samples = {samples}: expected 0 to 10000 points in time")
 
 
-def moments(events: list, duration: float, samples: int,
-            vote_time: float | None = None) -> list[tuple[float, int, list | None]]:
+def moments(
+    events: list, duration: float, samples: int, vote_time: float | None = None
+) -> list[tuple[float, int, list | None]]:
     """A run's moments in time order, ``(time, kind, exchange group or None)``: its groups of
     simultaneous exchanges, ``samples`` KL samples evenly over ``duration`` (the last at its
     end) and the robust vote at ``vote_time`` (if given); at one instant in the order of
     :data:`VOTE`, :data:`EXCHANGE`, :data:`SAMPLE`."""
-    out = [(g[0].time_s, EXCHANGE, g)
-           for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))]
+    out = [
+        (g[0].time_s, EXCHANGE, g)
+        for g in (list(g) for _, g in groupby(events, key=lambda e: e.time_s))
+    ]
     out += [(duration * (k + 1) / samples, SAMPLE, None) for k in range(samples)]
     if vote_time is not None:
         out.append((vote_time, VOTE, None))
     return sorted(out, key=lambda x: (x[0], x[1]))
 
 
-def mission_events(spec: "ScheduleSpec", graph, fuse_cfg, start_ns: int | None,
-                   end_ns: int | None) -> tuple[float, list[Exchange]]:
+def mission_events(
+    spec: ScheduleSpec, graph, fuse_cfg, start_ns: int | None, end_ns: int | None
+) -> tuple[float, list[Exchange]]:
     """The mission's length (seconds, from the bags' first to last message) and the exchanges of
     a run in time on ``graph``, with ``fuse_cfg.loss`` applied (:func:`drop_messages`)."""
     duration = max((end_ns - start_ns) / 1e9, 1e-3) if start_ns is not None else 1e-3
-    events = spec.build(graph, duration_s=duration, seed=fuse_cfg.seed,
-                        directions=fuse_cfg.directions)
+    events = spec.build(
+        graph, duration_s=duration, seed=fuse_cfg.seed, directions=fuse_cfg.directions
+    )
     return duration, drop_messages(events, fuse_cfg.loss, fuse_cfg.seed)
 
 
-def run_schedule(fuse_cfg, agents: list[str], start_ns: int | None,
-                 end_ns: int | None) -> tuple[Graph, float, list[Exchange]]:
+def run_schedule(
+    fuse_cfg, agents: list[str], start_ns: int | None, end_ns: int | None
+) -> tuple[Graph, float, list[Exchange]]:
     """The graph of a run in time on ``agents`` (names), the mission's length and its
     exchanges (:func:`mission_events`), all from ``fuse_cfg`` and the bags' first and last
     message."""
     graph = make_graph(fuse_cfg.topology, len(agents), seed=fuse_cfg.seed, names=agents)
-    duration, events = mission_events(parse_schedule(fuse_cfg.schedule), graph, fuse_cfg,
-                                      start_ns, end_ns)
+    duration, events = mission_events(
+        parse_schedule(fuse_cfg.schedule), graph, fuse_cfg, start_ns, end_ns
+    )
     return graph, duration, events
 
 
 def periodic(
-    graph, *, period_s: float, duration_s: float, start_s: float | None = None,
+    graph,
+    *,
+    period_s: float,
+    duration_s: float,
+    start_s: float | None = None,
     directions: str = "both",
 ) -> list[Exchange]:
     """Every link fires every ``period_s`` seconds.
@@ -133,8 +148,10 @@ def periodic(
     if start_s > duration_s:
         return []
     per_round = len(graph.edges) * (2 if directions == "both" else 1)
-    _check_count(f"periodic:{period_s:g} over {duration_s:g} s on {len(graph.edges)} link(s)",
-                 ((duration_s - start_s) / period_s + 1) * per_round)
+    _check_count(
+        f"periodic:{period_s:g} over {duration_s:g} s on {len(graph.edges)} link(s)",
+        ((duration_s - start_s) / period_s + 1) * per_round,
+    )
     events = []
     for k in range(math.floor((duration_s - start_s) / period_s + 1e-9) + 1):
         events.extend(_fire(graph.edges, start_s + k * period_s, k, directions))
@@ -142,7 +159,12 @@ def periodic(
 
 
 def aperiodic(
-    graph, *, mean_interval_s: float, duration_s: float, seed: int, directions: str = "both",
+    graph,
+    *,
+    mean_interval_s: float,
+    duration_s: float,
+    seed: int,
+    directions: str = "both",
 ) -> list[Exchange]:
     """Every link fires at the times of its own Poisson process on ``(0, duration_s]``.
 
@@ -157,11 +179,15 @@ def aperiodic(
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     _check_directions(directions)
     per_firing = 2 if directions == "both" else 1
-    _check_count(f"aperiodic:{mean_interval_s:g} over {duration_s:g} s on {len(graph.edges)} "
-                 "link(s)", duration_s / mean_interval_s * len(graph.edges) * per_firing)
+    _check_count(
+        f"aperiodic:{mean_interval_s:g} over {duration_s:g} s on {len(graph.edges)} link(s)",
+        duration_s / mean_interval_s * len(graph.edges) * per_firing,
+    )
     keyed = []
     for link, (a, b) in enumerate(graph.edges):
-        times = _poisson_times(np.random.default_rng([int(seed), a, b]), mean_interval_s, duration_s)
+        times = _poisson_times(
+            np.random.default_rng([int(seed), a, b]), mean_interval_s, duration_s
+        )
         for k, t in enumerate(times):
             for order, ex in enumerate(_fire([(a, b)], t, k, directions)):
                 keyed.append(((t, link, order), ex))
@@ -180,8 +206,10 @@ def rounds(graph, n_rounds: int, directions: str = "both") -> list[list[Exchange
     if isinstance(n_rounds, bool) or not isinstance(n_rounds, (int, np.integer)) or n_rounds < 0:
         raise ValueError(f"n_rounds must be a non-negative integer, got {n_rounds!r}")
     _check_directions(directions)
-    _check_count(f"rounds:{int(n_rounds)} on {len(graph.edges)} link(s)",
-                 int(n_rounds) * len(graph.edges) * (2 if directions == "both" else 1))
+    _check_count(
+        f"rounds:{int(n_rounds)} on {len(graph.edges)} link(s)",
+        int(n_rounds) * len(graph.edges) * (2 if directions == "both" else 1),
+    )
     return [_fire(graph.edges, float(r), r, directions) for r in range(int(n_rounds))]
 
 
@@ -193,17 +221,25 @@ class ScheduleSpec:
     kind: str
     value: float
 
-    def build(self, graph, *, duration_s: float | None = None, seed: int = 0,
-              directions: str = "both") -> list[Exchange]:
+    def build(
+        self, graph, *, duration_s: float | None = None, seed: int = 0, directions: str = "both"
+    ) -> list[Exchange]:
         """The events for ``graph``; ``rounds`` come flattened (``time_s`` = round index) and
         ignore ``duration_s``, which the other kinds need."""
         if self.kind != "rounds" and duration_s is None:
             raise ValueError(f"a {self.kind} schedule needs duration_s (the mission length)")
         if self.kind == "periodic":
-            return periodic(graph, period_s=self.value, duration_s=duration_s, directions=directions)
+            return periodic(
+                graph, period_s=self.value, duration_s=duration_s, directions=directions
+            )
         if self.kind == "aperiodic":
-            return aperiodic(graph, mean_interval_s=self.value, duration_s=duration_s, seed=seed,
-                             directions=directions)
+            return aperiodic(
+                graph,
+                mean_interval_s=self.value,
+                duration_s=duration_s,
+                seed=seed,
+                directions=directions,
+            )
         return [ex for rnd in rounds(graph, int(self.value), directions) for ex in rnd]
 
 
@@ -216,7 +252,9 @@ def parse_schedule(spec: str) -> ScheduleSpec:
     if kind not in ("periodic", "aperiodic", "rounds"):
         raise ValueError(f"unknown schedule {text!r}; {valid}")
     if not sep or not param:
-        raise ValueError(f"schedule {kind!r} needs a value, e.g. {kind}:{3 if kind == 'rounds' else 10}")
+        raise ValueError(
+            f"schedule {kind!r} needs a value, e.g. {kind}:{3 if kind == 'rounds' else 10}"
+        )
     if kind == "rounds":
         if not re.fullmatch(r"\d+", param) or int(param) < 1:
             raise ValueError(f"rounds:R needs a whole number of rounds >= 1, got {text!r}")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import replace
-from typing import Callable, Iterator, Optional
 
 from ..config import CHANNEL_FILTER, EXACT_MODES, BuildConfig, FuseConfig
 from ..lanes import Lanes
@@ -20,9 +20,8 @@ from ..scans.source import ScanSource, prefetch
 from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
 from .network import Network
+from .results import LOCAL, SimResult, rule_groups, score_agent, timeline_point, with_traffic
 from .robust import admitted, vote_for_run
-from .results import (LOCAL, SimResult, rule_groups, score_agent, timeline_point,
-                      with_traffic)
 from .schedule import EXCHANGE, VOTE, check_samples, moments, parse_schedule, run_schedule
 
 #: the lane of the maps in the common frame (centralized) and the agents' own maps
@@ -34,13 +33,20 @@ def _scored_as(lane: str) -> str:
     return LOCAL if lane == COMMON else lane
 
 
-def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12, truth=None,
-             progress: Optional[Callable[[int, int], None]] = None,
-             source: Optional[ScanSource | ScanReplay] = None,
-             observer: Optional[Callable[[float, list, Network, dict], None]] = None,
-             local: bool = True, rays: Optional[RayReplay] = None,
-             central_replay: Optional[CentralReplay] = None,
-             keep_loss_leaves: bool = False) -> SimResult:
+def simulate(
+    build_cfg: BuildConfig,
+    fuse_cfg: FuseConfig,
+    *,
+    samples: int = 12,
+    truth=None,
+    progress: Callable[[int, int], None] | None = None,
+    source: ScanSource | ScanReplay | None = None,
+    observer: Callable[[float, list, Network, dict], None] | None = None,
+    local: bool = True,
+    rays: RayReplay | None = None,
+    central_replay: CentralReplay | None = None,
+    keep_loss_leaves: bool = False,
+) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
@@ -73,8 +79,10 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     if fuse_cfg.robust.enabled and not local:
         raise ValueError("robust fusion votes on the agents' own maps: simulate them (local=True)")
     if spec.kind == "rounds":
-        raise ValueError("schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
-                         "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S")
+        raise ValueError(
+            "schedule 'rounds:N' fuses finished maps: use `octofuse fuse`; "
+            "`run` takes aperiodic:MEAN_S or periodic:PERIOD_S"
+        )
     t_all = time.perf_counter()
     trace = rays.next_pass() if rays is not None else trace_scans
     with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
@@ -105,13 +113,14 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # and so are the maps of the common frame with the agents' own maps: the lanes meet
         # only where a score needs the centralized map as it was at that time (a snapshot the
         # common lane reads, and goes on inserting).
-        lane_maps = {r: {id(m) for n in net.nodes[r].values() for m in n.scan_targets()}
-                     for r in rules}
+        lane_maps = {
+            r: {id(m) for n in net.nodes[r].values() for m in n.scan_targets()} for r in rules
+        }
         lane_maps[COMMON] = {id(m) for m in [*common, *own.values()]}
         sampled: dict = {}  # lane -> its last scores, while its maps are unchanged since
         taken: list = []  # (time, the scores of every lane)
 
-        def submit(lane, fn, after=(), key: Optional[str] = None):
+        def submit(lane, fn, after=(), key: str | None = None):
             def run():
                 t0 = time.perf_counter()
                 try:
@@ -154,11 +163,22 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             # kept leaves are read first, all of them; others one by one, each let go once
             # its agent is scored
             leaves = {a: read(a) for a in agents} if has_loss and keep_loss_leaves else {}
-            return maps, {a: score_agent(
-                maps[a], ref, tol, frame=frames.frames.get(a), truth=truth,
-                loss=(leaves[a] if a in leaves else read(a)) if has_loss else None,
-                compared=None if frames.frames.get(a) is not None else compared.get(a))
-                for a in agents}, leaves
+            return (
+                maps,
+                {
+                    a: score_agent(
+                        maps[a],
+                        ref,
+                        tol,
+                        frame=frames.frames.get(a),
+                        truth=truth,
+                        loss=(leaves[a] if a in leaves else read(a)) if has_loss else None,
+                        compared=None if frames.frames.get(a) is not None else compared.get(a),
+                    )
+                    for a in agents
+                },
+                leaves,
+            )
 
         def snapshot(key: str):
             """The centralized map as it is now, as scored against (a future)."""
@@ -170,16 +190,26 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         def sample(t):
             ref = snapshot("scoring")
             scored = []
-            for lane, maps in ([(COMMON, own)] if local else []) + [(r, net.fused[r]) for r in rules]:
+            for lane, maps in ([(COMMON, own)] if local else []) + [
+                (r, net.fused[r]) for r in rules
+            ]:
                 r = _scored_as(lane)
-                sampled[lane] = submit(lane, lambda r=r, maps=maps: scores_of(r, maps, ref.result()),
-                                       after=() if lane == COMMON else [ref], key="scoring")
+                sampled[lane] = submit(
+                    lane,
+                    lambda r=r, maps=maps: scores_of(r, maps, ref.result()),
+                    after=() if lane == COMMON else [ref],
+                    key="scoring",
+                )
                 scored.append((r, sampled[lane]))
             taken.append((t, scored))
 
         vote: list = []  # robust fusion: the vote, once taken
-        timed = moments(events, duration, samples, vote_time=min(fuse_cfg.robust.time, duration)
-                        if fuse_cfg.robust.enabled else None)
+        timed = moments(
+            events,
+            duration,
+            samples,
+            vote_time=min(fuse_cfg.robust.time, duration) if fuse_cfg.robust.enabled else None,
+        )
         next_i = 0
         trimmed: list = []  # the replayed rays' memory given back, once
 
@@ -190,8 +220,11 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             # every map a scan goes into, its rays traced once (the exact modes' with open
             # clamping); the centralized maps in the common frame: scans of agents with a
             # frame moved there
-            targets = [[m for r in rules for m in net.nodes[r][agents[s.agent]].scan_targets()]
-                       + ([own[agents[s.agent]]] if local else []) for s in batch]
+            targets = [
+                [m for r in rules for m in net.nodes[r][agents[s.agent]].scan_targets()]
+                + ([own[agents[s.agent]]] if local else [])
+                for s in batch
+            ]
             scans, per_scan = frames.scan_targets(batch, targets, common)
             # its grid only, not its nodes
             traced = trace(scans, central, build_cfg.workers, build_cfg.insert_mode)
@@ -202,8 +235,9 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                     continue
                 into = [[m for m in t if id(m) in ids] for t in per_scan]
                 sampled.pop(lane, None)
-                applied.append(submit(lane, lambda into=into: apply_rays(traced, into, 1),
-                                      key="insertion"))
+                applied.append(
+                    submit(lane, lambda into=into: apply_rays(traced, into, 1), key="insertion")
+                )
             if rays is not None and rays.given_back and not trimmed:
                 # the replayed rays, once applied, leave the heap's pages free: given back
                 # before the maps grow to their peak
@@ -223,9 +257,17 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
                 t, kind, group = timed[next_i]
                 if kind == VOTE:
                     # on the agents' own maps in the common frame
-                    vote.append(submit(COMMON, lambda t=t: vote_for_run(
-                        {a: frames.to_common(a, m) for a, m in own.items()}, graph, fuse_cfg,
-                        t)).result())
+                    vote.append(
+                        submit(
+                            COMMON,
+                            lambda t=t: vote_for_run(
+                                {a: frames.to_common(a, m) for a, m in own.items()},
+                                graph,
+                                fuse_cfg,
+                                t,
+                            ),
+                        ).result()
+                    )
                 elif kind == EXCHANGE:
                     group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
                     if group:
@@ -259,10 +301,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
         # each lane scores its final maps as soon as it is done (a lane that ends first
         # scores while the others still fuse), against the final centralized map
         ref = snapshot("final scores")
-        finals = {lane: submit(lane, lambda lane=lane, last=sampled.get(lane):
-                               final_scores(lane, ref.result(), last),
-                               after=() if lane == COMMON else [ref], key="final scores")
-                  for lane in lane_maps if lane != COMMON or local}
+        finals = {
+            lane: submit(
+                lane,
+                lambda lane=lane, last=sampled.get(lane): final_scores(lane, ref.result(), last),
+                after=() if lane == COMMON else [ref],
+                key="final scores",
+            )
+            for lane in lane_maps
+            if lane != COMMON or local
+        }
         lanes.wait()
         net.add_time("mapping + fusion (wall)", t_run)
         net.close()
@@ -270,18 +318,37 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
             central_replay.end_pass(central)
         src.check_placed()
         stats, notes = src.stats, src.notes()
-    timeline = [timeline_point(t, r, a, s)
-                for t, scored in taken for r, fut in scored for a, s in zip(agents, fut.result())]
+    timeline = [
+        timeline_point(t, r, a, s)
+        for t, scored in taken
+        for r, fut in scored
+        for a, s in zip(agents, fut.result())
+    ]
     final = {_scored_as(lane): fut.result() for lane, fut in finals.items()}
     final = {r: final[r] for r in ([LOCAL] if local else []) + rules}  # the scores' order
     fused = {r: final[r][0] for r in rules}
-    res = SimResult(agents, rules, graph, events, central, own, fused,
-                    {r: {a: net.loss_map(r, a) for a in agents}
-                     for r in rules}, net.traffic, timeline, net.timings, build_stats=stats,
-                    build_notes=notes, memory=net.memory(), tree=tree,
-                    unclamped=net.unclamped_maps(), central_unclamped=exact,
-                    frames=frames.frames, alignment=frames.report(),
-                    loss_leaves={r: final[r][2] for r in rules})
+    res = SimResult(
+        agents,
+        rules,
+        graph,
+        events,
+        central,
+        own,
+        fused,
+        {r: {a: net.loss_map(r, a) for a in agents} for r in rules},
+        net.traffic,
+        timeline,
+        net.timings,
+        build_stats=stats,
+        build_notes=notes,
+        memory=net.memory(),
+        tree=tree,
+        unclamped=net.unclamped_maps(),
+        central_unclamped=exact,
+        frames=frames.frames,
+        alignment=frames.report(),
+        loss_leaves={r: final[r][2] for r in rules},
+    )
     if vote:
         res.robust, res.excluded = vote[0], list(vote[0].excluded)
     res.scores = with_traffic({r: scores for r, (_, scores, _) in final.items()}, net.traffic)
@@ -289,10 +356,16 @@ def simulate(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
     return res
 
 
-def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 12,
-                            truth=None, progress: Optional[Callable[[int, int], None]] = None,
-                            source: Optional[ScanSource] = None,
-                            keep_loss_leaves: bool = False) -> Iterator[SimResult]:
+def simulate_in_rule_groups(
+    build_cfg: BuildConfig,
+    fuse_cfg: FuseConfig,
+    *,
+    samples: int = 12,
+    truth=None,
+    progress: Callable[[int, int], None] | None = None,
+    source: ScanSource | None = None,
+    keep_loss_leaves: bool = False,
+) -> Iterator[SimResult]:
     """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
     replaying the bags once per group, so that a caller can write a group's maps and free them
     before the next group runs. The rules' maps never meet, so every rule's result is the one
@@ -310,11 +383,23 @@ def simulate_in_rule_groups(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, sam
         rays = RayReplay(len(groups))  # and traced once
         central = CentralReplay(len(groups))  # and the centralized map mapped once
         for k, group in enumerate(groups):
-            step = None if progress is None else \
-                (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
-            yield simulate(build_cfg, replace(fuse_cfg, rules=group), samples=samples,
-                           truth=truth, progress=step, source=scans, local=k == 0, rays=rays,
-                           central_replay=central, keep_loss_leaves=keep_loss_leaves)
+            step = (
+                None
+                if progress is None
+                else (lambda done, total, k=k: progress(k * total + done, len(groups) * total))
+            )
+            yield simulate(
+                build_cfg,
+                replace(fuse_cfg, rules=group),
+                samples=samples,
+                truth=truth,
+                progress=step,
+                source=scans,
+                local=k == 0,
+                rays=rays,
+                central_replay=central,
+                keep_loss_leaves=keep_loss_leaves,
+            )
 
 
 def _opened(source, build_cfg: BuildConfig):

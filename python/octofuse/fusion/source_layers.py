@@ -57,7 +57,6 @@ information is no longer summed (and the remainder is not sent on: only exact la
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import fuse_into, subtract_into
@@ -76,7 +75,7 @@ class LayerPart:
     source: str
     version: int
     base: int = 0
-    map: Optional[OccupancyMap] = None
+    map: OccupancyMap | None = None
 
 
 @dataclass
@@ -96,16 +95,31 @@ class LayeredPayload:
 
     def to_bytes(self) -> bytes:
         """The payload as :func:`~.wire.encode_layers` writes it."""
-        return encode_layers([LayerBlob(p.source, p.version, p.base,
-                                        p.map.to_bytes() if p.map is not None else b"",
-                                        p.map is None) for p in self.parts])
+        return encode_layers(
+            [
+                LayerBlob(
+                    p.source,
+                    p.version,
+                    p.base,
+                    p.map.to_bytes() if p.map is not None else b"",
+                    p.map is None,
+                )
+                for p in self.parts
+            ]
+        )
 
     @classmethod
-    def from_bytes(cls, data: bytes, resolution: float = 0.0) -> "LayeredPayload":
+    def from_bytes(cls, data: bytes, resolution: float = 0.0) -> LayeredPayload:
         """The payload of :meth:`to_bytes` (its maps unclamped, as layers are kept)."""
-        parts = [LayerPart(b.source, b.version, b.base,
-                           None if b.held else open_map(OccupancyMap.from_bytes(b.data)))
-                 for b in decode_layers(data)]
+        parts = [
+            LayerPart(
+                b.source,
+                b.version,
+                b.base,
+                None if b.held else open_map(OccupancyMap.from_bytes(b.data)),
+            )
+            for b in decode_layers(data)
+        ]
         maps = [p.map for p in parts if p.map is not None]
         return cls(parts, maps[0].resolution if maps else resolution)
 
@@ -130,15 +144,18 @@ class Change:
     source: str
     old: int
     new: int
-    old_map: Optional[OccupancyMap]
+    old_map: OccupancyMap | None
     new_map: OccupancyMap
-    delta: Optional[OccupancyMap] = None
+    delta: OccupancyMap | None = None
 
     def diff(self) -> OccupancyMap:
         """The voxels that changed, with their new values (computed once)."""
         if self.delta is None:
-            self.delta = (self.new_map if self.old_map is None
-                          else open_map(self.new_map.changed_since(self.old_map)))
+            self.delta = (
+                self.new_map
+                if self.old_map is None
+                else open_map(self.new_map.changed_since(self.old_map))
+            )
         return self.delta
 
 
@@ -164,12 +181,12 @@ class Layers:
     fused: OccupancyMap
     max_bytes: int = 0
     layers: dict[str, Layer] = field(default_factory=dict)  #: the others' and own as sent
-    remainder: Optional[OccupancyMap] = None
+    remainder: OccupancyMap | None = None
     folded: dict[str, int] = field(default_factory=dict)  #: source -> newest version folded
     own_version: int = 0
     heard: int = 0
 
-    def publish(self) -> Optional[Change]:
+    def publish(self) -> Change | None:
         """A new version of the own layer if it changed since the last one (a copy). Whether
         it did is read from the maps (what changed is needed anyway), not told by whoever
         inserts the scans: inserting may be under way on another thread until the agent's
@@ -182,13 +199,19 @@ class Layers:
                 return None
         self.own_version += 1
         self.layers[self.name] = Layer(self.own_version, unclamped_copy(self.own), self.heard)
-        return Change(self.name, old.version if old else 0, self.own_version,
-                      old.map if old else None, self.layers[self.name].map, delta)
+        return Change(
+            self.name,
+            old.version if old else 0,
+            self.own_version,
+            old.map if old else None,
+            self.layers[self.name].map,
+            delta,
+        )
 
     def versions(self) -> dict[str, int]:
         return {s: x.version for s, x in self.layers.items()}
 
-    def parts_for(self, known: dict[str, tuple[int, Optional[list]]]) -> list[LayerPart]:
+    def parts_for(self, known: dict[str, tuple[int, list | None]]) -> list[LayerPart]:
         """What a neighbour lacks that holds ``known`` (source -> version, and the steps of
         the layer held here since, if known: :attr:`~.link.Link.known`): newer layers, as the
         voxels those steps changed or whole; then every version held."""
@@ -250,8 +273,11 @@ class Layers:
     # -- the memory budget -------------------------------------------------------------------
     def bytes_held(self) -> int:
         """Bytes of the layers held: the own layer, the others' and the remainder."""
-        maps = {id(m): m for m in (self.own, self.remainder,
-                                   *(x.map for x in self.layers.values())) if m is not None}
+        maps = {
+            id(m): m
+            for m in (self.own, self.remainder, *(x.map for x in self.layers.values()))
+            if m is not None
+        }
         return sum(m.memory_bytes for m in maps.values())
 
     def fold_to_budget(self) -> None:
@@ -280,5 +306,8 @@ class Layers:
 
     def maps(self) -> list[OccupancyMap]:
         """The maps held besides the fused one (for memory accounting)."""
-        return [m for m in (self.own, self.remainder, *(x.map for x in self.layers.values()))
-                if m is not None]
+        return [
+            m
+            for m in (self.own, self.remainder, *(x.map for x in self.layers.values()))
+            if m is not None
+        ]

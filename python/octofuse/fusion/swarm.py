@@ -40,8 +40,8 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
 
 from ..config import CHANNEL_FILTER, BuildConfig, FuseConfig
 from .agent_frames import AgentFrames
@@ -66,14 +66,14 @@ class SwarmResult:
     timings: dict[str, float] = field(default_factory=dict)
     messages: int = 0  #: messages delivered (one per event; each carries every rule's map)
     stream_bytes: int = 0  #: bytes of the .ot streams sent
-    maps: Optional[dict] = None  #: agent -> rule|local-only -> .ot bytes (collect_maps)
-    central: Optional[bytes] = None
+    maps: dict | None = None  #: agent -> rule|local-only -> .ot bytes (collect_maps)
+    central: bytes | None = None
     #: per link that received a message (with ``fuse.align``): as the simulation's ``alignment``
     alignment: list[dict] = field(default_factory=list)
     #: KL to the centralized map at ``samples`` points in time: as the simulation's ``timeline``
     timeline: list[dict] = field(default_factory=list)
     #: robust fusion's vote (with ``fuse.robust``): as the simulation's ``robust``
-    robust: Optional[object] = None
+    robust: object | None = None
     #: frames the workers refused (malformed, or not for the agent that got them)
     dropped: int = 0
 
@@ -89,12 +89,22 @@ class SwarmResult:
         return self.messages / t if t > 0 else float("nan")
 
 
-def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int = 0,
-                   truth=None, agents_per_worker: int = 1, memory_per_worker: Optional[int] = None,
-                   cpus_per_worker: float = 0.0, address: Optional[str] = None,
-                   num_cpus: Optional[int] = None, collect_maps: bool = False,
-                   max_in_flight: Optional[int] = None, score: bool = True,
-                   log: Optional[Callable[[str], None]] = None) -> SwarmResult:
+def simulate_swarm(
+    build_cfg: BuildConfig,
+    fuse_cfg: FuseConfig,
+    *,
+    samples: int = 0,
+    truth=None,
+    agents_per_worker: int = 1,
+    memory_per_worker: int | None = None,
+    cpus_per_worker: float = 0.0,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    collect_maps: bool = False,
+    max_in_flight: int | None = None,
+    score: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> SwarmResult:
     """Run the network in time with the agents in Ray actors (see the module's docstring).
 
     ``agents_per_worker`` agents share one actor process (1: an actor per agent);
@@ -112,7 +122,9 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
     fuse_cfg.validate("fuse")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
-        raise ValueError("a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S")
+        raise ValueError(
+            "a swarm runs in time: the schedule must be aperiodic:MEAN_S or periodic:PERIOD_S"
+        )
     if agents_per_worker < 1:
         raise ValueError(f"agents_per_worker must be >= 1, got {agents_per_worker}")
     check_samples(samples)
@@ -144,17 +156,46 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
                 f"{n_workers + 1} workers of {memory_per_worker / 2**20:.0f} MiB need "
                 f"{memory_per_worker * (n_workers + 1) / 2**30:.1f} GiB; this Ray has "
                 f"{have / 2**30:.1f} GiB of memory resource: put more agents in a worker, lower "
-                "the cap or join a cluster")
-        groups = [agents[w * agents_per_worker:(w + 1) * agents_per_worker] for w in range(n_workers)]
+                "the cap or join a cluster"
+            )
+        groups = [
+            agents[w * agents_per_worker : (w + 1) * agents_per_worker] for w in range(n_workers)
+        ]
         t0 = time.perf_counter()
-        workers = [Worker.remote(w, names, build_cfg.map, rules, fuse_cfg.unknown, fuse_cfg.delta,
-                                 threads, memory_per_worker, frames=frames, tree=tree,
-                                 reliable=fuse_cfg.loss == 0, insert_mode=build_cfg.insert_mode,
-                                 layers_max_bytes=fuse_cfg.layers_max_bytes)
-                   for w, names in enumerate(groups)]
-        central = ray.remote(SwarmWorker).options(**opts).remote(
-            n_workers, [], build_cfg.map, [], fuse_cfg.unknown, False, threads, None, True,
-            insert_mode=build_cfg.insert_mode)
+        workers = [
+            Worker.remote(
+                w,
+                names,
+                build_cfg.map,
+                rules,
+                fuse_cfg.unknown,
+                fuse_cfg.delta,
+                threads,
+                memory_per_worker,
+                frames=frames,
+                tree=tree,
+                reliable=fuse_cfg.loss == 0,
+                insert_mode=build_cfg.insert_mode,
+                layers_max_bytes=fuse_cfg.layers_max_bytes,
+            )
+            for w, names in enumerate(groups)
+        ]
+        central = (
+            ray.remote(SwarmWorker)
+            .options(**opts)
+            .remote(
+                n_workers,
+                [],
+                build_cfg.map,
+                [],
+                fuse_cfg.unknown,
+                False,
+                threads,
+                None,
+                True,
+                insert_mode=build_cfg.insert_mode,
+            )
+        )
         ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
         timings["start workers"] = time.perf_counter() - t0
         say(f"swarm: {len(agents)} agents in {n_workers} worker(s) + 1 for the centralized map")
@@ -232,8 +273,9 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
                     continue
                 inbox.setdefault(d, []).append(s)
             for d, senders in inbox.items():
-                ref = home[d].receive.remote(d, senders, group[0].time_s,
-                                             *[refs[(s, d)] for s in senders])
+                ref = home[d].receive.remote(
+                    d, senders, group[0].time_s, *[refs[(s, d)] for s in senders]
+                )
                 in_flight.append(ref)
                 if track:
                     unread.append(ref)
@@ -263,14 +305,26 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
             flush()
             ray.get(in_flight)
             in_flight.clear()
-            own = {a: m for part in ray.get([w.own_maps.remote() for w in workers])
-                   for a, m in part.items()}
-            vote.append(vote_for_run(
-                {a: frames.to_common(a, OccupancyMap.from_bytes(own[a])) for a in agents},
-                graph, fuse_cfg, t))
+            own = {
+                a: m
+                for part in ray.get([w.own_maps.remote() for w in workers])
+                for a, m in part.items()
+            }
+            vote.append(
+                vote_for_run(
+                    {a: frames.to_common(a, OccupancyMap.from_bytes(own[a])) for a in agents},
+                    graph,
+                    fuse_cfg,
+                    t,
+                )
+            )
 
-        timed = moments(events, duration, samples, vote_time=min(fuse_cfg.robust.time, duration)
-                        if fuse_cfg.robust.enabled else None)
+        timed = moments(
+            events,
+            duration,
+            samples,
+            vote_time=min(fuse_cfg.robust.time, duration) if fuse_cfg.robust.enabled else None,
+        )
         next_i = 0
         pending = 0
 
@@ -312,7 +366,9 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         scores: dict = {}
         if score:
             cref, truth_ref = ray.put(cbytes), ray.put(truth)
-            parts = ray.get([w.score.remote(cref, fuse_cfg.overconfidence_tol, truth_ref) for w in workers])
+            parts = ray.get(
+                [w.score.remote(cref, fuse_cfg.overconfidence_tol, truth_ref) for w in workers]
+            )
             for p in parts:
                 for r, per in p.items():
                     scores.setdefault(r, {}).update(per)
@@ -326,8 +382,10 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
                         getattr(tr, k)[a] += v
                 tr.messages += t["messages"]
         stats = ray.get([w.stats.remote() for w in workers] + [central.stats.remote()])
-        alignment = sorted((d for part in ray.get([w.alignment.remote() for w in workers])
-                            for d in part), key=lambda d: (d["sender"], d["receiver"]))
+        alignment = sorted(
+            (d for part in ray.get([w.alignment.remote() for w in workers]) for d in part),
+            key=lambda d: (d["sender"], d["receiver"]),
+        )
         timeline = []
         for parts in taken:  # in the simulation's order: time, rule, agent
             got = {(p["rule"], p["agent"]): p for part in ray.get(parts) for p in part}
@@ -340,8 +398,21 @@ def simulate_swarm(build_cfg: BuildConfig, fuse_cfg: FuseConfig, *, samples: int
         for w in [*workers, central]:
             ray.kill(w)
     timings["total"] = time.perf_counter() - t_all
-    return SwarmResult(agents, rules, graph, events, scores, traffic, stats, dict(timings),
-                       messages=delivered[0], stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
-                       maps=maps, central=cbytes if collect_maps else None, alignment=alignment,
-                       timeline=timeline, robust=vote[0] if vote else None,
-                       dropped=sum(s["dropped"] for s in stats))
+    return SwarmResult(
+        agents,
+        rules,
+        graph,
+        events,
+        scores,
+        traffic,
+        stats,
+        dict(timings),
+        messages=delivered[0],
+        stream_bytes=sum(s["stream_bytes_sent"] for s in stats),
+        maps=maps,
+        central=cbytes if collect_maps else None,
+        alignment=alignment,
+        timeline=timeline,
+        robust=vote[0] if vote else None,
+        dropped=sum(s["dropped"] for s in stats),
+    )

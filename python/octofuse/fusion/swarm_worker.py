@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import time
 from collections import defaultdict
-from typing import Iterable, Optional
+from collections.abc import Iterable
 
 from ..config import CHANNEL_FILTER, EXACT_MODES, MapConfig
 from ..memory import resident_memory, return_freed_memory
@@ -34,22 +34,40 @@ class SwarmWorker:
     run's agent frames (default: every agent in the common frame). ``layers_max_bytes``: source
     layers' memory budget per agent (0: unlimited)."""
 
-    def __init__(self, index: int, names: list[str], map_cfg: MapConfig, rules: list[str],
-                 unknown: str, delta: bool, threads: int = 1, memory_cap: Optional[int] = None,
-                 central: bool = False, frames: Optional[AgentFrames] = None,
-                 tree: Iterable[tuple[str, str]] = (), reliable: bool = True,
-                 insert_mode: str = "exact", layers_max_bytes: int = 0):
+    def __init__(
+        self,
+        index: int,
+        names: list[str],
+        map_cfg: MapConfig,
+        rules: list[str],
+        unknown: str,
+        delta: bool,
+        threads: int = 1,
+        memory_cap: int | None = None,
+        central: bool = False,
+        frames: AgentFrames | None = None,
+        tree: Iterable[tuple[str, str]] = (),
+        reliable: bool = True,
+        insert_mode: str = "exact",
+        layers_max_bytes: int = 0,
+    ):
         from ..maps.occupancy import OccupancyMap
 
         self.index, self.names, self.rules = index, list(names), list(rules)
         self.frames = frames or AgentFrames(self.names)
-        self.unknown, self.delta, self.threads, self.cap = unknown, delta, max(1, threads), memory_cap
+        self.unknown, self.delta, self.threads, self.cap = (
+            unknown,
+            delta,
+            max(1, threads),
+            memory_cap,
+        )
         self.tree, self.reliable, self.insert_mode = set(tree), reliable, insert_mode
         mk = lambda: OccupancyMap.from_config(map_cfg)  # noqa: E731
         self.resolution = map_cfg.resolution
         self.central = mk() if central else None
-        self.nodes = {a: {r: Agent(a, r, mk(), layers_max_bytes) for r in rules}
-                      for a in self.names}
+        self.nodes = {
+            a: {r: Agent(a, r, mk(), layers_max_bytes) for r in rules} for a in self.names
+        }
         self.local = {a: mk() for a in self.names}
         # with alignment and deltas: the links of this worker's senders known to have aligned,
         # and the whole maps last sent on the others ((rule, sender, receiver) -> map)
@@ -71,11 +89,14 @@ class SwarmWorker:
 
         t0 = time.perf_counter()
         if self.central is not None:
-            insert_scans([s for _, s in scans], [[self.central]] * len(scans), self.threads,
-                         self.insert_mode)
+            insert_scans(
+                [s for _, s in scans], [[self.central]] * len(scans), self.threads, self.insert_mode
+            )
         else:
-            targets = [[m for n in self.nodes[a].values() for m in n.scan_targets()]
-                       + [self.local[a]] for a, _ in scans]
+            targets = [
+                [m for n in self.nodes[a].values() for m in n.scan_targets()] + [self.local[a]]
+                for a, _ in scans
+            ]
             insert_scans([s for _, s in scans], targets, self.threads, self.insert_mode)
         self.seconds["insertion"] += time.perf_counter() - t0
         self._check_memory()
@@ -101,7 +122,9 @@ class SwarmWorker:
         streams: dict[int, tuple] = {}
         per = []
         for d in receivers:
-            whole = self.delta and self.frames.align != "off" and (sender, d) not in self.aligned_out
+            whole = (
+                self.delta and self.frames.align != "off" and (sender, d) not in self.aligned_out
+            )
             frames = []
             for r, node in self.nodes[sender].items():
                 if not self.uses(r, sender, d):
@@ -123,8 +146,9 @@ class SwarmWorker:
         self._check_memory()
         return per[0] if len(per) == 1 else tuple(per)
 
-    def receive(self, receiver: str, senders: list[str], time_s: float,
-                *messages) -> list[tuple[str, str]]:
+    def receive(
+        self, receiver: str, senders: list[str], time_s: float, *messages
+    ) -> list[tuple[str, str]]:
         """Fuse the messages of the group at ``time_s`` (one list of per-rule frames per
         sender, in event order), each moved into the receiver's frame first. A frame that is
         malformed or not from that sender to this receiver under that rule is dropped and
@@ -132,8 +156,10 @@ class SwarmWorker:
         receiver's map as it was when the group started; a link that fails to is counted, not
         fused. Returns the links that aligned in this call (``(sender, receiver)``)."""
         t0 = time.perf_counter()
-        decoded = [[self._read(f, s, receiver, r) for r, f in zip(self.rules, msg)]
-                   for s, msg in zip(senders, messages)]
+        decoded = [
+            [self._read(f, s, receiver, r) for r, f in zip(self.rules, msg)]
+            for s, msg in zip(senders, messages)
+        ]
         first = self._align(receiver, senders, time_s, decoded)
         for sender, msgs in zip(senders, decoded):
             fused = self.frames.aligned(sender, receiver)
@@ -183,35 +209,66 @@ class SwarmWorker:
                 out[r][a] = score(m, c, tol=tol, truth=truth, compared=s)
                 continue
             loss = None if r in EXACT_MODES else self.nodes[a][r].loss_map()
-            out[r][a] = score(m, c, tol=tol, loss=loss, truth=truth, compared=s,
-                              bytes_sent=self.sent[r][a], bytes_received=self.received[r][a],
-                              bytes_sent_32b=self.sent_32b[r][a])
+            out[r][a] = score(
+                m,
+                c,
+                tol=tol,
+                loss=loss,
+                truth=truth,
+                compared=s,
+                bytes_sent=self.sent[r][a],
+                bytes_received=self.received[r][a],
+                bytes_sent_32b=self.sent_32b[r][a],
+            )
         self._check_memory()
         return out
 
     def traffic(self) -> dict:
-        return {r: {"sent": dict(self.sent[r]), "received": dict(self.received[r]),
-                    "sent_32b": dict(self.sent_32b[r]), "messages": self.messages[r]}
-                for r in self.rules}
+        return {
+            r: {
+                "sent": dict(self.sent[r]),
+                "received": dict(self.received[r]),
+                "sent_32b": dict(self.sent_32b[r]),
+                "messages": self.messages[r],
+            }
+            for r in self.rules
+        }
 
     def maps(self) -> dict:
         """Every map of this worker as scored, as ``.ot`` streams: agent -> rule|local-only ->
         bytes (the exact modes' clamped)."""
-        return {a: {**{r: self._scored(r, a).to_bytes() for r in self.rules},
-                    LOCAL: self.local[a].to_bytes()} for a in self.names}
+        return {
+            a: {
+                **{r: self._scored(r, a).to_bytes() for r in self.rules},
+                LOCAL: self.local[a].to_bytes(),
+            }
+            for a in self.names
+        }
 
     def stats(self) -> dict:
         private, cur, peak = resident_memory()
         self.peak_private = max(self.peak_private, private)
-        maps_bytes = sum(m.memory_bytes for a in self.names
-                         for m in [*(n.map for n in self.nodes[a].values()), self.local[a]])
+        maps_bytes = sum(
+            m.memory_bytes
+            for a in self.names
+            for m in [*(n.map for n in self.nodes[a].values()), self.local[a]]
+        )
         if self.central is not None:
             maps_bytes += self.central.memory_bytes
-        return {"worker": self.index, "agents": len(self.names), "pid": os.getpid(), "rss": cur,
-                "peak_rss": peak, "private": private, "peak_private": self.peak_private,
-                "memory_cap": self.cap, "maps_bytes": maps_bytes, "stream_bytes_sent": self.stream_bytes_sent,
-                "dropped": self.dropped,
-                "seconds": dict(self.seconds)}
+        return {
+            "worker": self.index,
+            "agents": len(self.names),
+            "pid": os.getpid(),
+            "rss": cur,
+            "peak_rss": peak,
+            "private": private,
+            "peak_private": self.peak_private,
+            "memory_cap": self.cap,
+            "maps_bytes": maps_bytes,
+            "stream_bytes_sent": self.stream_bytes_sent,
+            "dropped": self.dropped,
+            "seconds": dict(self.seconds),
+        }
 
     # -- internals ------------------------------------------------------------------------------
     def _compared(self, central, tol: float) -> tuple[list, list, list]:
@@ -230,7 +287,7 @@ class SwarmWorker:
         m = self.nodes[agent][rule].map
         return clamped(m) if rule in EXACT_MODES else m
 
-    def _read(self, frame: Optional[bytes], sender: str, receiver: str, rule: str):
+    def _read(self, frame: bytes | None, sender: str, receiver: str, rule: str):
         """The message of a frame, or None (counted as dropped) if it is not a well-formed
         message from ``sender`` to ``receiver`` under ``rule``."""
         if frame is None:
@@ -251,10 +308,15 @@ class SwarmWorker:
         (none with alignment off)."""
         if self.frames.align == "off":
             return {}
-        first = {s: msgs[0].payload for s, msgs in zip(senders, decoded)
-                 if msgs[0] is not None and not self.frames.aligned(s, receiver)}
-        self.frames.align_links([(s, receiver, False, time_s) for s in senders if s in first],
-                                {receiver: self.nodes[receiver][self.rules[0]].map, **first})
+        first = {
+            s: msgs[0].payload
+            for s, msgs in zip(senders, decoded)
+            if msgs[0] is not None and not self.frames.aligned(s, receiver)
+        }
+        self.frames.align_links(
+            [(s, receiver, False, time_s) for s in senders if s in first],
+            {receiver: self.nodes[receiver][self.rules[0]].map, **first},
+        )
         return first
 
     def _confirm(self, links: list) -> None:
@@ -278,5 +340,7 @@ class SwarmWorker:
         self.peak_private = max(self.peak_private, cur)
         if self.cap:
             if cur > self.cap:
-                raise MemoryError(f"swarm worker {self.index} ({len(self.names)} agent(s)) uses "
-                                  f"{cur / 2**20:.0f} MiB, over its cap of {self.cap / 2**20:.0f} MiB")
+                raise MemoryError(
+                    f"swarm worker {self.index} ({len(self.names)} agent(s)) uses "
+                    f"{cur / 2**20:.0f} MiB, over its cap of {self.cap / 2**20:.0f} MiB"
+                )

@@ -117,23 +117,43 @@ class VoteResult:
     def bytes(self) -> np.ndarray | int:
         return self.floats * FLOAT_BYTES
 
-    def trial(self, b: int) -> "VoteResult":
+    def trial(self, b: int) -> VoteResult:
         """The result of trial ``b`` of a batch."""
+
         def pick(a):
             return a[b] if isinstance(a, np.ndarray) else a
+
         hist = None if self.history is None else {k: v[:, b] for k, v in self.history.items()}
-        out = {f: pick(getattr(self, f)) for f in ("inliers", "estimate", "votes", "seeds",
-                                                   "robot_winner")}
-        return replace(self, **out, winner=int(self.winner[b]), messages=int(self.messages[b]),
-                       floats=int(self.floats[b]), history=hist)
+        out = {
+            f: pick(getattr(self, f))
+            for f in ("inliers", "estimate", "votes", "seeds", "robot_winner")
+        }
+        return replace(
+            self,
+            **out,
+            winner=int(self.winner[b]),
+            messages=int(self.messages[b]),
+            floats=int(self.floats[b]),
+            history=hist,
+        )
 
 
 # ---------------------------------------------------------------- single network
 
 
-def dynamic_vote(x, covariances, edges, p_in: float = 0.8, success: float = 0.99, c: int = 1,
-                 iterations: int = 100, seed=None, gate: ChiSquareGate = ChiSquareGate(),
-                 seed_sets: Iterable[Iterable[int]] | None = None, record: bool = False) -> VoteResult:
+def dynamic_vote(
+    x,
+    covariances,
+    edges,
+    p_in: float = 0.8,
+    success: float = 0.99,
+    c: int = 1,
+    iterations: int = 100,
+    seed=None,
+    gate: ChiSquareGate = ChiSquareGate(),
+    seed_sets: Iterable[Iterable[int]] | None = None,
+    record: bool = False,
+) -> VoteResult:
     """Dynamic voting over a network of robots.
 
     ``x`` (N, d) measurements, ``covariances`` (N, d, d) symmetric positive definite, ``edges`` a
@@ -148,17 +168,38 @@ def dynamic_vote(x, covariances, edges, p_in: float = 0.8, success: float = 0.99
     """
     x, cov, topology, fixed_rounds, rng = _prepare(x, covariances, edges, seed)
     seeds, k = _seed_masks(seed_sets, x.shape[1], p_in, success, c)
-    return dynamic_vote_batch(x, cov, topology, k=k, c=c, iterations=iterations, rng=rng, gate=gate,
-                              seeds=seeds, seed_rounds=fixed_rounds, record=record).trial(0)
+    return dynamic_vote_batch(
+        x,
+        cov,
+        topology,
+        k=k,
+        c=c,
+        iterations=iterations,
+        rng=rng,
+        gate=gate,
+        seeds=seeds,
+        seed_rounds=fixed_rounds,
+        record=record,
+    ).trial(0)
 
 
 # ---------------------------------------------------------------- batches of networks
 
 
-def dynamic_vote_batch(x: np.ndarray, covariances: np.ndarray, topology: Callable[[int], np.ndarray], *,
-                       k: int, c: int = 1, iterations: int = 100, rng: np.random.Generator,
-                       gate: ChiSquareGate = ChiSquareGate(), seeds: np.ndarray | None = None,
-                       seed_rounds: int | None = None, record: bool = False) -> VoteResult:
+def dynamic_vote_batch(
+    x: np.ndarray,
+    covariances: np.ndarray,
+    topology: Callable[[int], np.ndarray],
+    *,
+    k: int,
+    c: int = 1,
+    iterations: int = 100,
+    rng: np.random.Generator,
+    gate: ChiSquareGate = ChiSquareGate(),
+    seeds: np.ndarray | None = None,
+    seed_rounds: int | None = None,
+    record: bool = False,
+) -> VoteResult:
     """:func:`dynamic_vote` on ``B`` networks at once: ``x`` (B, N, d), ``covariances`` (B, N, d, d),
     ``topology(t)`` (B, N, N) adjacency. ``seeds`` (K, N) fixes the seed robots; otherwise they are
     drawn with ``rng``, over ``seed_rounds`` rounds (a fixed graph's diameter) or until agreement."""
@@ -216,9 +257,19 @@ def _result(final, theta, v, seeds, k, rounds, msgs, floats, history) -> VoteRes
     choice = np.argmax(v, axis=1)  # (B, N): each robot's pick from its own votes
     inliers = np.take_along_axis(final, choice[:, None], axis=1)[:, 0]
     est = np.take_along_axis(theta, choice[:, None, :, None], axis=1)[:, 0]
-    return VoteResult(inliers=inliers, estimate=est, votes=v, seeds=seeds,
-                      winner=np.argmax(v.mean(axis=-1), axis=-1), robot_winner=choice, hypotheses=k,
-                      rounds=rounds, messages=msgs, floats=floats, history=history)
+    return VoteResult(
+        inliers=inliers,
+        estimate=est,
+        votes=v,
+        seeds=seeds,
+        winner=np.argmax(v.mean(axis=-1), axis=-1),
+        robot_winner=choice,
+        hypotheses=k,
+        rounds=rounds,
+        messages=msgs,
+        floats=floats,
+        history=history,
+    )
 
 
 def _draw_seeds(seeds, b, k, n, c, rng, topology, seed_rounds, iterations):
@@ -262,16 +313,22 @@ def _prepare(x, covariances, edges, seed):
         raise ValueError(f"x has non-finite values at robots {bad}")
     if not np.all(np.isfinite(cov)):
         raise ValueError("covariances have non-finite values")
-    asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cov).max(axis=(1, 2))
+    asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cov).max(
+        axis=(1, 2)
+    )
     if asym.any():
         raise ValueError(f"covariances of robots {np.flatnonzero(asym).tolist()} are not symmetric")
     not_pd = np.linalg.eigvalsh(cov)[:, 0] <= 0
     if not_pd.any():
-        raise ValueError(f"covariances of robots {np.flatnonzero(not_pd).tolist()} are not positive definite")
+        raise ValueError(
+            f"covariances of robots {np.flatnonzero(not_pd).tolist()} are not positive definite"
+        )
     rng = np.random.default_rng(seed)
     if callable(edges):
+
         def topology(t: int) -> np.ndarray:
             return adjacency_from_edges(edges(t), n)[None]
+
         return x[None], cov[None], topology, None, rng
     adj = adjacency_from_edges(edges, n)
     rounds = diameter(adj)

@@ -14,15 +14,34 @@ from .consensus import average, information_consensus, information_terms, metrop
 from .voting import ChiSquareGate, VoteResult, _check_int, _draw_seeds, _prepare, _seed_masks
 
 
-def static_vote(x, covariances, edges, p_in: float = 0.8, success: float = 0.99, c: int = 1,
-                iterations: int = 100, seed=None, gate: ChiSquareGate = ChiSquareGate(),
-                seed_sets: Iterable[Iterable[int]] | None = None) -> VoteResult:
+def static_vote(
+    x,
+    covariances,
+    edges,
+    p_in: float = 0.8,
+    success: float = 0.99,
+    c: int = 1,
+    iterations: int = 100,
+    seed=None,
+    gate: ChiSquareGate = ChiSquareGate(),
+    seed_sets: Iterable[Iterable[int]] | None = None,
+) -> VoteResult:
     """Static voting: ``iterations`` rounds each to build the hypotheses, to average the votes and
     to compute the ML of the winner's inliers. Arguments as :func:`dynamic_vote`."""
     x, cov, topology, fixed_rounds, rng = _prepare(x, covariances, edges, seed)
     seeds, k = _seed_masks(seed_sets, x.shape[1], p_in, success, c)
-    return static_vote_batch(x, cov, topology, k=k, c=c, iterations=iterations, rng=rng, gate=gate,
-                             seeds=seeds, seed_rounds=fixed_rounds).trial(0)
+    return static_vote_batch(
+        x,
+        cov,
+        topology,
+        k=k,
+        c=c,
+        iterations=iterations,
+        rng=rng,
+        gate=gate,
+        seeds=seeds,
+        seed_rounds=fixed_rounds,
+    ).trial(0)
 
 
 def maximum_likelihood(x, covariances, edges, iterations: int = 100) -> VoteResult:
@@ -31,10 +50,19 @@ def maximum_likelihood(x, covariances, edges, iterations: int = 100) -> VoteResu
     return maximum_likelihood_batch(x, cov, topology, iterations=iterations).trial(0)
 
 
-def static_vote_batch(x: np.ndarray, covariances: np.ndarray, topology: Callable[[int], np.ndarray], *,
-                      k: int, c: int = 1, iterations: int = 100, rng: np.random.Generator,
-                      gate: ChiSquareGate = ChiSquareGate(), seeds: np.ndarray | None = None,
-                      seed_rounds: int | None = None) -> VoteResult:
+def static_vote_batch(
+    x: np.ndarray,
+    covariances: np.ndarray,
+    topology: Callable[[int], np.ndarray],
+    *,
+    k: int,
+    c: int = 1,
+    iterations: int = 100,
+    rng: np.random.Generator,
+    gate: ChiSquareGate = ChiSquareGate(),
+    seeds: np.ndarray | None = None,
+    seed_rounds: int | None = None,
+) -> VoteResult:
     """:func:`static_vote` on ``B`` networks at once (arguments as :func:`dynamic_vote_batch`).
 
     A robot tests ``r = x_i - θ^h`` with the covariance of that difference,
@@ -62,26 +90,49 @@ def static_vote_batch(x: np.ndarray, covariances: np.ndarray, topology: Callable
 
     choice = np.argmax(v, axis=1)  # (B, N)
     inliers = np.take_along_axis(passes, choice[:, None], axis=1)[:, 0]
-    est, _, _, sent = information_consensus(info, vec, inliers[:, None], topology, iterations,
-                                            rounds + 2 * iterations)
+    est, _, _, sent = information_consensus(
+        info, vec, inliers[:, None], topology, iterations, rounds + 2 * iterations
+    )
     msgs, floats = msgs + sent, floats + sent * (d * (d + 1) // 2 + d)
-    return VoteResult(inliers=inliers, estimate=est[:, 0], votes=v, seeds=seeds,
-                      winner=np.argmax(v.mean(axis=-1), axis=-1), robot_winner=choice, hypotheses=k,
-                      rounds=rounds + 3 * iterations, messages=msgs, floats=floats)
+    return VoteResult(
+        inliers=inliers,
+        estimate=est[:, 0],
+        votes=v,
+        seeds=seeds,
+        winner=np.argmax(v.mean(axis=-1), axis=-1),
+        robot_winner=choice,
+        hypotheses=k,
+        rounds=rounds + 3 * iterations,
+        messages=msgs,
+        floats=floats,
+    )
 
 
-def maximum_likelihood_batch(x: np.ndarray, covariances: np.ndarray, topology: Callable[[int], np.ndarray],
-                             *, iterations: int = 100) -> VoteResult:
+def maximum_likelihood_batch(
+    x: np.ndarray,
+    covariances: np.ndarray,
+    topology: Callable[[int], np.ndarray],
+    *,
+    iterations: int = 100,
+) -> VoteResult:
     """:func:`maximum_likelihood` on ``B`` networks at once."""
     b, n, d = x.shape
     iterations = _check_int("iterations", iterations, 1)
     info, vec = information_terms(x, covariances)
     everyone = np.ones((b, 1, n), dtype=bool)
     est, _, _, msgs = information_consensus(info, vec, everyone, topology, iterations)
-    return VoteResult(inliers=everyone[:, 0], estimate=est[:, 0], votes=np.ones((b, 1, n)),
-                      seeds=everyone, winner=np.zeros(b, dtype=np.int64),
-                      robot_winner=np.zeros((b, n), dtype=np.int64), hypotheses=1, rounds=iterations,
-                      messages=msgs, floats=msgs * (d * (d + 1) // 2 + d))
+    return VoteResult(
+        inliers=everyone[:, 0],
+        estimate=est[:, 0],
+        votes=np.ones((b, 1, n)),
+        seeds=everyone,
+        winner=np.zeros(b, dtype=np.int64),
+        robot_winner=np.zeros((b, n), dtype=np.int64),
+        hypotheses=1,
+        rounds=iterations,
+        messages=msgs,
+        floats=msgs * (d * (d + 1) // 2 + d),
+    )
 
 
 def residual_covariance(cov_i: np.ndarray, cov_ml: np.ndarray, member: np.ndarray) -> np.ndarray:

@@ -27,12 +27,27 @@ from .voting import ChiSquareGate, dynamic_vote, dynamic_vote_batch, hypothesis_
 from .voting_baselines import maximum_likelihood_batch, static_vote_batch
 
 PAPER_TABLE = {
-    "ml": {"false_positives": 4015, "false_negatives": 0, "mean_error": 2.063, "std_error": 2.502,
-           "rounds": 100},
-    "static": {"false_positives": 375, "false_negatives": 472, "mean_error": 0.444, "std_error": 1.275,
-               "rounds": 300},
-    "dynamic": {"false_positives": 355, "false_negatives": 192, "mean_error": 0.438, "std_error": 1.256,
-                "rounds": 100},
+    "ml": {
+        "false_positives": 4015,
+        "false_negatives": 0,
+        "mean_error": 2.063,
+        "std_error": 2.502,
+        "rounds": 100,
+    },
+    "static": {
+        "false_positives": 375,
+        "false_negatives": 472,
+        "mean_error": 0.444,
+        "std_error": 1.275,
+        "rounds": 300,
+    },
+    "dynamic": {
+        "false_positives": 355,
+        "false_negatives": 192,
+        "mean_error": 0.438,
+        "std_error": 1.256,
+        "rounds": 100,
+    },
 }
 
 TABLE_ASSUMPTIONS = {
@@ -60,7 +75,9 @@ def paper_checks(trials: int = 1000, seed: int = 0) -> dict:
         },
         "fig3": fig3_check(seed),
         "table1": table1_check(trials, seed),
-        "table1_consistent": table1_check(trials, seed, gate_forms=("squared",), covariances="consistent"),
+        "table1_consistent": table1_check(
+            trials, seed, gate_forms=("squared",), covariances="consistent"
+        ),
     }
 
 
@@ -68,10 +85,14 @@ def fig3_check(seed: int = 0) -> dict:
     """Seven inliers around (3.1, 5.2) and three outliers, on a fixed connected graph of ten."""
     rng = np.random.default_rng([seed, 3])
     n, n_in = 10, 7
-    x = np.vstack([rng.normal([3.1, 5.2], 0.6, (n_in, 2)), [[-7.0, 2.5], [-5.5, 8.0], [-1.5, -3.0]]])
+    x = np.vstack(
+        [rng.normal([3.1, 5.2], 0.6, (n_in, 2)), [[-7.0, 2.5], [-5.5, 8.0], [-1.5, -3.0]]]
+    )
     cov = np.stack([_random_covariance(rng, 2, lambda r: r.uniform(0.2, 0.6, 2)) for _ in range(n)])
     edges = [(i, (i + 1) % n) for i in range(n)] + [(0, 5), (2, 7), (4, 9)]
-    res = dynamic_vote(x, cov, edges, p_in=0.6, success=0.99, c=1, iterations=100, seed=seed, record=True)
+    res = dynamic_vote(
+        x, cov, edges, p_in=0.6, success=0.99, c=1, iterations=100, seed=seed, record=True
+    )
     info = np.linalg.inv(cov)
     ml_in = _ml(x[:n_in], info[:n_in])
     ml_all = _ml(x, info)
@@ -80,7 +101,9 @@ def fig3_check(seed: int = 0) -> dict:
     changed = np.flatnonzero((passing[1:] != passing[:-1]).any(axis=1))
     return {
         "hypotheses": res.hypotheses,
-        "winner_seeded_by_inlier": bool(res.seeds[h][:n_in].any() and not res.seeds[h][n_in:].any()),
+        "winner_seeded_by_inlier": bool(
+            res.seeds[h][:n_in].any() and not res.seeds[h][n_in:].any()
+        ),
         "winner_votes": res.votes[h].tolist(),
         "inlier_fraction": n_in / n,
         "inliers_found": bool(np.array_equal(res.inliers, np.arange(n) < n_in)),
@@ -92,8 +115,12 @@ def fig3_check(seed: int = 0) -> dict:
     }
 
 
-def table1_check(trials: int = 1000, seed: int = 0, gate_forms: tuple[str, ...] = ("paper", "squared"),
-                 covariances: str = "paper") -> dict:
+def table1_check(
+    trials: int = 1000,
+    seed: int = 0,
+    gate_forms: tuple[str, ...] = ("paper", "squared"),
+    covariances: str = "paper",
+) -> dict:
     """The Monte Carlo comparison of Table I under :data:`TABLE_ASSUMPTIONS`. With
     ``covariances="consistent"`` every robot states the inlier noise itself (``Λ_i = 4 I``, m^2),
     the setting the chi-square test is made for."""
@@ -105,8 +132,12 @@ def table1_check(trials: int = 1000, seed: int = 0, gate_forms: tuple[str, ...] 
     inlier = rng.random((trials, n)) < a["p_in"]
     sigma = np.where(inlier, a["inlier_sigma_m"], a["outlier_sigma_m"])
     x = rng.normal(size=(trials, n, d)) * sigma[..., None]  # true value at the origin
-    cov = np.stack([_random_covariance(rng, d, lambda r: np.abs(r.normal(0.5, 0.5, d)))
-                    for _ in range(trials * n)]).reshape(trials, n, d, d)
+    cov = np.stack(
+        [
+            _random_covariance(rng, d, lambda r: np.abs(r.normal(0.5, 0.5, d)))
+            for _ in range(trials * n)
+        ]
+    ).reshape(trials, n, d, d)
     if covariances == "consistent":
         cov = np.broadcast_to(a["inlier_sigma_m"] ** 2 * np.eye(d), cov.shape).copy()
     info = np.linalg.inv(cov)
@@ -117,17 +148,24 @@ def table1_check(trials: int = 1000, seed: int = 0, gate_forms: tuple[str, ...] 
         upper = np.triu(topo_rng.random((trials, n, n)) < a["edge_probability"], 1)
         return upper | np.swapaxes(upper, 1, 2)
 
-    out: dict = {"covariances": covariances, "trials": trials, "outliers": int((~inlier).sum()),
-                 "inliers": int(inlier.sum()),
-                 "assumptions": a, "paper": PAPER_TABLE}
+    out: dict = {
+        "covariances": covariances,
+        "trials": trials,
+        "outliers": int((~inlier).sum()),
+        "inliers": int(inlier.sum()),
+        "assumptions": a,
+        "paper": PAPER_TABLE,
+    }
     ml = maximum_likelihood_batch(x, cov, topology, iterations=100)
     out["ml"] = _score(ml, inlier, ml_in, 100)
     for form in gate_forms:
         gate = ChiSquareGate(a["confidence"], form)
         r = x - ml_in[:, None]
         at_ml = gate.passes(np.einsum("bni,bnij,bnj->bn", r, info, r), d)
-        out[f"oracle[{form}]"] = {"false_positives": int((at_ml & ~inlier).sum()),
-                                  "false_negatives": int((~at_ml & inlier).sum())}
+        out[f"oracle[{form}]"] = {
+            "false_positives": int((at_ml & ~inlier).sum()),
+            "false_negatives": int((~at_ml & inlier).sum()),
+        }
         srng = np.random.default_rng([seed, 4])
         static = static_vote_batch(x, cov, topology, k=k, iterations=100, rng=srng, gate=gate)
         dyn = dynamic_vote_batch(x, cov, topology, k=k, iterations=100, rng=srng, gate=gate)
@@ -165,4 +203,6 @@ def _ml(x: np.ndarray, info: np.ndarray) -> np.ndarray:
 
 def _ml_batch(x: np.ndarray, info: np.ndarray, members: np.ndarray) -> np.ndarray:
     m = members[..., None, None]
-    return np.linalg.solve((info * m).sum(1), np.einsum("bnij,bnj->bi", info * m, x)[..., None])[..., 0]
+    return np.linalg.solve((info * m).sum(1), np.einsum("bnij,bnj->bi", info * m, x)[..., None])[
+        ..., 0
+    ]

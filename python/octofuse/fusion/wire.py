@@ -81,22 +81,38 @@ class Message:
 
     def encode(self) -> bytes:
         """The message as one frame of bytes."""
-        names = b"".join(_name(v, f) for f, v in (("fleet", self.fleet), ("rule", self.rule),
-                                                    ("sender", self.sender),
-                                                    ("receiver", self.receiver)))
+        names = b"".join(
+            _name(v, f)
+            for f, v in (
+                ("fleet", self.fleet),
+                ("rule", self.rule),
+                ("sender", self.sender),
+                ("receiver", self.receiver),
+            )
+        )
         for field, v in (("seq", self.seq), ("ack", self.ack)):
             if not 0 <= v < 2**64:
                 raise ValueError(f"message {field} = {v}: expected 0 to 2**64 - 1")
         if len(self.payload) >= 2**32:
             raise ValueError(f"message payload of {len(self.payload)} bytes: expected under 4 GiB")
-        head = _FIXED.pack(MAGIC, VERSION, int(self.kind), int(self.encoding), 0, self.seq,
-                           self.ack, len(self.payload), 0)
+        head = _FIXED.pack(
+            MAGIC,
+            VERSION,
+            int(self.kind),
+            int(self.encoding),
+            0,
+            self.seq,
+            self.ack,
+            len(self.payload),
+            0,
+        )
         crc = zlib.crc32(self.payload, zlib.crc32(names, zlib.crc32(head[:_CRC_AT])))
         return b"".join((head[:_CRC_AT], struct.pack("<I", crc), names, self.payload))
 
 
-def decode(frame: bytes | bytearray | memoryview,
-           max_payload: int = DEFAULT_MAX_PAYLOAD) -> Message:
+def decode(
+    frame: bytes | bytearray | memoryview, max_payload: int = DEFAULT_MAX_PAYLOAD
+) -> Message:
     """The message of one frame; :class:`WireError` if it is not a well-formed message."""
     view = memoryview(frame)
     if len(view) < HEADER_BYTES:
@@ -107,11 +123,15 @@ def decode(frame: bytes | bytearray | memoryview,
     if version != VERSION:
         raise WireError(f"message version {version}: this octofuse reads version {VERSION}")
     if kind not in Kind._value2member_map_:
-        raise WireError(f"message kind {kind}: expected one of "
-                        f"{', '.join(f'{k.value} ({k.name})' for k in Kind)}")
+        raise WireError(
+            f"message kind {kind}: expected one of "
+            f"{', '.join(f'{k.value} ({k.name})' for k in Kind)}"
+        )
     if encoding not in Encoding._value2member_map_:
-        raise WireError(f"payload encoding {encoding}: expected one of "
-                        f"{', '.join(f'{e.value} ({e.name})' for e in Encoding)}")
+        raise WireError(
+            f"payload encoding {encoding}: expected one of "
+            f"{', '.join(f'{e.value} ({e.name})' for e in Encoding)}"
+        )
     if reserved:
         raise WireError(f"reserved header bytes are {reserved}: expected 0")
     if length > max_payload:
@@ -121,7 +141,7 @@ def decode(frame: bytes | bytearray | memoryview,
         if at >= len(view):
             raise WireError(f"frame truncated in the {field} name")
         n = view[at]
-        text = bytes(view[at + 1:at + 1 + n])
+        text = bytes(view[at + 1 : at + 1 + n])
         if len(text) != n:
             raise WireError(f"frame truncated in the {field} name")
         try:
@@ -174,8 +194,11 @@ def encode_layers(layers: list[LayerBlob]) -> bytes:
                 raise ValueError(f"layer {field} = {v}: expected 0 to 2**64 - 1")
         if x.held and x.data:
             raise ValueError(f"layer {x.source!r}: a version without a map carries no data")
-        out += [_name(x.source, "layer source"),
-                _LAYER.pack(x.version, x.base, int(x.held), len(x.data)), x.data]
+        out += [
+            _name(x.source, "layer source"),
+            _LAYER.pack(x.version, x.base, int(x.held), len(x.data)),
+            x.data,
+        ]
     return b"".join(out)
 
 
@@ -189,7 +212,7 @@ def decode_layers(payload: bytes | bytearray | memoryview) -> list[LayerBlob]:
         if at >= len(view):
             raise WireError(f"layers payload truncated at layer {k} of {n}")
         size = view[at]
-        text = bytes(view[at + 1:at + 1 + size])
+        text = bytes(view[at + 1 : at + 1 + size])
         at += 1 + size
         if len(text) != size or at + _LAYER.size > len(view):
             raise WireError(f"layers payload truncated at layer {k} of {n}")
@@ -203,7 +226,7 @@ def decode_layers(payload: bytes | bytearray | memoryview) -> list[LayerBlob]:
             raise WireError(f"layer {k}: flags {flags} with {length} bytes of map")
         if at + length > len(view):
             raise WireError(f"layers payload truncated in layer {k}'s map")
-        out.append(LayerBlob(source, version, base, bytes(view[at:at + length]), bool(flags)))
+        out.append(LayerBlob(source, version, base, bytes(view[at : at + length]), bool(flags)))
         at += length
     if at != len(view):
         raise WireError(f"layers payload has {len(view) - at} bytes after its {n} layers")

@@ -29,9 +29,9 @@ import os
 import queue
 import time
 from collections import defaultdict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional
 
 import numpy as np
 
@@ -69,17 +69,26 @@ class LiveAgent:
     """Agent ``name`` of the fleet ``cfg`` under ``rule`` (one of ``cfg.fuse.rules``; each
     rule's agents are a fleet of their own, on ports of their own)."""
 
-    def __init__(self, cfg: FleetConfig, name: str, rule: str, out: Path,
-                 log: Callable[[str], None] = lambda _m: None):
+    def __init__(
+        self,
+        cfg: FleetConfig,
+        name: str,
+        rule: str,
+        out: Path,
+        log: Callable[[str], None] = lambda _m: None,
+    ):
         if rule not in cfg.fuse.rules:
-            raise ValueError(f"rule '{rule}' is not one of the fleet's: "
-                             f"{', '.join(cfg.fuse.rules)}")
+            raise ValueError(
+                f"rule '{rule}' is not one of the fleet's: {', '.join(cfg.fuse.rules)}"
+            )
         self.cfg, self.name, self.live, self.log = cfg, name, cfg.live, log
         self.rule, self.rule_index = rule, cfg.fuse.rules.index(rule)
         names = [a.name for a in cfg.build.agents]
         if name not in names:
-            raise ValueError(f"agent '{name}' is not in the fleet: its agents are "
-                             f"{', '.join(names) or 'none (build.agents is empty)'}")
+            raise ValueError(
+                f"agent '{name}' is not in the fleet: its agents are "
+                f"{', '.join(names) or 'none (build.agents is empty)'}"
+            )
         self.names, self.index = names, names.index(name)
         graph = make_graph(cfg.fuse.topology, len(names), seed=cfg.fuse.seed, names=names)
         self.graph = graph
@@ -113,8 +122,9 @@ class LiveAgent:
     def compose(self, receiver: str) -> bytes:
         """The frame for ``receiver`` now."""
         f = self.cfg.fuse
-        msg = self.agent.compose(receiver, delta=f.delta,
-                                 reliable=f.loss == 0 and not self.live.faults.any)
+        msg = self.agent.compose(
+            receiver, delta=f.delta, reliable=f.loss == 0 and not self.live.faults.any
+        )
         self.counts.sent += 1
         self.counts.bytes_sent += message_bytes(msg.payload)
         self.counts.sent_32b += 32 * msg.payload.num_leaves
@@ -134,9 +144,11 @@ class LiveAgent:
             self.counts.refused["not for this link"] += 1
             return False
         self.counts.bytes_received += message_bytes(msg.payload)
-        moved = (self.frames.to_receiver(sender, self.name, msg.payload,
-                                         self.agent.map.resolution)
-                 if self.frames.active else None)  # a fleet's maps share one frame for now
+        moved = (
+            self.frames.to_receiver(sender, self.name, msg.payload, self.agent.map.resolution)
+            if self.frames.active
+            else None
+        )  # a fleet's maps share one frame for now
         if not self.agent.deliver(msg, unknown=self.cfg.fuse.unknown, moved=moved):
             self.counts.refused["old or repeated"] += 1
             return False
@@ -156,13 +168,13 @@ class LiveAgent:
             if resume and ckpt.is_file():
                 self.local, progress = checkpoint.restore(ckpt, self.agent, epoch)
                 self.counts.restarts = epoch - 1
-                self.log(f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s "
-                         f"(start {epoch})")
+                self.log(
+                    f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s (start {epoch})"
+                )
             transport = self._open()
             try:
                 transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
-                scans = (s for i, s in enumerate(prefetch(src.scans()))
-                         if i >= progress["scans"])
+                scans = (s for i, s in enumerate(prefetch(src.scans())) if i >= progress["scans"])
                 timed = [(t, g) for t, g in timed if t > progress["t"]]
                 if live.lockstep:
                     self._lockstep(transport, scans, timed, start, progress)
@@ -184,19 +196,22 @@ class LiveAgent:
         timed = self._exchange_times(0, int(duration * 1e9))
         progress = {"t": -1.0, "scans": 0}
         transport = self._open(announce=False)
-        feed = BridgedScans(transport.session, cfg.build.agents[self.index].topic, scan_type,
-                            cfg.build)
+        feed = BridgedScans(
+            transport.session, cfg.build.agents[self.index].topic, scan_type, cfg.build
+        )
         transport.announce()  # listening for scans too: a bridge may start
         try:
             transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
             t0 = time.monotonic()
-            links = FaultyLinks(live.faults, self.name, self.index, transport.put,
-                                lambda: time.monotonic() - t0)
+            links = FaultyLinks(
+                live.faults, self.name, self.index, transport.put, lambda: time.monotonic() - t0
+            )
             self.faults = links.counts
             for t, group in [*timed, (duration, [])]:
                 while time.monotonic() - t0 < t:
-                    self._insert(feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))),
-                                 progress)
+                    self._insert(
+                        feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))), progress
+                    )
                     self.queued = feed.backlog()
                     self._drain(transport, until=time.monotonic())
                 self._exchange(group, _through(transport, links), transport, t, progress)
@@ -212,8 +227,9 @@ class LiveAgent:
     def _exchange_times(self, start_ns: int, end_ns: int) -> list:
         """The schedule's groups of simultaneous exchanges, ``(mission time, group)``, of a
         mission from ``start_ns`` to ``end_ns``."""
-        duration, events = mission_events(parse_schedule(self.cfg.fuse.schedule), self.graph,
-                                          self.cfg.fuse, start_ns, end_ns)
+        duration, events = mission_events(
+            parse_schedule(self.cfg.fuse.schedule), self.graph, self.cfg.fuse, start_ns, end_ns
+        )
         return [(t, g) for t, kind, g in moments(events, duration, 0) if kind == EXCHANGE]
 
     def _exchange(self, group, send, transport, t: float, progress: dict) -> None:
@@ -236,8 +252,14 @@ class LiveAgent:
         """This agent's Zenoh session, listening on its endpoint, connected to its neighbours'."""
         live = self.live
         connect = [endpoint(live, self._port_index(n)) for n in self.neighbours]
-        return ZenohTransport(live, self.rule, self.name,
-                              endpoint(live, self._port_index(self.name)), connect, announce)
+        return ZenohTransport(
+            live,
+            self.rule,
+            self.name,
+            endpoint(live, self._port_index(self.name)),
+            connect,
+            announce,
+        )
 
     def _port_index(self, name: str) -> int:
         """Agent ``name``'s port offset: one port per agent and rule."""
@@ -245,8 +267,9 @@ class LiveAgent:
 
     def _insert(self, batch: list, progress: dict) -> None:
         if batch:
-            insert_scans(batch, [[*self.agent.scan_targets(), self.local]] * len(batch), 1,
-                         self.insert_mode)
+            insert_scans(
+                batch, [[*self.agent.scan_targets(), self.local]] * len(batch), 1, self.insert_mode
+            )
             self.counts.scans += len(batch)
             progress["scans"] += len(batch)
             batch.clear()
@@ -297,8 +320,10 @@ class LiveAgent:
                 except queue.Empty:
                     pass
             if item is None:
-                raise TimeoutError(f"agent {self.name}: no message from {sender} within "
-                                   f"{self.live.timeout:g} s (lockstep)")
+                raise TimeoutError(
+                    f"agent {self.name}: no message from {sender} within "
+                    f"{self.live.timeout:g} s (lockstep)"
+                )
             self.pending[item[0]].append(item[1])
         return self.pending[sender].popleft()
 
@@ -339,7 +364,7 @@ class LiveAgent:
                     transport.send(n, self.compose(n))
             self._drain(transport, until=time.monotonic() + 0.5)
 
-    def _drain(self, transport, until: Optional[float], done: Optional[list] = None) -> None:
+    def _drain(self, transport, until: float | None, done: list | None = None) -> None:
         """Apply what arrives until the monotonic time ``until``; with None, until every agent
         of ``done`` has finished and nothing has arrived for a second."""
         deadline = time.monotonic() + self.live.timeout
@@ -349,8 +374,10 @@ class LiveAgent:
                 return
             if until is None and time.monotonic() > deadline:
                 late = ", ".join(transport.running(done or []))
-                raise TimeoutError(f"agent {self.name}: neighbours still running after "
-                                   f"{self.live.timeout:g} s: {late}")
+                raise TimeoutError(
+                    f"agent {self.name}: neighbours still running after "
+                    f"{self.live.timeout:g} s: {late}"
+                )
             try:
                 sender, frame = transport.inbox.get(timeout=max(wait, 0.0))
             except queue.Empty:
@@ -365,7 +392,7 @@ class LiveAgent:
 
         return clamped(self.agent.map) if self.agent.exact else self.agent.map
 
-    def _publish_map(self, transport, scored: Optional[OccupancyMap] = None) -> None:
+    def _publish_map(self, transport, scored: OccupancyMap | None = None) -> None:
         """The fused map (as scored) as ROS 2 sees it behind a bridge, and as a viewer does."""
         from ..outputs.rosbag_export import _header, occupied_cloud, octomap_message, typestore
 
@@ -373,23 +400,40 @@ class LiveAgent:
         ts = typestore(ros1=False)
         header = _header(ts, time.time_ns(), self.cfg.build.fixed_frame)
         rule = self.rule if len(self.cfg.fuse.rules) > 1 else None
-        transport.publish(keys.fused_map(self.name, rule), bytes(ts.serialize_cdr(
-            octomap_message(ts, scored, header), "octomap_msgs/msg/Octomap")))
-        transport.publish(keys.occupied_cloud(self.name, rule), bytes(ts.serialize_cdr(
-            occupied_cloud(ts, scored, header), "sensor_msgs/msg/PointCloud2")))
+        transport.publish(
+            keys.fused_map(self.name, rule),
+            bytes(
+                ts.serialize_cdr(octomap_message(ts, scored, header), "octomap_msgs/msg/Octomap")
+            ),
+        )
+        transport.publish(
+            keys.occupied_cloud(self.name, rule),
+            bytes(
+                ts.serialize_cdr(occupied_cloud(ts, scored, header), "sensor_msgs/msg/PointCloud2")
+            ),
+        )
         self._published = time.monotonic()
 
     def _status(self, transport, t: float) -> None:
         if self.live.map_period and time.monotonic() - self._published >= self.live.map_period:
             self._publish_map(transport)
-        transport.publish_status({"agent": self.name, "rule": self.rule, "t": round(t, 3),
-                                  "scans": self.counts.scans, "sent": self.counts.sent,
-                                  "applied": self.counts.applied,
-                                  "refused": sum(self.counts.refused.values()),
-                                  "behind": self.counts.behind, "queued": self.queued,
-                                  "links": {n: {"seq": l.seq & 0xFFFFFFFF,
-                                                "applied": l.applied & 0xFFFFFFFF}
-                                            for n, l in self.agent.links.items()}})
+        transport.publish_status(
+            {
+                "agent": self.name,
+                "rule": self.rule,
+                "t": round(t, 3),
+                "scans": self.counts.scans,
+                "sent": self.counts.sent,
+                "applied": self.counts.applied,
+                "refused": sum(self.counts.refused.values()),
+                "behind": self.counts.behind,
+                "queued": self.queued,
+                "links": {
+                    n: {"seq": l.seq & 0xFFFFFFFF, "applied": l.applied & 0xFFFFFFFF}
+                    for n, l in self.agent.links.items()
+                },
+            }
+        )
 
     def _finish(self, transport) -> None:
         """Write the final state and publish the fused map."""
@@ -403,14 +447,26 @@ class LiveAgent:
             np.savez(f, values=values, depths=depths)
         c = self.counts
         with checkpoint.written(self.out / "counts.json") as f:
-            f.write(json.dumps({
-                "scans": c.scans, "sent": c.sent, "applied": c.applied, "refused": dict(c.refused),
-                "bytes_sent": c.bytes_sent, "bytes_received": c.bytes_received,
-                "sent_32b": c.sent_32b, "behind": c.behind, "restarts": c.restarts,
-                "chunks_over_bound": transport.dropped, "chunks_refused": transport.chunks_refused,
-                "faults": dict(self.faults),
-                "peak_rss": resident_memory()[2],
-                "cpu_s": sum(os.times()[:2])}).encode())
+            f.write(
+                json.dumps(
+                    {
+                        "scans": c.scans,
+                        "sent": c.sent,
+                        "applied": c.applied,
+                        "refused": dict(c.refused),
+                        "bytes_sent": c.bytes_sent,
+                        "bytes_received": c.bytes_received,
+                        "sent_32b": c.sent_32b,
+                        "behind": c.behind,
+                        "restarts": c.restarts,
+                        "chunks_over_bound": transport.dropped,
+                        "chunks_refused": transport.chunks_refused,
+                        "faults": dict(self.faults),
+                        "peak_rss": resident_memory()[2],
+                        "cpu_s": sum(os.times()[:2]),
+                    }
+                ).encode()
+            )
         self._publish_map(transport, scored)
 
 
@@ -424,4 +480,3 @@ def _own_build(cfg: FleetConfig, index: int):
     from dataclasses import replace
 
     return replace(cfg.build, agents=[cfg.build.agents[index]])
-

@@ -23,8 +23,10 @@ from ..scans.tf import TransformBuffer, TransformError
 from . import keys
 
 #: the message types a scan topic may carry, by the name ``--scan-type`` gives them
-SCAN_TYPES = {"pointcloud2": "sensor_msgs/msg/PointCloud2",
-              "laserscan": "sensor_msgs/msg/LaserScan"}
+SCAN_TYPES = {
+    "pointcloud2": "sensor_msgs/msg/PointCloud2",
+    "laserscan": "sensor_msgs/msg/LaserScan",
+}
 TF = "tf2_msgs/msg/TFMessage"
 
 
@@ -32,8 +34,7 @@ class BridgedScans:
     """Scans of ``topic`` (of type ``scan_type``) and the transforms of ``tf``/``tf_static``
     from a Zenoh session, placed in ``cfg.fixed_frame``."""
 
-    def __init__(self, session, topic: str, scan_type: str, cfg: BuildConfig,
-                 wait_s: float = 2.0):
+    def __init__(self, session, topic: str, scan_type: str, cfg: BuildConfig, wait_s: float = 2.0):
         from rosbags.typesys import Stores, get_typestore
 
         if scan_type not in SCAN_TYPES:
@@ -42,12 +43,18 @@ class BridgedScans:
         self.ts = get_typestore(Stores.LATEST)
         self.tf = TransformBuffer()
         self.skipped: Counter = Counter()
-        self._arrivals: "queue.Queue[tuple[str, bytes]]" = queue.Queue()
+        self._arrivals: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self._waiting: deque = deque()  # (arrival time, message) of scans without a pose yet
-        self._subs = [session.declare_subscriber(
-            key, lambda s, kind=kind: self._arrivals.put((kind, s.payload.to_bytes())))
-            for kind, key in (("scan", keys.ros_topic_key(topic)), ("tf", "tf"),
-                              ("tf_static", "tf_static"))]
+        self._subs = [
+            session.declare_subscriber(
+                key, lambda s, kind=kind: self._arrivals.put((kind, s.payload.to_bytes()))
+            )
+            for kind, key in (
+                ("scan", keys.ros_topic_key(topic)),
+                ("tf", "tf"),
+                ("tf_static", "tf_static"),
+            )
+        ]
 
     def take(self, timeout: float) -> list[Scan]:
         """The scans placed within ``timeout`` seconds (waiting for the first arrival)."""
@@ -92,11 +99,11 @@ class BridgedScans:
                 continue
             self._waiting.popleft()
             points, max_range = decode_scan(msg, self.cfg)
-            out.append(Scan(0, stamp, np.ascontiguousarray(points, dtype=np.float64), pose,
-                            max_range))
+            out.append(
+                Scan(0, stamp, np.ascontiguousarray(points, dtype=np.float64), pose, max_range)
+            )
         return out
 
     def close(self) -> None:
         for s in self._subs:
             s.undeclare()
-

@@ -19,7 +19,7 @@ import os
 import pickle
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO, Optional
+from typing import BinaryIO
 
 from ..fusion.agent import Agent
 from ..fusion.channel_filter import open_map
@@ -28,11 +28,11 @@ from ..maps.occupancy import OccupancyMap
 VERSION = 1
 
 
-def _stream(m: Optional[OccupancyMap]) -> Optional[bytes]:
+def _stream(m: OccupancyMap | None) -> bytes | None:
     return None if m is None else m.to_bytes()
 
 
-def _map(data: Optional[bytes], exact: bool) -> Optional[OccupancyMap]:
+def _map(data: bytes | None, exact: bool) -> OccupancyMap | None:
     if data is None:
         return None
     m = OccupancyMap.from_bytes(data, "checkpoint")
@@ -58,11 +58,16 @@ def save(path: Path, agent: Agent, local: OccupancyMap, progress: dict) -> None:
     """Write ``agent``'s state, its own map ``local`` and ``progress`` (plain data) to
     ``path`` atomically."""
     state = {
-        "version": VERSION, "name": agent.name, "rule": agent.rule, "progress": progress,
-        "map": agent.map.to_bytes(), "local": local.to_bytes(),
-        "links": {n: {"seq": link.seq, "applied": link.applied,
-                      "received": _stream(link.received)}
-                  for n, link in agent.links.items()},
+        "version": VERSION,
+        "name": agent.name,
+        "rule": agent.rule,
+        "progress": progress,
+        "map": agent.map.to_bytes(),
+        "local": local.to_bytes(),
+        "links": {
+            n: {"seq": link.seq, "applied": link.applied, "received": _stream(link.received)}
+            for n, link in agent.links.items()
+        },
         "layers": _layers_state(agent.layers) if agent.layers is not None else None,
     }
     with written(path, fsync=True) as f:
@@ -82,8 +87,10 @@ def restore(path: Path, agent: Agent, epoch: int) -> tuple[OccupancyMap, dict]:
     if not isinstance(state, dict) or state.get("version") != VERSION:
         raise ValueError(f"checkpoint '{path}': not an octofuse checkpoint of version {VERSION}")
     if (state["name"], state["rule"]) != (agent.name, agent.rule):
-        raise ValueError(f"checkpoint '{path}' is agent {state['name']}'s under {state['rule']}, "
-                         f"not {agent.name}'s under {agent.rule}")
+        raise ValueError(
+            f"checkpoint '{path}' is agent {state['name']}'s under {state['rule']}, "
+            f"not {agent.name}'s under {agent.rule}"
+        )
     exact = agent.exact
     agent.map = _map(state["map"], exact)
     agent.reset_loss()
@@ -103,11 +110,14 @@ def restore(path: Path, agent: Agent, epoch: int) -> tuple[OccupancyMap, dict]:
 def _layers_state(layers) -> dict:
     """Source layers as plain data: every layer's version and map, the own layer, the
     remainder of folded layers."""
-    return {"own": layers.own.to_bytes(), "own_version": layers.own_version,
-            "heard": layers.heard, "folded": dict(layers.folded),
-            "remainder": _stream(layers.remainder),
-            "layers": {src: (x.version, x.map.to_bytes(), x.heard)
-                       for src, x in layers.layers.items()}}
+    return {
+        "own": layers.own.to_bytes(),
+        "own_version": layers.own_version,
+        "heard": layers.heard,
+        "folded": dict(layers.folded),
+        "remainder": _stream(layers.remainder),
+        "layers": {src: (x.version, x.map.to_bytes(), x.heard) for src, x in layers.layers.items()},
+    }
 
 
 def _restore_layers(agent: Agent, saved: dict, epoch: int) -> None:
@@ -120,8 +130,10 @@ def _restore_layers(agent: Agent, saved: dict, epoch: int) -> None:
     layers.fused = agent.map
     layers.heard, layers.folded = saved["heard"], dict(saved["folded"])
     layers.remainder = _map(saved["remainder"], True)
-    layers.layers = {src: Layer(version, _map(data, True), heard)
-                     for src, (version, data, heard) in saved["layers"].items()}
+    layers.layers = {
+        src: Layer(version, _map(data, True), heard)
+        for src, (version, data, heard) in saved["layers"].items()
+    }
     layers.own_version = max(saved["own_version"], epoch << 32)
 
 

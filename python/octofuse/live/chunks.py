@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import struct
 from collections import OrderedDict
-from typing import Optional
 
 MAGIC = b"OFC"
 VERSION = 1
@@ -38,10 +37,13 @@ def split(frame: bytes, number: int, max_bytes: int) -> list[bytes]:
         raise ValueError(f"chunks of {max_bytes} bytes: expected more than {HEAD_BYTES}")
     count = max(1, -(-len(frame) // room))
     if count > 0xFFFF:
-        raise ValueError(f"a message of {len(frame)} bytes needs {count} chunks of {max_bytes} "
-                         "bytes: over 65535")
-    return [_HEAD.pack(MAGIC, VERSION, number, k, count, len(frame)) + frame[k * room:(k + 1) * room]
-            for k in range(count)]
+        raise ValueError(
+            f"a message of {len(frame)} bytes needs {count} chunks of {max_bytes} bytes: over 65535"
+        )
+    return [
+        _HEAD.pack(MAGIC, VERSION, number, k, count, len(frame)) + frame[k * room : (k + 1) * room]
+        for k in range(count)
+    ]
 
 
 class Reassembler:
@@ -52,7 +54,7 @@ class Reassembler:
         self.dropped = 0  #: chunks refused (malformed, inconsistent, too big)
         self._open: dict[str, OrderedDict] = {}  # sender -> number -> (count, length, parts)
 
-    def add(self, sender: str, chunk: bytes) -> Optional[bytes]:
+    def add(self, sender: str, chunk: bytes) -> bytes | None:
         """The whole message this chunk completes, or None."""
         if len(chunk) < HEAD_BYTES:
             self.dropped += 1

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -17,8 +17,14 @@ class FaultyLinks:
     ``put(receiver, chunk)``; ``now()`` gives the mission time (seconds) the partitions'
     timetable is read in. :attr:`counts` says what was done."""
 
-    def __init__(self, faults: FaultConfig, name: str, index: int,
-                 put: Callable[[str, bytes], None], now: Callable[[], float]):
+    def __init__(
+        self,
+        faults: FaultConfig,
+        name: str,
+        index: int,
+        put: Callable[[str, bytes], None],
+        now: Callable[[], float],
+    ):
         self.faults, self.name, self._send, self._now = faults, name, put, now
         self.rng = np.random.default_rng([faults.seed, index])
         self.held: dict[str, bytes] = {}  # per receiver, a frame to send after the next one
@@ -27,8 +33,10 @@ class FaultyLinks:
 
     def cut_off(self, receiver: str, t: float) -> bool:
         """Whether a partition separates this agent from ``receiver`` at time ``t``."""
-        return any(p.start <= t < p.end and (self.name in p.agents) != (receiver in p.agents)
-                   for p in self.faults.partitions)
+        return any(
+            p.start <= t < p.end and (self.name in p.agents) != (receiver in p.agents)
+            for p in self.faults.partitions
+        )
 
     def send(self, receiver: str, frame: bytes) -> None:
         """One chunk (or any frame) through the faults."""

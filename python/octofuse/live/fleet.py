@@ -17,9 +17,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Optional
 
 import numpy as np
 
@@ -68,8 +68,14 @@ def resolved(cfg: FleetConfig) -> FleetConfig:
     return replace(cfg, build=replace(cfg.build, agents=agents), live=live)
 
 
-def run_fleet(cfg: FleetConfig, stage: Path, *, log: Callable[[str], None] = print,
-              truth=None, status_every: float = 5.0) -> SimResult:
+def run_fleet(
+    cfg: FleetConfig,
+    stage: Path,
+    *,
+    log: Callable[[str], None] = print,
+    truth=None,
+    status_every: float = 5.0,
+) -> SimResult:
     """Launch the fleet of ``cfg`` (agents resolved: :func:`resolved`), wait for it, and return
     its result with the scores of ``octofuse run``. Logs and maps go below ``stage``."""
     names = [a.name for a in cfg.build.agents]
@@ -87,11 +93,28 @@ def run_fleet(cfg: FleetConfig, stage: Path, *, log: Callable[[str], None] = pri
             for name in names:
                 with open(logs / f"{rule}-{name}.log", "wb") as out:
                     procs[rule, name] = subprocess.Popen(
-                        [sys.executable, "-m", "octofuse", "agent", name, "--fleet",
-                         str(fleet_file), "--rule", rule, "--out", str(agents_dir), "--fresh"],
-                        stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-        log(f"fleet {cfg.live.fleet}: {len(procs)} agent process(es), {len(names)} robots x "
-            f"{len(rules)} rule(s), Zenoh on {endpoint(cfg.live, 0)} and up")
+                        [
+                            sys.executable,
+                            "-m",
+                            "octofuse",
+                            "agent",
+                            name,
+                            "--fleet",
+                            str(fleet_file),
+                            "--rule",
+                            rule,
+                            "--out",
+                            str(agents_dir),
+                            "--fresh",
+                        ],
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                        stdin=subprocess.DEVNULL,
+                    )
+        log(
+            f"fleet {cfg.live.fleet}: {len(procs)} agent process(es), {len(names)} robots x "
+            f"{len(rules)} rule(s), Zenoh on {endpoint(cfg.live, 0)} and up"
+        )
         built = build(cfg.build)  # the centralized map and the robots' own maps, meanwhile
         _wait(procs, logs, log, status, status_every)
     finally:
@@ -112,9 +135,11 @@ def _wait(procs, logs: Path, log, status: dict, every: float) -> None:
         if failed:
             rule, name = failed[0]
             tail = (logs / f"{rule}-{name}.log").read_text(errors="replace").strip().splitlines()
-            raise FleetError(f"agent {name} ({rule}) exited with code "
-                             f"{procs[failed[0]].returncode}: {tail[-1] if tail else 'no output'} "
-                             f"(log: {logs / f'{rule}-{name}.log'})")
+            raise FleetError(
+                f"agent {name} ({rule}) exited with code "
+                f"{procs[failed[0]].returncode}: {tail[-1] if tail else 'no output'} "
+                f"(log: {logs / f'{rule}-{name}.log'})"
+            )
         if not running:
             return
         if time.monotonic() >= next_report:
@@ -130,8 +155,10 @@ def progress_line(status: dict) -> str:
     parts = []
     for (rule, name), s in sorted(status.items()):
         links = " ".join(f"{n}:{v['seq']}/{v['applied']}" for n, v in sorted(s["links"].items()))
-        parts.append(f"{name}[{rule}] t={s['t']:.1f} scans={s['scans']} sent={s['sent']} "
-                     f"applied={s['applied']} refused={s['refused']} links(sent/applied) {links}")
+        parts.append(
+            f"{name}[{rule}] t={s['t']:.1f} scans={s['scans']} sent={s['sent']} "
+            f"applied={s['applied']} refused={s['refused']} links(sent/applied) {links}"
+        )
     return "fleet: " + "; ".join(parts)
 
 
@@ -143,8 +170,9 @@ def _watch_status(cfg: FleetConfig, names: list[str], status: dict):
     from .transport import zenoh_config
 
     n = len(names) * len(cfg.fuse.rules)
-    session = zenoh.open(zenoh_config(cfg.live, endpoint(cfg.live, n),
-                                      [endpoint(cfg.live, k) for k in range(n)]))
+    session = zenoh.open(
+        zenoh_config(cfg.live, endpoint(cfg.live, n), [endpoint(cfg.live, k) for k in range(n)])
+    )
     lock = threading.Lock()
 
     def on_status(sample) -> None:
@@ -165,8 +193,9 @@ def _watch_status(cfg: FleetConfig, names: list[str], status: dict):
     return Watcher()
 
 
-def _collect(cfg: FleetConfig, names, rules, agents_dir: Path, built, truth,
-             wall: float) -> SimResult:
+def _collect(
+    cfg: FleetConfig, names, rules, agents_dir: Path, built, truth, wall: float
+) -> SimResult:
     """The fleet's result: every agent's final map, loss leaves and traffic, scored."""
     graph, _, events = run_schedule(cfg.fuse, names, built.start_ns, built.end_ns)
     fused, leaves, traffic = {}, {}, {}
@@ -183,16 +212,26 @@ def _collect(cfg: FleetConfig, names, rules, agents_dir: Path, built, truth,
             tr.received[a] += counts["bytes_received"]
             tr.sent_32b[a] += counts["sent_32b"]
             tr.messages += counts["sent"]
-    res = SimResult(names, rules, graph, events, built.centralized, built.maps, fused,
-                    {r: {a: InfoLossMap(cfg.build.map.resolution) for a in names} for r in rules},
-                    traffic, build_stats=built.stats, build_notes=built.notes,
-                    loss_leaves=leaves)
+    res = SimResult(
+        names,
+        rules,
+        graph,
+        events,
+        built.centralized,
+        built.maps,
+        fused,
+        {r: {a: InfoLossMap(cfg.build.map.resolution) for a in names} for r in rules},
+        traffic,
+        build_stats=built.stats,
+        build_notes=built.notes,
+        loss_leaves=leaves,
+    )
     res.timings["fleet (wall)"] = wall
     res.scores = score_result(res, cfg.fuse.overconfidence_tol, truth, cfg.build.workers)
     return res
 
 
-def agent_counts(agents_dir: Path, rule: str, name: str) -> Optional[dict]:
+def agent_counts(agents_dir: Path, rule: str, name: str) -> dict | None:
     """What agent ``name`` of ``rule`` wrote of its counts, if it finished."""
     p = Path(agents_dir) / rule / name / "counts.json"
     return json.loads(p.read_text()) if p.is_file() else None

@@ -64,5 +64,8 @@ def fused_map(agent: str, rule: str | None = None) -> str:
 
 
 def occupied_cloud(agent: str, rule: str | None = None) -> str:
-    return (f"{agent}/{rule}/octomap_point_cloud_centers" if rule
-            else f"{agent}/octomap_point_cloud_centers")
+    return (
+        f"{agent}/{rule}/octomap_point_cloud_centers"
+        if rule
+        else f"{agent}/octomap_point_cloud_centers"
+    )

@@ -37,12 +37,14 @@ def zenoh_config(live: LiveConfig, listen: str, connect: list[str]):
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     if live.tls_root_ca:
-        tls = {"root_ca_certificate": live.tls_root_ca,
-               "listen_certificate": live.tls_certificate,
-               "listen_private_key": live.tls_private_key,
-               "connect_certificate": live.tls_certificate,
-               "connect_private_key": live.tls_private_key,
-               "enable_mtls": True}
+        tls = {
+            "root_ca_certificate": live.tls_root_ca,
+            "listen_certificate": live.tls_certificate,
+            "listen_private_key": live.tls_private_key,
+            "connect_certificate": live.tls_certificate,
+            "connect_private_key": live.tls_private_key,
+            "enable_mtls": True,
+        }
         for k, v in tls.items():
             c.insert_json5(f"transport/link/tls/{k}", json.dumps(v))
     if live.user:
@@ -59,12 +61,19 @@ class ZenohTransport:
     ``inbox`` holds ``(sender, frame)`` in arrival order; :meth:`wait_for` returns
     once every neighbour has declared it listens."""
 
-    def __init__(self, live: LiveConfig, rule: str, name: str, listen: str,
-                 connect: list[str], announce: bool = True):
+    def __init__(
+        self,
+        live: LiveConfig,
+        rule: str,
+        name: str,
+        listen: str,
+        connect: list[str],
+        announce: bool = True,
+    ):
         import zenoh
 
         self.live, self.rule, self.name = live, rule, name
-        self.inbox: "queue.Queue[tuple[str, bytes]]" = queue.Queue()
+        self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.dropped = 0  #: chunks over the size bound
         self._number = 0  # this agent's messages, numbered for their chunks
         self._chunks = Reassembler(live.max_message_bytes)
@@ -78,17 +87,20 @@ class ZenohTransport:
             raise OSError(f"agent {name}: Zenoh cannot listen on {listen}: {reason}") from None
         self._publishers: dict[str, object] = {}
         self._subscriber = self.session.declare_subscriber(
-            keys.inbox(live.fleet, rule, name), self._on_message)
+            keys.inbox(live.fleet, rule, name), self._on_message
+        )
         prefix = keys.alive(live.fleet, rule, "")
         self._watch = self.session.liveliness().declare_subscriber(
-            prefix + "*", self._on_alive, history=True)
+            prefix + "*", self._on_alive, history=True
+        )
         self._token = None
         if announce:
             self.announce()
         self._done: set[str] = set()
         self._done_token = None
         self._watch_done = self.session.liveliness().declare_subscriber(
-            keys.done(live.fleet, rule, "*"), self._on_done, history=True)
+            keys.done(live.fleet, rule, "*"), self._on_done, history=True
+        )
 
     # -- messages ----------------------------------------------------------------------------
     def send(self, receiver: str, frame: bytes, put=None) -> None:
@@ -107,7 +119,8 @@ class ZenohTransport:
             pub = self._publishers[receiver] = self.session.declare_publisher(
                 keys.message(self.live.fleet, self.rule, receiver, self.name),
                 congestion_control=zenoh.CongestionControl.BLOCK,
-                reliability=zenoh.Reliability.RELIABLE)
+                reliability=zenoh.Reliability.RELIABLE,
+            )
         pub.put(chunk)
 
     def _on_message(self, sample) -> None:
@@ -142,9 +155,11 @@ class ZenohTransport:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     missing = sorted(set(agents) - self._alive)
-                    raise TimeoutError(f"agent {self.name}: no word from {', '.join(missing)} "
-                                       f"within {timeout:g} s (are they running, on the "
-                                       "fleet's endpoints?)")
+                    raise TimeoutError(
+                        f"agent {self.name}: no word from {', '.join(missing)} "
+                        f"within {timeout:g} s (are they running, on the "
+                        "fleet's endpoints?)"
+                    )
                 self._alive_changed.wait(left)
 
     @property
@@ -155,7 +170,8 @@ class ZenohTransport:
     def announce(self) -> None:
         """Say that this agent listens (once every subscriber of its is declared)."""
         self._token = self.session.liveliness().declare_token(
-            keys.alive(self.live.fleet, self.rule, self.name))
+            keys.alive(self.live.fleet, self.rule, self.name)
+        )
 
     def _on_done(self, sample) -> None:
         import zenoh
@@ -166,7 +182,8 @@ class ZenohTransport:
     def declare_done(self) -> None:
         """Say that this agent has sent everything it will."""
         self._done_token = self.session.liveliness().declare_token(
-            keys.done(self.live.fleet, self.rule, self.name))
+            keys.done(self.live.fleet, self.rule, self.name)
+        )
 
     def running(self, agents: list[str]) -> list[str]:
         """The agents of ``agents`` that have not said they are done."""
@@ -177,16 +194,22 @@ class ZenohTransport:
         self.session.put(key, payload)
 
     def publish_status(self, status: dict) -> None:
-        self.session.put(keys.status(self.live.fleet, self.rule, self.name),
-                         json.dumps(status).encode())
+        self.session.put(
+            keys.status(self.live.fleet, self.rule, self.name), json.dumps(status).encode()
+        )
 
     def close(self) -> None:
-        held = (self._token, self._done_token, self._watch, self._watch_done, self._subscriber,
-                *self._publishers.values())
+        held = (
+            self._token,
+            self._done_token,
+            self._watch,
+            self._watch_done,
+            self._subscriber,
+            *self._publishers.values(),
+        )
         for x in (h for h in held if h is not None):
             try:
                 x.undeclare()
             except Exception:  # noqa: BLE001 - the session closes them anyway
                 pass
         self.session.close()
-

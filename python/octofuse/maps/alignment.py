@@ -40,8 +40,16 @@ from .landmarks import _occupied_keys
 ABSTAIN_VARIANCE = 1e6
 
 
-def occupied_points(centers, sizes, values, resolution: float, *, floor_height: float = 0.0,
-                    clearance: float = 0.1, occupied: float = 0.0) -> np.ndarray:
+def occupied_points(
+    centers,
+    sizes,
+    values,
+    resolution: float,
+    *,
+    floor_height: float = 0.0,
+    clearance: float = 0.1,
+    occupied: float = 0.0,
+) -> np.ndarray:
     """Distinct horizontal centres (M, 2) of the occupied finest voxels (log-odds above
     ``occupied``) whose centres lie more than ``clearance`` above ``floor_height``."""
     centers = np.asarray(centers, dtype=float).reshape(-1, 3)
@@ -83,9 +91,17 @@ def _normals(target: np.ndarray, tree, k: int = 8) -> tuple[np.ndarray, np.ndarr
     return v[:, :, 0], w[:, 0] <= 0.25 * np.maximum(w[:, 1], 1e-12)
 
 
-def register(source: np.ndarray, target: np.ndarray, *, pivot=None, initial=(0.0, 0.0, 0.0),
-             gates=(1.0, 0.6, 0.4, 0.25, 0.15), iterations: int = 8, min_pairs: int = 100,
-             inflation: float = 4.0) -> Registration | None:
+def register(
+    source: np.ndarray,
+    target: np.ndarray,
+    *,
+    pivot=None,
+    initial=(0.0, 0.0, 0.0),
+    gates=(1.0, 0.6, 0.4, 0.25, 0.15),
+    iterations: int = 8,
+    min_pairs: int = 100,
+    inflation: float = 4.0,
+) -> Registration | None:
     """Point-to-line ICP of ``source`` (M, 2) onto ``target`` (L, 2), starting at ``initial``.
 
     Pairs are nearest neighbours closer than the current gate; the gate shrinks through
@@ -94,7 +110,10 @@ def register(source: np.ndarray, target: np.ndarray, *, pivot=None, initial=(0.0
     not constrain all three parameters (for example a single straight wall)."""
     from scipy.spatial import cKDTree
 
-    source, target = np.asarray(source, float).reshape(-1, 2), np.asarray(target, float).reshape(-1, 2)
+    source, target = (
+        np.asarray(source, float).reshape(-1, 2),
+        np.asarray(target, float).reshape(-1, 2),
+    )
     if len(source) < min_pairs or len(target) < max(min_pairs, 3):
         return None
     pivot = source.mean(axis=0) if pivot is None else np.asarray(pivot, float)
@@ -126,9 +145,15 @@ def register(source: np.ndarray, target: np.ndarray, *, pivot=None, initial=(0.0
     return Registration(x, 0.5 * (cov + cov.T), int(len(r)), float(np.sqrt(np.mean(r**2))))
 
 
-def neighbour_offset(own: np.ndarray, neighbours, *, floor_xy: float = 0.05,
-                     floor_yaw_deg: float = 1.0, agree: float = 0.999,
-                     **register_options) -> tuple[np.ndarray, np.ndarray, list[int]]:
+def neighbour_offset(
+    own: np.ndarray,
+    neighbours,
+    *,
+    floor_xy: float = 0.05,
+    floor_yaw_deg: float = 1.0,
+    agree: float = 0.999,
+    **register_options,
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """A robot's offset ``(dx, dy, yaw)`` to the majority of its neighbours' maps.
 
     ``own`` (M, 2) is the robot's :func:`occupied_points`, ``neighbours`` a sequence of its
@@ -149,7 +174,9 @@ def neighbour_offset(own: np.ndarray, neighbours, *, floor_xy: float = 0.05,
     if len(own) == 0:
         return abstain
     pivot = own.mean(axis=0)
-    regs = {j: register(own, pts, pivot=pivot, **register_options) for j, pts in enumerate(neighbours)}
+    regs = {
+        j: register(own, pts, pivot=pivot, **register_options) for j, pts in enumerate(neighbours)
+    }
     regs = {j: r for j, r in regs.items() if r is not None}
     limit = chi2.ppf(agree, 3)
 
@@ -160,8 +187,11 @@ def neighbour_offset(own: np.ndarray, neighbours, *, floor_xy: float = 0.05,
     best: list[tuple[int, ...]] = []
     keys = sorted(regs)
     for size in range(len(keys), 1, -1):
-        best = [g for g in combinations(keys, size) if all(agrees(regs[a], regs[b]) for a, b in
-                                                           combinations(g, 2))]
+        best = [
+            g
+            for g in combinations(keys, size)
+            if all(agrees(regs[a], regs[b]) for a, b in combinations(g, 2))
+        ]
         if best:
             break
     if len(best) != 1:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -15,8 +15,12 @@ from .occupancy import OccupancyMap
 from .ray_batches import insert_batch, trace_rays
 
 
-def insert_scans(scans: Sequence[Scan], targets: Sequence[Sequence[OccupancyMap]],
-                 threads: int, mode: str = "exact") -> None:
+def insert_scans(
+    scans: Sequence[Scan],
+    targets: Sequence[Sequence[OccupancyMap]],
+    threads: int,
+    mode: str = "exact",
+) -> None:
     """Insert posed scans into their target maps (``targets[k]`` for ``scans[k]``)."""
     if scans:
         insert_batch(*_scan_arrays(scans), targets, threads, mode)
@@ -30,8 +34,11 @@ def trace_scans(scans: Sequence[Scan], grid: OccupancyMap, threads: int, mode: s
 
 def _scan_arrays(scans: Sequence[Scan]) -> tuple[list, np.ndarray, np.ndarray]:
     """Points, poses and maximum ranges of posed scans, as the core takes them."""
-    return ([s.points for s in scans], np.stack([s.pose for s in scans]),
-            np.array([s.max_range for s in scans]))
+    return (
+        [s.points for s in scans],
+        np.stack([s.pose for s in scans]),
+        np.array([s.max_range for s in scans]),
+    )
 
 
 @dataclass
@@ -44,15 +51,19 @@ class BuildResult:
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)  #: where the time went
     notes: list[str] = field(default_factory=list)  #: skipped transforms and dropped points
-    start_ns: Optional[int] = None  #: the bags' first message (None: no messages)
-    end_ns: Optional[int] = None  #: and their last
+    start_ns: int | None = None  #: the bags' first message (None: no messages)
+    end_ns: int | None = None  #: and their last
 
     def all_maps(self) -> dict[str, OccupancyMap]:
         return {**self.maps, "centralized": self.centralized}
 
 
-def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = None, *,
-          per_scan_transforms: bool = False) -> BuildResult:
+def build(
+    cfg: BuildConfig,
+    progress: Callable[[int, int], None] | None = None,
+    *,
+    per_scan_transforms: bool = False,
+) -> BuildResult:
     """Read the bags and build every agent's map and the centralized map (all scans).
 
     ``progress(done, total)`` is called with the scans inserted so far.
@@ -68,8 +79,9 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
         done = 0
         for batch in prefetch(batched(src.scans(), cfg.batch_size)):
             t0 = time.perf_counter()
-            insert_scans(batch, [(agent_maps[s.agent], central) for s in batch], cfg.workers,
-                         cfg.insert_mode)
+            insert_scans(
+                batch, [(agent_maps[s.agent], central) for s in batch], cfg.workers, cfg.insert_mode
+            )
             dt = time.perf_counter() - t0
             t_insert += dt
             n_pts = sum(len(s.points) for s in batch)
@@ -82,13 +94,20 @@ def build(cfg: BuildConfig, progress: Optional[Callable[[int, int], None]] = Non
         stats, notes = src.stats, src.notes()
         start_ns, end_ns = src.bags.start_ns, src.bags.end_ns
     total = time.perf_counter() - t_start
-    timings = {"insert (C++, GIL released)": t_insert,
-               "read + decode + transforms (overlapped)": sum(s.seconds for s in stats) - t_insert}
+    timings = {
+        "insert (C++, GIL released)": t_insert,
+        "read + decode + transforms (overlapped)": sum(s.seconds for s in stats) - t_insert,
+    }
     return BuildResult(maps, central, stats, total, timings, notes, start_ns, end_ns)
 
 
-def build_maps(bags, agents: Optional[Sequence[AgentSpec | str]] = None, fixed_frame: str = "map",
-               resolution: float = MapConfig.resolution, **options) -> dict[str, OccupancyMap]:
+def build_maps(
+    bags,
+    agents: Sequence[AgentSpec | str] | None = None,
+    fixed_frame: str = "map",
+    resolution: float = MapConfig.resolution,
+    **options,
+) -> dict[str, OccupancyMap]:
     """Build one map per agent and the centralized map from bag files.
 
     Parameters
@@ -121,8 +140,9 @@ def parse_agent(spec: str) -> AgentSpec:
     return AgentSpec(name.strip(), topic.strip())
 
 
-def make_build_config(bags, agents=None, fixed_frame="map", resolution=MapConfig.resolution,
-                      **options) -> BuildConfig:
+def make_build_config(
+    bags, agents=None, fixed_frame="map", resolution=MapConfig.resolution, **options
+) -> BuildConfig:
     """A validated :class:`BuildConfig` from API arguments (what :func:`build_maps` takes)."""
     from ..config import from_dict
 
@@ -130,10 +150,17 @@ def make_build_config(bags, agents=None, fixed_frame="map", resolution=MapConfig
         bags = [bags]
     specs = [parse_agent(a) if isinstance(a, str) else a for a in (agents or [])]
     map_keys = {"prob_hit", "prob_miss", "clamping"}
-    map_cfg = {"resolution": resolution, **{k: options.pop(k) for k in list(options) if k in map_keys}}
-    data = {"bags": [str(b) for b in bags], "fixed_frame": fixed_frame, "map": map_cfg,
-            "agents": [{k: v for k, v in vars(s).items() if v is not None} for s in specs],
-            **options}
+    map_cfg = {
+        "resolution": resolution,
+        **{k: options.pop(k) for k in list(options) if k in map_keys},
+    }
+    data = {
+        "bags": [str(b) for b in bags],
+        "fixed_frame": fixed_frame,
+        "map": map_cfg,
+        "agents": [{k: v for k, v in vars(s).items() if v is not None} for s in specs],
+        **options,
+    }
     return from_dict(BuildConfig, data, where="build_maps")
 
 

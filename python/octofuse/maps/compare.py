@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Optional, Sequence
 
 import numpy as np
 
@@ -23,13 +23,13 @@ class Score:
     overconfidence: float  #: of voxels both know, fraction where |l_agent| > |l_central| + tol
     coverage: float  #: fraction of the centralized map's voxels the agent knows
     mean_abs_logodds_error: float  #: mean |l_agent - l_central| over voxels both know
-    loss_mean: Optional[float] = None  #: mean accumulated information loss, nats per voxel
-    loss_p95: Optional[float] = None  #: its 95th percentile
-    bytes_sent: Optional[int] = None
-    bytes_received: Optional[int] = None
-    bytes_sent_32b: Optional[int] = None  #: the same messages at 32 bytes per voxel
-    occupied_accuracy: Optional[float] = None  #: occupied voxels on a true surface (ground truth)
-    voxels: Optional[float] = None  #: finest voxels the centralized map knows
+    loss_mean: float | None = None  #: mean accumulated information loss, nats per voxel
+    loss_p95: float | None = None  #: its 95th percentile
+    bytes_sent: int | None = None
+    bytes_received: int | None = None
+    bytes_sent_32b: int | None = None  #: the same messages at 32 bytes per voxel
+    occupied_accuracy: float | None = None  #: occupied voxels on a true surface (ground truth)
+    voxels: float | None = None  #: finest voxels the centralized map knows
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -47,8 +47,10 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
     if len(values) == 0:
         return float("nan")
     total = float(weights.sum())
-    if not (np.array_equal(weights, np.floor(weights)) and total < 2.0 ** 53) \
-            or np.isnan(values).any():
+    if (
+        not (np.array_equal(weights, np.floor(weights)) and total < 2.0**53)
+        or np.isnan(values).any()
+    ):
         return _sorted_percentile(values, weights, q)
     target = q / 100.0 * total
     if target <= 0.0:
@@ -74,8 +76,9 @@ def weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> fl
     return _sorted_percentile(v, w, q, below, target)
 
 
-def _sorted_percentile(v: np.ndarray, w: np.ndarray, q: float, below: float = 0.0,
-                       target: Optional[float] = None) -> float:
+def _sorted_percentile(
+    v: np.ndarray, w: np.ndarray, q: float, below: float = 0.0, target: float | None = None
+) -> float:
     """The same by a sort: ``v`` above values of weight ``below`` left out, ``target`` the
     weight to reach (default: ``q`` % of the cumulative weight). Equal values keep their
     order, so weights that are not whole numbers add up as the definition adds them."""
@@ -102,8 +105,12 @@ def compare(central: OccupancyMap | ReferenceMap, agent: OccupancyMap, tol: floa
     return compare_many(central, [agent], tol)[0]
 
 
-def compare_many(central: OccupancyMap | ReferenceMap, agents: Sequence[OccupancyMap],
-                 tol: float = 0.1, threads: int = 1) -> list[Score]:
+def compare_many(
+    central: OccupancyMap | ReferenceMap,
+    agents: Sequence[OccupancyMap],
+    tol: float = 0.1,
+    threads: int = 1,
+) -> list[Score]:
     """:func:`compare` of each of ``agents``, on up to ``threads`` threads (a map at a time, to
     whichever thread is free); ``central`` is read once."""
     ref = central if isinstance(central, ReferenceMap) else ReferenceMap(central)
@@ -131,10 +138,18 @@ def _score_of_counts(d: dict) -> Score:
     )
 
 
-def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
-          loss: InfoLossMap | tuple[np.ndarray, np.ndarray] | None = None, truth=None,
-          bytes_sent: Optional[int] = None, bytes_received: Optional[int] = None,
-          bytes_sent_32b: Optional[int] = None, compared: Optional[Score] = None) -> Score:
+def score(
+    agent: OccupancyMap,
+    central: OccupancyMap,
+    *,
+    tol: float = 0.1,
+    loss: InfoLossMap | tuple[np.ndarray, np.ndarray] | None = None,
+    truth=None,
+    bytes_sent: int | None = None,
+    bytes_received: int | None = None,
+    bytes_sent_32b: int | None = None,
+    compared: Score | None = None,
+) -> Score:
     """Every metric of one agent: :func:`compare` (or ``compared``, its result for these maps
     from :func:`compare_many`), the statistics of its accumulated ``loss`` (the loss map, or
     its leaves' values and depths as read already: :meth:`InfoLossMap.values_depths`),
@@ -142,7 +157,8 @@ def score(agent: OccupancyMap, central: OccupancyMap, *, tol: float = 0.1,
     s = compared if compared is not None else compare(central, agent, tol)
     if loss is not None:
         s.loss_mean, s.loss_p95 = loss_stats(
-            *(loss.values_depths() if isinstance(loss, InfoLossMap) else loss))
+            *(loss.values_depths() if isinstance(loss, InfoLossMap) else loss)
+        )
     s.bytes_sent, s.bytes_received, s.bytes_sent_32b = bytes_sent, bytes_received, bytes_sent_32b
     if truth is not None:
         lv = agent.leaves("occupied")

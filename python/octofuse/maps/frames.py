@@ -21,26 +21,34 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..scans.se3 import check_rigid
 
 
-def pose_matrix(x: float = 0.0, y: float = 0.0, z: float = 0.0, roll: float = 0.0,
-                pitch: float = 0.0, yaw: float = 0.0) -> np.ndarray:
+def pose_matrix(
+    x: float = 0.0,
+    y: float = 0.0,
+    z: float = 0.0,
+    roll: float = 0.0,
+    pitch: float = 0.0,
+    yaw: float = 0.0,
+) -> np.ndarray:
     """The 4x4 homogeneous transform with translation (x, y, z) and rotation
     R = Rz(yaw) Ry(pitch) Rx(roll) (fixed axes: roll about x first, then pitch, then yaw)."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
     T = np.eye(4)
-    T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                 [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                 [-sp, cp * sr, cp * cr]]
+    T[:3, :3] = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
     T[:3, 3] = (x, y, z)
     # exact zeros and ones for multiples of 90 degrees (cos(pi/2) is 6e-17, not 0)
     R = T[:3, :3]
@@ -60,9 +68,14 @@ def matrix_pose(T) -> dict[str, float]:
     else:  # gimbal lock: only roll - yaw (or roll + yaw) is defined; put it all in yaw
         roll = 0.0
         yaw = math.atan2(-R[0, 1], R[1, 1])
-    return {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3]),
-            "roll": roll, "pitch": pitch, "yaw": yaw}
-
+    return {
+        "x": float(T[0, 3]),
+        "y": float(T[1, 3]),
+        "z": float(T[2, 3]),
+        "roll": roll,
+        "pitch": pitch,
+        "yaw": yaw,
+    }
 
 
 def invert(T) -> np.ndarray:
@@ -87,11 +100,14 @@ def parse_pose_values(text: str, what: str = "frame") -> list[float]:
     try:
         vals = [float(p) for p in parts]
     except ValueError:
-        raise ValueError(f"{what} '{text}': expected 6 numbers x,y,z,roll,pitch,yaw "
-                         "(metres, radians)") from None
+        raise ValueError(
+            f"{what} '{text}': expected 6 numbers x,y,z,roll,pitch,yaw (metres, radians)"
+        ) from None
     if len(vals) != 6:
-        raise ValueError(f"{what} '{text}': expected 6 numbers x,y,z,roll,pitch,yaw (metres, "
-                         f"radians), got {len(vals)}")
+        raise ValueError(
+            f"{what} '{text}': expected 6 numbers x,y,z,roll,pitch,yaw (metres, "
+            f"radians), got {len(vals)}"
+        )
     if not all(math.isfinite(v) for v in vals):
         raise ValueError(f"{what} '{text}': values must be finite")
     return vals
@@ -112,8 +128,9 @@ def parse_frame_values(spec: str) -> tuple[str, list[float]]:
     return name.strip(), parse_pose_values(rest, f"frame '{name.strip()}'")
 
 
-def common_resolution(resolutions: Sequence[float], resolution: float | None = None,
-                      strict: bool = False) -> float:
+def common_resolution(
+    resolutions: Sequence[float], resolution: float | None = None, strict: bool = False
+) -> float:
     """The voxel size maps of ``resolutions`` are fused at: ``resolution`` if given, else the
     coarsest (largest) of them. With ``strict=True`` different resolutions (or a given
     resolution that differs from theirs) raise the fusion's ``ValueError``."""
@@ -121,13 +138,16 @@ def common_resolution(resolutions: Sequence[float], resolution: float | None = N
     if not rs:
         raise ValueError("no maps given")
     differ = max(rs) - min(rs) > 1e-9 * max(rs)
-    if strict and (differ or (resolution is not None
-                              and abs(float(resolution) - rs[0]) > 1e-9 * rs[0])):
+    if strict and (
+        differ or (resolution is not None and abs(float(resolution) - rs[0]) > 1e-9 * rs[0])
+    ):
         listed = " m, ".join(f"{r:g}" for r in sorted(set(rs)))
-        raise ValueError(f"maps have different resolutions ({listed} m"
-                         + (f", requested {float(resolution):g} m" if resolution is not None else "")
-                         + "); fuse maps built at the same resolution, or leave strict off to "
-                         "resample them")
+        raise ValueError(
+            f"maps have different resolutions ({listed} m"
+            + (f", requested {float(resolution):g} m" if resolution is not None else "")
+            + "); fuse maps built at the same resolution, or leave strict off to "
+            "resample them"
+        )
     if resolution is not None:
         from .occupancy import _resolution
 
@@ -135,8 +155,12 @@ def common_resolution(resolutions: Sequence[float], resolution: float | None = N
     return max(rs)
 
 
-def prepare_maps(maps: Sequence, frames: Sequence | None = None, resolution: float | None = None,
-                 strict: bool = False) -> list:
+def prepare_maps(
+    maps: Sequence,
+    frames: Sequence | None = None,
+    resolution: float | None = None,
+    strict: bool = False,
+) -> list:
     """The maps moved into the common frame and resampled to one resolution, ready to fuse.
 
     ``frames[i]`` is the 4x4 rigid transform of map i's frame into the common frame (``None``:
@@ -180,15 +204,27 @@ class FuseStats:
     resampled: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        return {"inputs": self.inputs, "resolution": self.resolution,
-                "voxels_fused": self.voxels_fused, "voxels_copied": self.voxels_copied,
-                "loss_mean": self.loss_mean, "loss_p95": self.loss_p95,
-                "loss_total": self.loss_total, "leaves": self.leaves, "resampled": self.resampled}
+        return {
+            "inputs": self.inputs,
+            "resolution": self.resolution,
+            "voxels_fused": self.voxels_fused,
+            "voxels_copied": self.voxels_copied,
+            "loss_mean": self.loss_mean,
+            "loss_p95": self.loss_p95,
+            "loss_total": self.loss_total,
+            "leaves": self.leaves,
+            "resampled": self.resampled,
+        }
 
 
-def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-loss",
-                   unknown: str = "copy", frames: Sequence | Mapping | None = None,
-                   resolution: float | None = None, strict: bool = False):
+def fuse_map_files(
+    paths: Sequence[str | os.PathLike],
+    rule: str = "min-info-loss",
+    unknown: str = "copy",
+    frames: Sequence | Mapping | None = None,
+    resolution: float | None = None,
+    strict: bool = False,
+):
     """Fuse any number of ``.ot``/``.bt`` map files into one: ``(fused, loss, stats)``.
 
     ``frames``: one rigid 4x4 transform (or ``None``) per path, in order, or a mapping from a
@@ -213,21 +249,28 @@ def fuse_map_files(paths: Sequence[str | os.PathLike], rule: str = "min-info-los
         keys = {str(p) for p in paths} | {p.stem for p in paths} | {p.name for p in paths}
         extra = sorted(k for k in frames if str(k) not in keys)
         if extra:
-            raise ValueError(f"frame given for unknown map '{extra[0]}' (maps: "
-                             f"{', '.join(p.stem for p in paths)})")
+            raise ValueError(
+                f"frame given for unknown map '{extra[0]}' (maps: "
+                f"{', '.join(p.stem for p in paths)})"
+            )
         by = {str(k): v for k, v in frames.items()}
         frames = [by.get(str(p), by.get(p.name, by.get(p.stem))) for p in paths]
     elif frames is not None:
         frames = list(frames)
         if len(frames) != len(paths):
             raise ValueError(f"{len(frames)} frames given for {len(paths)} map files")
-    frames = [None if T is None else check_rigid(T, f"frame of '{p}'")
-              for p, T in zip(paths, frames or [None] * len(paths))]
+    frames = [
+        None if T is None else check_rigid(T, f"frame of '{p}'")
+        for p, T in zip(paths, frames or [None] * len(paths))
+    ]
     maps = [OccupancyMap.load(p) for p in paths]
     res = common_resolution([m.resolution for m in maps], resolution, strict)
     ready = prepare_maps(maps, frames, res, strict)
-    stats = FuseStats([str(p) for p in paths], res,
-                      resampled=[str(p) for p, a, b in zip(paths, maps, ready) if a is not b])
+    stats = FuseStats(
+        [str(p) for p in paths],
+        res,
+        resampled=[str(p) for p, a, b in zip(paths, maps, ready) if a is not b],
+    )
     fused = ready[0]  # loaded or resampled here, so ours to change in place
     loss = InfoLossMap(res)
     prior = unknown == parse_unknown("prior")

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -51,8 +52,9 @@ def voxels_per_leaf(depths: np.ndarray) -> np.ndarray:
     return _VOXELS_AT_DEPTH[np.asarray(depths)]
 
 
-def voxels_in_bins(leaves: Sequence[tuple[np.ndarray, np.ndarray]], nbins: int, top: float,
-                   block: int = 1 << 18) -> tuple[np.ndarray, float]:
+def voxels_in_bins(
+    leaves: Sequence[tuple[np.ndarray, np.ndarray]], nbins: int, top: float, block: int = 1 << 18
+) -> tuple[np.ndarray, float]:
     """The finest voxels of ``leaves`` (pairs of value and depth arrays, as
     :meth:`InfoLossMap.values_depths` gives them for several maps) in each of ``nbins`` equal
     bins of [0, ``top``] (``top`` in the last bin, values outside left out), as float64, and
@@ -64,7 +66,7 @@ def voxels_in_bins(leaves: Sequence[tuple[np.ndarray, np.ndarray]], nbins: int, 
     counts, per_depth = np.zeros(nbins * nd, np.int64), np.zeros(nd, np.int64)
     for values, depths in leaves:
         for start in range(0, len(values), block):
-            v, d = values[start:start + block], depths[start:start + block]
+            v, d = values[start : start + block], depths[start : start + block]
             inside = (v >= 0) & (v <= top)
             k = np.minimum((v[inside] * (nbins / top)).astype(np.int64), nbins - 1)
             counts += np.bincount(k * nd + d[inside], minlength=nbins * nd)
@@ -109,11 +111,13 @@ class InfoLossMap:
         self.loss_sum = 0.0
 
     @classmethod
-    def carried_by(cls, map) -> "InfoLossMap":
+    def carried_by(cls, map) -> InfoLossMap:
         """An empty loss map whose losses the occupancy map ``map`` carries (its fusions that
         add into this loss map keep them in ``map``'s nodes). A map carries one loss map."""
         if not isinstance(getattr(map, "_m", None), _core._OccupancyMap):  # an OccupancyMap
-            raise TypeError(f"InfoLossMap.carried_by expects an OccupancyMap, not {type(map).__name__}")
+            raise TypeError(
+                f"InfoLossMap.carried_by expects an OccupancyMap, not {type(map).__name__}"
+            )
         if map._m.carries_loss:
             raise ValueError(f"{map!r} carries a loss map already")
         obj = cls(map.resolution)
@@ -122,7 +126,7 @@ class InfoLossMap:
         return obj
 
     @classmethod
-    def _wrap(cls, raw, fused: int = 0, copied: int = 0, loss_sum: float = 0.0) -> "InfoLossMap":
+    def _wrap(cls, raw, fused: int = 0, copied: int = 0, loss_sum: float = 0.0) -> InfoLossMap:
         obj = cls.__new__(cls)
         obj._t, obj._carrier = raw, None
         obj.voxels_fused, obj.voxels_copied, obj.loss_sum = fused, copied, loss_sum
@@ -164,14 +168,15 @@ class InfoLossMap:
         raw = map._m.leaves_with(self._tree_for(), voxels)
         return leaves_from_core(raw), raw["scalar"]
 
-    def accumulate(self, other: "InfoLossMap") -> None:
+    def accumulate(self, other: InfoLossMap) -> None:
         """Add ``other`` into this map voxel by voxel (in place)."""
         self._tree_for().accumulate(other._tree_for())
         self._record((other.voxels_fused, other.voxels_copied, other.loss_sum))
 
-    def copy(self) -> "InfoLossMap":
-        return InfoLossMap._wrap(self._tree_for().copy(), self.voxels_fused, self.voxels_copied,
-                                 self.loss_sum)
+    def copy(self) -> InfoLossMap:
+        return InfoLossMap._wrap(
+            self._tree_for().copy(), self.voxels_fused, self.voxels_copied, self.loss_sum
+        )
 
     def clear(self) -> None:
         """Remove every value and count, freeing the nodes (without the GIL); a carried
@@ -187,12 +192,20 @@ class InfoLossMap:
         """Write the leaves as ``.npz`` arrays (read back by :func:`read_info_loss`)."""
         p = Path(path)
         if p.suffix != ".npz":
-            raise ValueError(f"cannot save information loss to '{p}': expected a .npz file "
-                             "(heat-map clouds: octofuse.outputs.export.write_heatmap)")
+            raise ValueError(
+                f"cannot save information loss to '{p}': expected a .npz file "
+                "(heat-map clouds: octofuse.outputs.export.write_heatmap)"
+            )
         lv = self.leaves()
         tmp = p.with_name(p.name + ".tmp.npz")
-        np.savez_compressed(tmp, centers=lv.centers, sizes=lv.sizes, values=lv.values,
-                            depths=lv.depths, resolution=self.resolution)
+        np.savez_compressed(
+            tmp,
+            centers=lv.centers,
+            sizes=lv.sizes,
+            values=lv.values,
+            depths=lv.depths,
+            resolution=self.resolution,
+        )
         os.replace(tmp, p)
         return p
 
@@ -232,16 +245,26 @@ def read_info_loss(path: str | os.PathLike) -> Leaves:
                 raise ValueError(f"missing arrays {', '.join(missing)}")
             raw = {k: np.asarray(z[k]) for k in _LOSS_KEYS}
         with np.errstate(over="ignore", invalid="ignore"):  # out-of-range values: checked below
-            lv = Leaves(raw["centers"].astype(np.float64), raw["sizes"].astype(np.float64),
-                        raw["values"].astype(np.float32), raw["depths"].astype(np.uint8))
+            lv = Leaves(
+                raw["centers"].astype(np.float64),
+                raw["sizes"].astype(np.float64),
+                raw["values"].astype(np.float32),
+                raw["depths"].astype(np.uint8),
+            )
     except (ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile) as e:
         raise OSError(f"cannot read information-loss file '{p}': {e}") from None
     n = len(lv.values)
-    if (lv.centers.shape != (n, 3) or lv.sizes.shape != (n,) or lv.values.shape != (n,)
-            or lv.depths.shape != (n,)):
-        raise OSError(f"cannot read information-loss file '{p}': arrays of mismatched shapes "
-                      f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
-                      f"values {lv.values.shape}, depths {lv.depths.shape})")
+    if (
+        lv.centers.shape != (n, 3)
+        or lv.sizes.shape != (n,)
+        or lv.values.shape != (n,)
+        or lv.depths.shape != (n,)
+    ):
+        raise OSError(
+            f"cannot read information-loss file '{p}': arrays of mismatched shapes "
+            f"(centers {lv.centers.shape}, sizes {lv.sizes.shape}, "
+            f"values {lv.values.shape}, depths {lv.depths.shape})"
+        )
     _check_loss_arrays(p, raw)
     return lv
 
@@ -249,18 +272,27 @@ def read_info_loss(path: str | os.PathLike) -> Leaves:
 def _check_loss_arrays(p: Path, raw: dict) -> None:
     """``ValueError`` naming the file, the array and its first bad entry unless the losses are
     finite, non-negative float32 numbers and the voxels finite, with positive sizes."""
-    checks = (("values", lambda v: np.isfinite(v) & (v >= 0) & (np.abs(v) <= np.finfo(np.float32).max),
-               "finite losses >= 0 (nats, float32)"),
-              ("centers", lambda v: np.isfinite(v).all(axis=-1), "finite voxel centres"),
-              ("sizes", lambda v: np.isfinite(v) & (v > 0), "positive finite voxel sizes"))
+    checks = (
+        (
+            "values",
+            lambda v: np.isfinite(v) & (v >= 0) & (np.abs(v) <= np.finfo(np.float32).max),
+            "finite losses >= 0 (nats, float32)",
+        ),
+        ("centers", lambda v: np.isfinite(v).all(axis=-1), "finite voxel centres"),
+        ("sizes", lambda v: np.isfinite(v) & (v > 0), "positive finite voxel sizes"),
+    )
     for key, ok, expected in checks:
         v = raw[key]
         if v.dtype.kind not in "fiu":
-            raise ValueError(f"information-loss file '{p}': {key} holds {v.dtype} data; expected {expected}")
+            raise ValueError(
+                f"information-loss file '{p}': {key} holds {v.dtype} data; expected {expected}"
+            )
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(~ok(v.astype(np.float64)))
         if bad.size:
             i = int(bad[0])
-            raise ValueError(f"information-loss file '{p}': {key} holds {bad.size} bad entr"
-                             f"{'y' if bad.size == 1 else 'ies'} (first at index {i}: "
-                             f"{np.asarray(v[i]).tolist()}); expected {expected}")
+            raise ValueError(
+                f"information-loss file '{p}': {key} holds {bad.size} bad entr"
+                f"{'y' if bad.size == 1 else 'ies'} (first at index {i}: "
+                f"{np.asarray(v[i]).tolist()}); expected {expected}"
+            )

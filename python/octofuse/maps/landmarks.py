@@ -50,10 +50,21 @@ class Landmarks:
         return len(self.centroids)
 
 
-def extract_landmarks(centers, sizes, values, *, resolution: float | None = None, floor_height: float = 0.0,
-                      clearance: float | None = None, occupied: float = 0.0, max_footprint: float = 2.0,
-                      max_height: float | None = None, within=None, min_voxels: int = 2,
-                      centroid_sigma: float = 0.0) -> Landmarks:
+def extract_landmarks(
+    centers,
+    sizes,
+    values,
+    *,
+    resolution: float | None = None,
+    floor_height: float = 0.0,
+    clearance: float | None = None,
+    occupied: float = 0.0,
+    max_footprint: float = 2.0,
+    max_height: float | None = None,
+    within=None,
+    min_voxels: int = 2,
+    centroid_sigma: float = 0.0,
+) -> Landmarks:
     """Objects standing on the floor in a map given by its leaves.
 
     ``centers`` (N, 3), ``sizes`` (N,) and ``values`` (N,) log-odds are a map's leaves (coarse
@@ -78,7 +89,9 @@ def extract_landmarks(centers, sizes, values, *, resolution: float | None = None
     if within is not None:
         area = np.asarray(within, dtype=float)
         if area.shape != (2, 2) or np.any(area[1] <= area[0]):
-            raise ValueError(f"within must be ((x0, y0), (x1, y1)) with x0 < x1 and y0 < y1, got {within!r}")
+            raise ValueError(
+                f"within must be ((x0, y0), (x1, y1)) with x0 < x1 and y0 < y1, got {within!r}"
+            )
 
     keys = _occupied_keys(centers[values > occupied], sizes[values > occupied], resolution)
     pts = (keys + 0.5) * resolution
@@ -95,7 +108,7 @@ def extract_landmarks(centers, sizes, values, *, resolution: float | None = None
     bounds = np.searchsorted(which[order], np.arange(count + 1))
     found = []
     for c in range(count):
-        members = keys[order[bounds[c]:bounds[c + 1]]]
+        members = keys[order[bounds[c] : bounds[c + 1]]]
         low, high = members.min(axis=0) * resolution, (members.max(axis=0) + 1) * resolution
         if len(members) < min_voxels or np.max(high[:2] - low[:2]) > max_footprint:
             continue
@@ -122,15 +135,23 @@ def associate(reference: Landmarks, landmarks: Landmarks, max_distance: float = 
         raise ValueError(f"max_distance must be positive, got {max_distance!r}")
     if len(reference) == 0 or len(landmarks) == 0:
         return np.empty((0, 2), dtype=np.int64)
-    dist = np.linalg.norm(reference.centroids[:, None, :2] - landmarks.centroids[None, :, :2], axis=-1)
+    dist = np.linalg.norm(
+        reference.centroids[:, None, :2] - landmarks.centroids[None, :, :2], axis=-1
+    )
     big = 1e6 + dist.max()
     rows, cols = linear_sum_assignment(np.where(dist <= max_distance, dist, big))
     keep = dist[rows, cols] <= max_distance
     return np.column_stack([rows[keep], cols[keep]]).astype(np.int64)
 
 
-def map_offset(reference: Landmarks, landmarks: Landmarks, pairs: np.ndarray | None = None, *,
-               pivot=None, max_distance: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def map_offset(
+    reference: Landmarks,
+    landmarks: Landmarks,
+    pairs: np.ndarray | None = None,
+    *,
+    pivot=None,
+    max_distance: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
     """The transform ``(dx, dy, yaw)`` with ``R(yaw) (p - pivot) + pivot + (dx, dy) ≈ p_ref`` that
     carries ``landmarks`` onto ``reference`` over associated ``pairs`` (found with
     :func:`associate` when not given), and its covariance (3, 3) by weighted least squares
@@ -141,10 +162,14 @@ def map_offset(reference: Landmarks, landmarks: Landmarks, pairs: np.ndarray | N
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(pairs) < 2:
         raise ValueError(f"map_offset needs at least 2 associated landmarks, got {len(pairs)}")
-    pivot = reference.centroids[:, :2].mean(axis=0) if pivot is None else np.asarray(pivot, float)[:2]
+    pivot = (
+        reference.centroids[:, :2].mean(axis=0) if pivot is None else np.asarray(pivot, float)[:2]
+    )
     ref = reference.centroids[pairs[:, 0], :2] - pivot
     own = landmarks.centroids[pairs[:, 1], :2] - pivot
-    cov_sum = reference.covariances[pairs[:, 0], :2, :2] + landmarks.covariances[pairs[:, 1], :2, :2]
+    cov_sum = (
+        reference.covariances[pairs[:, 0], :2, :2] + landmarks.covariances[pairs[:, 1], :2, :2]
+    )
 
     # closed-form start (unweighted Procrustes), then Gauss-Newton on the weighted residuals
     a, b = own - own.mean(0), ref - ref.mean(0)
@@ -168,8 +193,9 @@ def map_offset(reference: Landmarks, landmarks: Landmarks, pairs: np.ndarray | N
     return np.array([t[0], t[1], (yaw + np.pi) % (2 * np.pi) - np.pi]), 0.5 * (cov + cov.T)
 
 
-def offsets_to_reference(landmark_sets: list[Landmarks], reference: Landmarks | int, *,
-                         max_distance: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def offsets_to_reference(
+    landmark_sets: list[Landmarks], reference: Landmarks | int, *, max_distance: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
     """Every robot's :func:`map_offset` to one shared reference (a landmark set, or the index of
     the robot whose landmarks serve as reference) with the rotation about the same pivot:
     measurements ``x`` (N, 3) and covariances (N, 3, 3) for voting."""
@@ -209,7 +235,9 @@ def _check_leaves(centers, sizes, values) -> tuple[np.ndarray, np.ndarray, np.nd
     if centers.ndim != 2 or centers.shape[1] != 3:
         raise ValueError(f"centers must have shape (N, 3), got {centers.shape}")
     if sizes.shape != (len(centers),) or values.shape != (len(centers),):
-        raise ValueError(f"sizes {sizes.shape} and values {values.shape} must have shape ({len(centers)},)")
+        raise ValueError(
+            f"sizes {sizes.shape} and values {values.shape} must have shape ({len(centers)},)"
+        )
     if not (np.all(np.isfinite(centers)) and np.all(sizes > 0)):
         raise ValueError("centers must be finite and sizes positive")
     return centers, sizes, values

@@ -20,7 +20,7 @@ class MapValueWarning(UserWarning):
     """A map read held values its clamping cannot produce; they were clamped into its range."""
 
 
-def _checked_values(m: "OccupancyMap", name: str) -> "OccupancyMap":
+def _checked_values(m: OccupancyMap, name: str) -> OccupancyMap:
     """``m`` as read from ``name``, its stored log-odds (every node) checked against what
     OctoMap's clamping produces: values outside the clamping range are clamped into it with a
     :class:`MapValueWarning`; subnormal values (no OctoMap writes them) are refused with a
@@ -31,16 +31,22 @@ def _checked_values(m: "OccupancyMap", name: str) -> "OccupancyMap":
     tiny = np.finfo(np.float32).tiny
     subnormal = np.flatnonzero((values != 0) & (np.abs(values) < tiny))
     if subnormal.size:
-        raise MapFileError(f"map '{name}' holds {subnormal.size} subnormal log-odds values (first "
-                           f"{float(values[subnormal[0]]):.3g}), which OctoMap never writes: the "
-                           "file is corrupt")
+        raise MapFileError(
+            f"map '{name}' holds {subnormal.size} subnormal log-odds values (first "
+            f"{float(values[subnormal[0]]):.3g}), which OctoMap never writes: the "
+            "file is corrupt"
+        )
     lo, hi = m.clamping_logodds
     outside = (values < lo - 1e-5) | (values > hi + 1e-5)
     if outside.any():
-        warnings.warn(MapValueWarning(
-            f"map '{name}': {int(outside.sum())} log-odds values outside its clamping range "
-            f"[{lo:.4g}, {hi:.4g}] (from {float(values.min()):.3g} to {float(values.max()):.3g}) "
-            "clamped into it"), stacklevel=3)
+        warnings.warn(
+            MapValueWarning(
+                f"map '{name}': {int(outside.sum())} log-odds values outside its clamping range "
+                f"[{lo:.4g}, {hi:.4g}] (from {float(values.min()):.3g} to {float(values.max()):.3g}) "
+                "clamped into it"
+            ),
+            stacklevel=3,
+        )
         m.clamp_values()
     return m
 
@@ -71,26 +77,33 @@ class OccupancyMap:
 
     __slots__ = ("_m",)
 
-    def __init__(self, resolution: float, prob_hit: float = 0.7, prob_miss: float = 0.4,
-                 clamping: tuple[float, float] = (0.1192, 0.971)):
+    def __init__(
+        self,
+        resolution: float,
+        prob_hit: float = 0.7,
+        prob_miss: float = 0.4,
+        clamping: tuple[float, float] = (0.1192, 0.971),
+    ):
         cmin, cmax = clamping
-        self._m = _core._OccupancyMap(float(resolution), float(prob_hit), float(prob_miss),
-                                      float(cmin), float(cmax))
+        self._m = _core._OccupancyMap(
+            float(resolution), float(prob_hit), float(prob_miss), float(cmin), float(cmax)
+        )
 
     @classmethod
-    def from_config(cls, cfg: MapConfig) -> "OccupancyMap":
+    def from_config(cls, cfg: MapConfig) -> OccupancyMap:
         """An empty map with the resolution, sensor model and clamping of ``cfg``."""
         return cls(cfg.resolution, cfg.prob_hit, cfg.prob_miss, tuple(cfg.clamping))
 
     @classmethod
-    def _wrap(cls, raw) -> "OccupancyMap":
+    def _wrap(cls, raw) -> OccupancyMap:
         obj = cls.__new__(cls)
         obj._m = raw
         return obj
 
     # -- insertion ---------------------------------------------------------------------
-    def insert_scan(self, points, origin, max_range: float = -1.0, mode: str = "exact",
-                    threads: int = 1) -> None:
+    def insert_scan(
+        self, points, origin, max_range: float = -1.0, mode: str = "exact", threads: int = 1
+    ) -> None:
         """Insert one scan with OctoMap's ray casting update (the map is the one
         ``insertPointCloud`` gives: the rays traced with OctoMap's steps and arithmetic, the
         voxels updated by octofuse's depth-first batch update).
@@ -107,11 +120,13 @@ class OccupancyMap:
         """
         pts = _points(points)
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
-        _core._insert_scan_batched(self._m, pts, o, float(max_range), mode=insert_mode(mode),
-                                   threads=thread_count(threads))
+        _core._insert_scan_batched(
+            self._m, pts, o, float(max_range), mode=insert_mode(mode), threads=thread_count(threads)
+        )
 
-    def insert_scans(self, scans, max_range: float = -1.0, threads: int | None = None,
-                     mode: str = "exact") -> None:
+    def insert_scans(
+        self, scans, max_range: float = -1.0, threads: int | None = None, mode: str = "exact"
+    ) -> None:
         """Insert several scans in order, as :meth:`insert_scan` (or
         :meth:`insert_scan_from_sensor`) one after the other would.
 
@@ -139,8 +154,9 @@ class OccupancyMap:
                 poses.append(T)
                 map_frame.append(True)
             else:
-                raise ValueError(f"scan {k}: expected an origin (3 values) or a 4x4 pose, "
-                                 f"got shape {w.shape}")
+                raise ValueError(
+                    f"scan {k}: expected an origin (3 values) or a 4x4 pose, got shape {w.shape}"
+                )
             if not np.all(np.isfinite(poses[-1])):
                 raise ValueError(f"scan {k}: {'origin' if map_frame[-1] else 'pose'} is not finite")
         if not pts_list:
@@ -149,8 +165,14 @@ class OccupancyMap:
         kw = {"mode": insert_mode(mode)}
         if threads is not None:
             kw["threads"] = thread_count(threads)
-        _core._insert_batch([[self._m]] * n, pts_list, np.ascontiguousarray(np.stack(poses)),
-                            np.full(n, float(max_range)), map_frame=map_frame, **kw)
+        _core._insert_batch(
+            [[self._m]] * n,
+            pts_list,
+            np.ascontiguousarray(np.stack(poses)),
+            np.full(n, float(max_range)),
+            map_frame=map_frame,
+            **kw,
+        )
 
     def insert_scan_from_sensor(self, points, pose, max_range: float = -1.0) -> None:
         """Insert a scan given in the sensor frame; ``pose`` is the 4x4 sensor-to-map transform."""
@@ -178,7 +200,7 @@ class OccupancyMap:
         return p
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "OccupancyMap":
+    def load(cls, path: str | os.PathLike) -> OccupancyMap:
         """Read a ``.ot`` or ``.bt`` OctoMap file (validated before any node is built).
 
         Raises ``FileNotFoundError`` for a missing file and :class:`MapFileError` (an
@@ -197,7 +219,7 @@ class OccupancyMap:
         return _core._map_to_stream(self._m, fmt == "bt")
 
     @classmethod
-    def from_bytes(cls, data: bytes | bytearray | memoryview, name: str = "stream") -> "OccupancyMap":
+    def from_bytes(cls, data: bytes | bytearray | memoryview, name: str = "stream") -> OccupancyMap:
         """A map from an OctoMap ``.ot`` or ``.bt`` stream held in memory, checked like
         :meth:`load` (:class:`MapFileError` naming ``name`` for a truncated or corrupt one)."""
         return cls._wrap(_core._map_from_stream(bytes(data), str(name)))
@@ -209,19 +231,33 @@ class OccupancyMap:
         return _core._tree_data(self._m)
 
     @classmethod
-    def from_tree_data(cls, data: bytes | bytearray | memoryview, resolution: float,
-                       prob_hit: float = 0.7, prob_miss: float = 0.4,
-                       clamping: tuple[float, float] = (0.1192, 0.971)) -> "OccupancyMap":
+    def from_tree_data(
+        cls,
+        data: bytes | bytearray | memoryview,
+        resolution: float,
+        prob_hit: float = 0.7,
+        prob_miss: float = 0.4,
+        clamping: tuple[float, float] = (0.1192, 0.971),
+    ) -> OccupancyMap:
         """A map from the node data of :meth:`tree_data` (an ``octomap_msgs/Octomap``
         message's ``data``) and its resolution; checked like :meth:`load`."""
         cmin, cmax = clamping
-        m = cls._wrap(_core._map_from_tree_data(bytes(data), float(resolution), float(prob_hit),
-                                                float(prob_miss), float(cmin), float(cmax)))
+        m = cls._wrap(
+            _core._map_from_tree_data(
+                bytes(data),
+                float(resolution),
+                float(prob_hit),
+                float(prob_miss),
+                float(cmin),
+                float(cmax),
+            )
+        )
         return _checked_values(m, "octomap message")
 
     # -- frames --------------------------------------------------------------------------
-    def transformed(self, T, resolution: float | None = None,
-                    resampling: str = "vote") -> "OccupancyMap":
+    def transformed(
+        self, T, resolution: float | None = None, resampling: str = "vote"
+    ) -> OccupancyMap:
         """A new map: this map moved by the rigid transform ``T`` and resampled onto a grid of
         voxel size ``resolution`` (default: this map's), with this map's sensor model and
         clamping. ``T`` is a 4x4 homogeneous matrix taking a point of this map's frame into the
@@ -264,7 +300,7 @@ class OccupancyMap:
         class ``voxels``: "all", "occupied" (log-odds > 0) or "free"."""
         return leaves_from_core(self._m.leaves(voxels))
 
-    def copy(self) -> "OccupancyMap":
+    def copy(self) -> OccupancyMap:
         """A deep copy of the map."""
         return OccupancyMap._wrap(self._m.copy())
 
@@ -276,36 +312,36 @@ class OccupancyMap:
         self._m.clear(keep_loss)
 
     # -- log-odds arithmetic (exact fusion by channel filters) ---------------------------
-    def open_clamping(self) -> "OccupancyMap":
+    def open_clamping(self) -> OccupancyMap:
         """Open the clamping (thresholds -inf/+inf log-odds) in place, so sums stay exact."""
         _core._open_clamping(self._m)
         return self
 
-    def clamp_values(self) -> "OccupancyMap":
+    def clamp_values(self) -> OccupancyMap:
         """Clamp every stored value to the configured thresholds, in place."""
         _core._clamp_values(self._m)
         return self
 
-    def clamped_copy(self) -> "OccupancyMap":
+    def clamped_copy(self) -> OccupancyMap:
         """A copy clamped to the configured thresholds: ``copy().clamp_values()``, node for
         node, in one walk."""
         return OccupancyMap._wrap(_core._clamped_copy(self._m))
 
-    def negate_values(self) -> "OccupancyMap":
+    def negate_values(self) -> OccupancyMap:
         """Negate every stored log-odds, in place."""
         _core._negate_values(self._m)
         return self
 
-    def assign_delta(self, channel: "OccupancyMap", delta: "OccupancyMap") -> int:
+    def assign_delta(self, channel: OccupancyMap, delta: OccupancyMap) -> int:
         """Exact fusion of a delta, on its voxels: ``l += m - c`` then ``c = m``, with ``c`` this
         map's copy of the sender's contribution (``channel``, updated in place)."""
         return _core._assign_values(self._m, channel._m, delta._m)
 
-    def changed_since(self, previous: "OccupancyMap") -> "OccupancyMap":
+    def changed_since(self, previous: OccupancyMap) -> OccupancyMap:
         """The voxels whose value differs from ``previous`` (a delta message)."""
         return OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m))
 
-    def class_counts(self, reference: "OccupancyMap | ReferenceMap", tol: float) -> dict:
+    def class_counts(self, reference: OccupancyMap | ReferenceMap, tol: float) -> dict:
         """Voxel counts of this map against ``reference`` over finest voxels: the class
         confusion (occupied/free/unknown), KL(reference || self) and |l| differences summed,
         and voxels where this map is more certain than the reference by more than ``tol``.
@@ -354,8 +390,10 @@ class OccupancyMap:
         return self._m.clamping_logodds
 
     def __repr__(self) -> str:
-        return (f"OccupancyMap(resolution={self.resolution}, leaves={self.num_leaves}, "
-                f"memory={self.memory_bytes / 1e6:.1f} MB)")
+        return (
+            f"OccupancyMap(resolution={self.resolution}, leaves={self.num_leaves}, "
+            f"memory={self.memory_bytes / 1e6:.1f} MB)"
+        )
 
 
 class ReferenceMap:
@@ -415,4 +453,3 @@ def _points(points) -> np.ndarray:
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
     return np.ascontiguousarray(pts)
-

@@ -3,7 +3,7 @@ every map that receives it."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -11,9 +11,14 @@ from .. import _core
 from .occupancy import OccupancyMap, insert_mode
 
 
-def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np.ndarray,
-                 targets: Sequence[Sequence[OccupancyMap]], threads: int,
-                 mode: str = "exact") -> None:
+def insert_batch(
+    points: Sequence[np.ndarray],
+    poses: np.ndarray,
+    max_ranges: np.ndarray,
+    targets: Sequence[Sequence[OccupancyMap]],
+    threads: int,
+    mode: str = "exact",
+) -> None:
     """Insert scans (sensor frame, 4x4 poses) into their target maps in one C++ call.
 
     Each scan's ray keys are computed once (scans in parallel) and applied to each of its
@@ -21,17 +26,28 @@ def insert_batch(points: Sequence[np.ndarray], poses: np.ndarray, max_ranges: np
     every scan into every target, in order (``mode="fast"``: the real-time mode of
     :meth:`OccupancyMap.insert_scan`). The GIL is released.
     """
-    _core._insert_batch(_core_targets(targets), *_batch_arrays(points, poses, max_ranges),
-                        int(threads), mode=insert_mode(mode))
+    _core._insert_batch(
+        _core_targets(targets),
+        *_batch_arrays(points, poses, max_ranges),
+        int(threads),
+        mode=insert_mode(mode),
+    )
 
 
-def trace_rays(grid: OccupancyMap, points: Sequence[np.ndarray], poses: np.ndarray,
-               max_ranges: np.ndarray, threads: int, mode: str = "exact"):
+def trace_rays(
+    grid: OccupancyMap,
+    points: Sequence[np.ndarray],
+    poses: np.ndarray,
+    max_ranges: np.ndarray,
+    threads: int,
+    mode: str = "exact",
+):
     """Trace scans' rays once on ``grid``'s grid (as :func:`insert_batch`, no map changes):
     the updates, to apply to any maps of that grid with :func:`apply_rays`. The GIL is
     released."""
-    return _core._trace_rays(grid._m, *_batch_arrays(points, poses, max_ranges), int(threads),
-                             mode=insert_mode(mode))
+    return _core._trace_rays(
+        grid._m, *_batch_arrays(points, poses, max_ranges), int(threads), mode=insert_mode(mode)
+    )
 
 
 def apply_rays(rays, targets: Sequence[Sequence[OccupancyMap]], threads: int) -> None:
@@ -42,8 +58,11 @@ def apply_rays(rays, targets: Sequence[Sequence[OccupancyMap]], threads: int) ->
 
 def _batch_arrays(points, poses, max_ranges) -> tuple[list, np.ndarray, np.ndarray]:
     """A batch's points, poses and maximum ranges as the core reads them (C-contiguous)."""
-    return ([np.ascontiguousarray(p) for p in points], np.ascontiguousarray(poses, dtype=np.float64),
-            np.ascontiguousarray(max_ranges, dtype=np.float64))
+    return (
+        [np.ascontiguousarray(p) for p in points],
+        np.ascontiguousarray(poses, dtype=np.float64),
+        np.ascontiguousarray(max_ranges, dtype=np.float64),
+    )
 
 
 def _core_targets(targets: Sequence[Sequence[OccupancyMap]]) -> list[list]:

@@ -3,7 +3,7 @@ pass per group of rules) trace each batch's rays once, in the first pass."""
 
 from __future__ import annotations
 
-from typing import Callable, Optional, Sequence
+from collections.abc import Callable, Sequence
 
 from ..scans.source import Scan
 from .build import trace_scans
@@ -21,7 +21,7 @@ class RayReplay:
 
     def __init__(self, passes: int, max_bytes: int = REPLAY_RAY_BYTES):
         self.passes, self.max_bytes = passes, max_bytes
-        self._kept: list[Optional[tuple[list, object]]] = []  # (scans' (agent, stamp), rays)
+        self._kept: list[tuple[list, object] | None] = []  # (scans' (agent, stamp), rays)
         self._size = 0
         self._full = passes < 2  # nothing to keep for
         self._pass = -1
@@ -40,8 +40,10 @@ class RayReplay:
             if i is not None:
                 ids, rays = self._kept[i]
                 if ids != _ids(scans):
-                    raise RuntimeError(f"ray replay: batch {i + 1} of pass {k + 1} holds other "
-                                       "scans than in the first pass")
+                    raise RuntimeError(
+                        f"ray replay: batch {i + 1} of pass {k + 1} holds other "
+                        "scans than in the first pass"
+                    )
                 if last:
                     self._kept[i] = None
                 return rays

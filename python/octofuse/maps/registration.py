@@ -78,8 +78,13 @@ class Registration:
         """``x, y, z, roll, pitch, yaw, fitness`` (what ``octofuse align --json`` prints), with
         ``rmse``, ``inliers`` and ``planar``."""
         d = self.pose
-        d.update(fitness=self.fitness, rmse=self.rmse, inliers=self.inliers, planar=self.planar,
-                 conflict=self.conflict)
+        d.update(
+            fitness=self.fitness,
+            rmse=self.rmse,
+            inliers=self.inliers,
+            planar=self.planar,
+            conflict=self.conflict,
+        )
         return d
 
 
@@ -114,9 +119,15 @@ def free_space_conflict(a, b, T: np.ndarray) -> float:
     return float(deep.sum() / known.sum()) if known.any() else 0.0
 
 
-def register(a, b, planar: bool = False, voxel: float | None = None,
-             min_fitness: float = MIN_FITNESS, seed: int = 0,
-             max_conflict: float = MAX_CONFLICT) -> Registration:
+def register(
+    a,
+    b,
+    planar: bool = False,
+    voxel: float | None = None,
+    min_fitness: float = MIN_FITNESS,
+    seed: int = 0,
+    max_conflict: float = MAX_CONFLICT,
+) -> Registration:
     """The transform that takes a point of ``b``'s frame into ``a``'s frame (see the module
     documentation); ``ValueError`` if the maps overlap too little to trust it."""
     res = max(a.resolution, b.resolution)
@@ -133,9 +144,11 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     na, nb = len(pa.points), len(pb.points)
     if min(na, nb) < MIN_POINTS:
         which = "A" if na < nb else "B"
-        raise ValueError(f"cannot register: map {which} has {min(na, nb)} occupied points after "
-                         f"thinning to {v:g} m (at least {MIN_POINTS} needed); the maps overlap "
-                         "too little to trust a transform")
+        raise ValueError(
+            f"cannot register: map {which} has {min(na, nb)} occupied points after "
+            f"thinning to {v:g} m (at least {MIN_POINTS} needed); the maps overlap "
+            "too little to trust a transform"
+        )
     _normals(pa, v)
     _normals(pb, v)
     # features on clouds of at most about FEATURE_POINTS points (surfaces: count ~ 1 / voxel^2)
@@ -157,8 +170,10 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
             starts.append(_planar_ransac(ps, pt, dist, seed))
         except ValueError:
             pass
-        T = max((_planar_icp(src, tree, S, dist, res) for S in starts),
-                key=lambda X: _evaluate(src, tree, X, fit)[0])
+        T = max(
+            (_planar_icp(src, tree, S, dist, res) for S in starts),
+            key=lambda X: _evaluate(src, tree, X, fit)[0],
+        )
     else:
         T = _plane_icp(src, tree, np.asarray(pa.normals), coarse, dist, res)
     T = _orthonormal(T)
@@ -166,25 +181,31 @@ def register(a, b, planar: bool = False, voxel: float | None = None,
     inliers = len(pairs)
     out = Registration(T, fitness, rmse, inliers, na, nb, planar)
     if inliers < MIN_INLIERS or out.fitness < min_fitness:
-        raise ValueError(f"cannot register: the best transform matches {out.fitness:.0%} of B's "
-                         f"occupied points ({inliers} points within {fit:g} m; at least "
-                         f"{min_fitness:.0%} and {MIN_INLIERS} needed): the maps overlap too "
-                         "little to trust it")
+        raise ValueError(
+            f"cannot register: the best transform matches {out.fitness:.0%} of B's "
+            f"occupied points ({inliers} points within {fit:g} m; at least "
+            f"{min_fitness:.0%} and {MIN_INLIERS} needed): the maps overlap too "
+            "little to trust it"
+        )
     # the matched surfaces must face enough directions to fix the translation
     n = np.asarray(pa.normals)[pairs[:, 1]]
     n = n[:, :2] if planar else n
     ev_ = np.linalg.eigvalsh(n.T @ n / len(n))
     if ev_[0] < MIN_SPREAD * ev_[-1]:
         axis = "horizontal direction" if planar else "direction"
-        raise ValueError(f"cannot register: the overlapping surfaces leave a {axis} unconstrained "
-                         f"(normal spread {ev_[0] / ev_[-1]:.3f}, at least {MIN_SPREAD} needed; "
-                         "a single wall or floor?): the overlap is too small to trust a transform")
+        raise ValueError(
+            f"cannot register: the overlapping surfaces leave a {axis} unconstrained "
+            f"(normal spread {ev_[0] / ev_[-1]:.3f}, at least {MIN_SPREAD} needed; "
+            "a single wall or floor?): the overlap is too small to trust a transform"
+        )
     conflict = free_space_conflict(a, b, T)
     if conflict > max_conflict:
-        raise ValueError(f"cannot register: the best transform ({out.fitness:.0%} of B's occupied "
-                         f"points matched) puts {conflict:.1%} of B's occupied voxels in space A "
-                         f"saw free (at most {max_conflict:.1%}): it matches a similar place, not "
-                         "the same one")
+        raise ValueError(
+            f"cannot register: the best transform ({out.fitness:.0%} of B's occupied "
+            f"points matched) puts {conflict:.1%} of B's occupied voxels in space A "
+            f"saw free (at most {max_conflict:.1%}): it matches a similar place, not "
+            "the same one"
+        )
     return dataclasses.replace(out, conflict=conflict)
 
 
@@ -210,7 +231,8 @@ def _features(pc, voxel: float):
     if not pc.has_normals():
         _normals(pc, voxel)
     return o3d.pipelines.registration.compute_fpfh_feature(
-        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100))
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
+    )
 
 
 def _orthonormal(T: np.ndarray) -> np.ndarray:
@@ -244,8 +266,10 @@ def _fit_planar(src: np.ndarray, dst: np.ndarray, w=None) -> np.ndarray:
     w = np.ones(len(src)) if w is None else w
     cs, cd = np.average(src, axis=0, weights=w), np.average(dst, axis=0, weights=w)
     s, d = src[:, :2] - cs[:2], dst[:, :2] - cd[:2]
-    yaw = math.atan2(np.sum(w * (s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0])),
-                     np.sum(w * (s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1])))
+    yaw = math.atan2(
+        np.sum(w * (s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0])),
+        np.sum(w * (s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1])),
+    )
     T = pose_matrix(yaw=yaw)
     T[:3, 3] = cd - T[:3, :3] @ cs
     return T
@@ -292,14 +316,14 @@ def _rigid_ransac(ps, pt, dist, seed, tries: int = RANSAC_TRIES) -> np.ndarray:
     drawn, T = drawn[ok], T[ok]
     best, best_n = None, 0
     for k0 in range(0, len(T), 256):  # matches within dist, a chunk of transforms at a time
-        Tc = T[k0:k0 + 256]
+        Tc = T[k0 : k0 + 256]
         err = np.linalg.norm(_moved_by_each(Tc, ps) - pt, axis=2)
         n = np.sum(err < dist, axis=1)
         k = int(np.argmax(n))
         if n[k] > best_n:
             best, best_n = Tc[k], int(n[k])
         w = best_n / len(ps)
-        needed = math.log(1e-3) / math.log1p(-w ** 3) if 0 < w < 1 else 0.0
+        needed = math.log(1e-3) / math.log1p(-(w**3)) if 0 < w < 1 else 0.0
         if drawn[min(k0 + 256, len(T)) - 1] + 1 >= needed:
             break
     return np.eye(4) if best is None else best
@@ -309,8 +333,10 @@ def _planar_ransac(ps, pt, dist, seed) -> np.ndarray:
     """Yaw + translation taking the matched points ``ps`` onto ``pt``: 2-point RANSAC in the
     plane."""
     if len(ps) < 3:
-        raise ValueError("cannot register: the maps share no distinctive structure (fewer than "
-                         "3 feature matches); the maps overlap too little to trust a transform")
+        raise ValueError(
+            "cannot register: the maps share no distinctive structure (fewer than "
+            "3 feature matches); the maps overlap too little to trust a transform"
+        )
     rng = np.random.default_rng(seed)
     best, best_n = np.eye(4), -1
     for _ in range(5000):

@@ -18,8 +18,9 @@ class MapFusion(NamedTuple):
     info_loss: InfoLossMap
 
 
-def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
-              unknown: str = "copy") -> MapFusion:
+def fuse_maps(
+    a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss", unknown: str = "copy"
+) -> MapFusion:
     """Fuse two occupancy maps voxel by voxel.
 
     Both trees are walked once, together; a coarse (pruned) leaf stands for all voxels
@@ -41,9 +42,14 @@ def fuse_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     return MapFusion(OccupancyMap._wrap(raw_map), InfoLossMap._wrap(raw_loss, *counts[:3]))
 
 
-def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
-              unknown: str = "copy", loss: InfoLossMap | None = None,
-              threads: int = 1) -> InfoLossMap | None:
+def fuse_into(
+    dst: OccupancyMap,
+    msg: OccupancyMap,
+    rule: str = "min-info-loss",
+    unknown: str = "copy",
+    loss: InfoLossMap | None = None,
+    threads: int = 1,
+) -> InfoLossMap | None:
     """Fuse ``msg`` into ``dst`` in place (the result equals ``fuse_maps(dst, msg)``).
 
     With ``unknown="copy"`` the work is proportional to the message, not to ``dst``: this is
@@ -54,8 +60,9 @@ def fuse_into(dst: OccupancyMap, msg: OccupancyMap, rule: str = "min-info-loss",
     """
     _check_maps("fuse_into", dst, msg)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts = _core._fuse_into(dst._m, msg._m, rule, unknown, _loss_tree(loss, dst),
-                              threads=thread_count(threads))
+    counts = _core._fuse_into(
+        dst._m, msg._m, rule, unknown, _loss_tree(loss, dst), threads=thread_count(threads)
+    )
     if loss is not None:
         loss._record(counts)
     return loss
@@ -69,9 +76,14 @@ def subtract_into(dst: OccupancyMap, msg: OccupancyMap) -> None:
     _core._subtract_into(dst._m, msg._m)
 
 
-def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
-                  unknown: str = "copy", loss_a: InfoLossMap | None = None,
-                  loss_b: InfoLossMap | None = None) -> tuple[int, int]:
+def exchange_maps(
+    a: OccupancyMap,
+    b: OccupancyMap,
+    rule: str = "min-info-loss",
+    unknown: str = "copy",
+    loss_a: InfoLossMap | None = None,
+    loss_b: InfoLossMap | None = None,
+) -> tuple[int, int]:
     """A simultaneous two-way exchange, in place: ``a`` fuses ``b`` and ``b`` fuses ``a``
     (each as it was before), in one walk and without copying either map. Equal to
     ``fuse_into(a, b0)`` and ``fuse_into(b, a0)``. Losses are added into ``loss_a``/``loss_b``.
@@ -80,8 +92,9 @@ def exchange_maps(a: OccupancyMap, b: OccupancyMap, rule: str = "min-info-loss",
     """
     _check_maps("exchange_maps", a, b)
     rule, unknown = parse_rule(rule), parse_unknown(unknown)
-    counts_a, counts_b = _core._fuse_mutual(a._m, b._m, rule, unknown, _loss_tree(loss_a, a),
-                                            _loss_tree(loss_b, b))
+    counts_a, counts_b = _core._fuse_mutual(
+        a._m, b._m, rule, unknown, _loss_tree(loss_a, a), _loss_tree(loss_b, b)
+    )
     for loss, counts in ((loss_a, counts_a), (loss_b, counts_b)):
         if loss is not None:
             loss._record(counts)

@@ -8,7 +8,7 @@ import contextlib
 import os
 import pickle
 import traceback
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 from .libraries import pyplot
 
@@ -68,7 +68,7 @@ def _hand_over(fd: int, e: BaseException) -> None:
         data = pickle.dumps((RuntimeError(f"{type(e).__name__}: {e}"), told))
     view = memoryview(data)
     while view:
-        view = view[os.write(fd, view):]
+        view = view[os.write(fd, view) :]
 
 
 def _handed_error(data: bytes):

@@ -21,8 +21,8 @@ import os
 import re
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -33,10 +33,31 @@ CLOUD_SUFFIXES = (".ply", ".pcd")
 
 #: per-point names a scalar field may not take: coordinates, colours, normals, the voxel
 #: size, and the attributes that make Open3D treat a cloud as Gaussian splats
-_RESERVED = frozenset({
-    "x", "y", "z", "positions", "colors", "normals", "nx", "ny", "nz", "rgb", "rgba", "red",
-    "green", "blue", "alpha", "voxel_size", "scale", "rot", "opacity", "f_dc", "f_rest",
-})
+_RESERVED = frozenset(
+    {
+        "x",
+        "y",
+        "z",
+        "positions",
+        "colors",
+        "normals",
+        "nx",
+        "ny",
+        "nz",
+        "rgb",
+        "rgba",
+        "red",
+        "green",
+        "blue",
+        "alpha",
+        "voxel_size",
+        "scale",
+        "rot",
+        "opacity",
+        "f_dc",
+        "f_rest",
+    }
+)
 _FIELD_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
@@ -78,22 +99,41 @@ def check_field(name: str) -> None:
     if not isinstance(name, str) or not _FIELD_NAME.match(name):
         raise ValueError(f"field name {name!r}: expected letters, digits and underscores")
     if name in _RESERVED:
-        raise ValueError(f"field name {name!r} is reserved (coordinates, colours, voxel_size "
-                         f"and Open3D's Gaussian-splat attributes)")
+        raise ValueError(
+            f"field name {name!r} is reserved (coordinates, colours, voxel_size "
+            f"and Open3D's Gaussian-splat attributes)"
+        )
 
 
 def cloud_path(path, verb: str = "write") -> Path:
     """``path`` as a Path, if it names a cloud file (``ValueError`` otherwise)."""
     p = Path(path)
     if p.suffix not in CLOUD_SUFFIXES:
-        raise ValueError(f"cannot {verb} point cloud '{p}': expected a file name ending in "
-                         f"{' or '.join(CLOUD_SUFFIXES)}")
+        raise ValueError(
+            f"cannot {verb} point cloud '{p}': expected a file name ending in "
+            f"{' or '.join(CLOUD_SUFFIXES)}"
+        )
     return p
 
 
-_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2,
-              "ushort": 2, "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4,
-              "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_SIZES = {
+    "char": 1,
+    "int8": 1,
+    "uchar": 1,
+    "uint8": 1,
+    "short": 2,
+    "int16": 2,
+    "ushort": 2,
+    "uint16": 2,
+    "int": 4,
+    "int32": 4,
+    "uint": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 def _ply_layout(head: bytes, end: int) -> tuple[int, int] | None:
@@ -154,8 +194,9 @@ def _check_ply_length(p: Path) -> None:
     """Refuse a truncated binary PLY or PCD (Open3D's reader fills missing points silently)."""
     found = _cloud_data(p)
     if found is not None and found[1] < found[2]:
-        raise OSError(f"cannot read point cloud '{p}': truncated ({found[1]:,} of {found[2]:,} "
-                      f"data bytes)")
+        raise OSError(
+            f"cannot read point cloud '{p}': truncated ({found[1]:,} of {found[2]:,} data bytes)"
+        )
 
 
 def _check_written(tmp: Path, p: Path, n: int) -> None:
@@ -168,8 +209,10 @@ def _check_written(tmp: Path, p: Path, n: int) -> None:
         raise OSError(f"could not write point cloud '{p}': the written file has no valid header")
     points, have, need = found
     if points != n or have != need:
-        raise OSError(f"could not write point cloud '{p}': the file holds {have:,} of {need:,} "
-                      f"data bytes for {points:,} of {n:,} points (disk full or write error?)")
+        raise OSError(
+            f"could not write point cloud '{p}': the file holds {have:,} of {need:,} "
+            f"data bytes for {points:,} of {n:,} points (disk full or write error?)"
+        )
 
 
 class _QuietStderr:
@@ -220,8 +263,9 @@ class _QuietStderr:
 _quiet_stderr = _QuietStderr()
 
 
-def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
-                 fields: Mapping[str, np.ndarray]) -> Path:
+def write_cloud(
+    p: Path, centers: np.ndarray, colors: np.ndarray, fields: Mapping[str, np.ndarray]
+) -> Path:
     """Write one binary cloud through a temporary file in the same folder."""
     folder = p.parent
     if not folder.is_dir():
@@ -233,24 +277,25 @@ def write_cloud(p: Path, centers: np.ndarray, colors: np.ndarray,
     with np.errstate(over="ignore"):
         pos32 = pos32.astype(np.float32)
     if not np.isfinite(pos32).all():
-        raise ValueError(f"cannot write '{p}': voxel coordinates beyond the float32 range of "
-                         f"point clouds (largest {np.abs(np.asarray(centers)).max():.3g} m)")
+        raise ValueError(
+            f"cannot write '{p}': voxel coordinates beyond the float32 range of "
+            f"point clouds (largest {np.abs(np.asarray(centers)).max():.3g} m)"
+        )
     o3d = open3d()
     o3c = o3d.core
     pcd = o3d.t.geometry.PointCloud()
-    pcd.point["positions"] = o3c.Tensor.from_numpy(
-        np.ascontiguousarray(pos32))
+    pcd.point["positions"] = o3c.Tensor.from_numpy(np.ascontiguousarray(pos32))
     pcd.point["colors"] = o3c.Tensor.from_numpy(np.ascontiguousarray(colors, dtype=np.uint8))
     for name, values in fields.items():
         pcd.point[name] = o3c.Tensor.from_numpy(
-            np.ascontiguousarray(values, dtype=np.float32).reshape(n, 1))
+            np.ascontiguousarray(values, dtype=np.float32).reshape(n, 1)
+        )
     with written_then_renamed(p) as tmp:
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), \
-                _quiet_stderr():
-            ok = o3d.t.io.write_point_cloud(str(tmp), pcd, write_ascii=False, compressed=False,
-                                            print_progress=False)
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), _quiet_stderr():
+            ok = o3d.t.io.write_point_cloud(
+                str(tmp), pcd, write_ascii=False, compressed=False, print_progress=False
+            )
         if not ok:
             raise OSError(f"could not write point cloud '{p}' (disk full or folder not writable?)")
         _check_written(tmp, p, n)
     return p
-

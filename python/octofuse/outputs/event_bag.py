@@ -11,8 +11,8 @@ are made (nothing is kept); the bag is put in place only complete (:class:`MapBa
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Optional, Sequence
 
 from ..config import EXACT_MODES
 from .rosbag_export import MapBagWriter, MapEvent
@@ -29,12 +29,19 @@ class FusionEventBag:
     place (``finish()`` and ``put_in_place()``, as :class:`MapBagWriter`), ``abort()`` drops it.
     """
 
-    def __init__(self, path: str | os.PathLike, *, frame_id: str = "map",
-                 select: Optional[Callable[[list[str]], Sequence[str]]] = None,
-                 every: int = 1, clouds_only: bool = False,
-                 say: Callable[[str], None] = lambda _m: None):
-        self.writer = MapBagWriter(path, frame_id=frame_id,
-                                   topic=None if clouds_only else TOPIC, cloud_topic=CLOUD_TOPIC)
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        frame_id: str = "map",
+        select: Callable[[list[str]], Sequence[str]] | None = None,
+        every: int = 1,
+        clouds_only: bool = False,
+        say: Callable[[str], None] = lambda _m: None,
+    ):
+        self.writer = MapBagWriter(
+            path, frame_id=frame_id, topic=None if clouds_only else TOPIC, cloud_topic=CLOUD_TOPIC
+        )
         self.path = Path(path)
         self.start_ns = 0
         #: an agent's map written at every ``every``-th fusion it receives
@@ -43,7 +50,7 @@ class FusionEventBag:
         self.expected = 0
         self._say = say
         self._select = select
-        self._agents: Optional[set[str]] = None
+        self._agents: set[str] | None = None
         self._seen: dict[str, int] = {}  # rule -> fusion records handled
         self._received: dict[tuple[str, str], int] = {}  # (rule, agent) -> fusions received
         self._projected = False
@@ -59,7 +66,7 @@ class FusionEventBag:
         stamp = self.start_ns + round(t * 1e9)
         for rule in net.rules:
             records = net.traffic[rule].fusions
-            new = records[self._seen.get(rule, 0):]
+            new = records[self._seen.get(rule, 0) :]
             self._seen[rule] = len(records)
             for agent in dict.fromkeys(e.receiver for e in new if e.receiver in self._agents):
                 k = self._received[rule, agent] = self._received.get((rule, agent), 0) + 1
@@ -80,9 +87,11 @@ class FusionEventBag:
             return
         self._projected = True
         mb = w.bytes / w.count * self.expected / 1e6
-        self._say(f"--export-bag: {w.count} of about {self.expected} map messages written, "
-                  f"about {mb:,.1f} MB expected (maps grow: likely more; --bag-every N and "
-                  "--bag-clouds-only write less)")
+        self._say(
+            f"--export-bag: {w.count} of about {self.expected} map messages written, "
+            f"about {mb:,.1f} MB expected (maps grow: likely more; --bag-every N and "
+            "--bag-clouds-only write less)"
+        )
 
     def close(self) -> Path:
         return self.writer.close()

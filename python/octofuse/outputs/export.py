@@ -21,12 +21,11 @@ import numpy as np
 from ..maps.infoloss import InfoLossMap, Leaves, read_info_loss
 from ..maps.occupancy import OccupancyMap
 from .clouds import CLOUD_SUFFIXES, check_field, cloud_path, write_cloud
-from .staging import written_then_renamed
 from .libraries import pyplot
+from .staging import written_then_renamed
 
 MAP_SUFFIXES = (".ot", ".bt")
 LOSS_SUFFIX = ".npz"
-
 
 
 class ExportResult(NamedTuple):
@@ -42,11 +41,21 @@ class ExportResult(NamedTuple):
 
 
 # -- writing -----------------------------------------------------------------------------
-def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="inferno",
-                  vmin: float = 0.0, vmax: float | None = None, field: str = "info_loss",
-                  min_value: float | None = None, map: OccupancyMap | None = None,
-                  voxels: str | None = None, crop=None, z_range=None,
-                  colorbar: str | os.PathLike | None = None) -> Path:
+def write_heatmap(
+    loss: InfoLossMap | Leaves,
+    path: str | os.PathLike,
+    *,
+    cmap="inferno",
+    vmin: float = 0.0,
+    vmax: float | None = None,
+    field: str = "info_loss",
+    min_value: float | None = None,
+    map: OccupancyMap | None = None,
+    voxels: str | None = None,
+    crop=None,
+    z_range=None,
+    colorbar: str | os.PathLike | None = None,
+) -> Path:
     """Write per-voxel information loss as a coloured point cloud and return its path.
 
     Parameters
@@ -103,16 +112,20 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
         extra = {"log_odds": logodds, "occupancy": occupancy_of(logodds)}
     else:
         if kind != "all":
-            raise ValueError(f"voxels={kind!r} needs the fused map (map=...) to tell occupied "
-                             "from free voxels")
+            raise ValueError(
+                f"voxels={kind!r} needs the fused map (map=...) to tell occupied from free voxels"
+            )
         values = np.asarray(lv.values, dtype=np.float32).reshape(-1)
         centers = np.asarray(lv.centers, dtype=np.float64).reshape(-1, 3)
         sizes = np.asarray(lv.sizes, dtype=np.float64).reshape(-1)
     keep = np.ones(len(values), bool)
     why = "the information-loss map is empty" if len(values) == 0 else ""
     if (map is not None or given) and len(values) == 0:
-        why = f"the map has no {kind} voxel the loss map covers" if kind != "all" else \
-            "the loss map covers no voxel of the map"
+        why = (
+            f"the map has no {kind} voxel the loss map covers"
+            if kind != "all"
+            else "the loss map covers no voxel of the map"
+        )
     if crop is not None:
         lo, hi = _crop_box(crop)
         keep &= np.all((centers >= lo) & (centers <= hi), axis=1)
@@ -136,8 +149,9 @@ def write_heatmap(loss: InfoLossMap | Leaves, path: str | os.PathLike, *, cmap="
     lo, hi = _color_range(values, vmin, vmax)
     colors = colorize(values, cmap, lo, hi)
     if colorbar is not None:
-        write_colorbar(colorbar, cmap, lo, hi, label=f"{field} (nats)" if field == "info_loss"
-                       else field)
+        write_colorbar(
+            colorbar, cmap, lo, hi, label=f"{field} (nats)" if field == "info_loss" else field
+        )
     return write_cloud(p, centers, colors, {field: values, **extra, "voxel_size": sizes})
 
 
@@ -150,8 +164,9 @@ class MapVoxelLoss(NamedTuple):
     loss: np.ndarray  #: (N,) float32 information loss, nats
 
 
-def map_voxel_loss(loss: InfoLossMap | Leaves, map: OccupancyMap,
-                   voxels: str = "occupied") -> MapVoxelLoss:
+def map_voxel_loss(
+    loss: InfoLossMap | Leaves, map: OccupancyMap, voxels: str = "occupied"
+) -> MapVoxelLoss:
     """The leaves of ``map`` of the class ``voxels`` ("occupied": log-odds > 0, "free" or
     "all") with the loss at their centres; leaves the loss map does not cover are left out.
     What :func:`write_heatmap` writes with ``map=``."""
@@ -172,8 +187,12 @@ def shared_color_range(losses, vmin: float = 0.0, percentile: float = 99.0) -> t
     """One colour range for the heat maps of several rules: ``vmin`` and the ``percentile`` of
     all their loss values together (the maximum if that is not above ``vmin``). ``losses``:
     loss maps, leaves or :class:`MapVoxelLoss` (the voxels the heat maps show)."""
-    vals = [np.asarray(x.loss if isinstance(x, MapVoxelLoss) else _as_leaves(x).values,
-                       dtype=np.float64).reshape(-1) for x in losses]
+    vals = [
+        np.asarray(
+            x.loss if isinstance(x, MapVoxelLoss) else _as_leaves(x).values, dtype=np.float64
+        ).reshape(-1)
+        for x in losses
+    ]
     v = np.concatenate(vals) if vals else np.empty(0)
     v = v[np.isfinite(v)]
     if v.size == 0:
@@ -184,8 +203,9 @@ def shared_color_range(losses, vmin: float = 0.0, percentile: float = 99.0) -> t
     return float(vmin), max(hi, float(vmin))
 
 
-def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
-                   label: str = "info_loss") -> Path:
+def write_colorbar(
+    path: str | os.PathLike, cmap, vmin: float, vmax: float, label: str = "info_loss"
+) -> Path:
     """A horizontal colour bar (PNG) of ``cmap`` over [vmin, vmax], labelled ``label``."""
     p = Path(path)
     if p.suffix.lower() != ".png":
@@ -197,8 +217,12 @@ def write_colorbar(path: str | os.PathLike, cmap, vmin: float, vmax: float,
     fig, ax = plt.subplots(figsize=(5.0, 0.8), dpi=150)
     fig.subplots_adjust(left=0.05, right=0.95, bottom=0.55, top=0.9)
     norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
-    fig.colorbar(ScalarMappable(norm=norm, cmap=_colormap(cmap)), cax=ax,
-                 orientation="horizontal", label=label)
+    fig.colorbar(
+        ScalarMappable(norm=norm, cmap=_colormap(cmap)),
+        cax=ax,
+        orientation="horizontal",
+        label=label,
+    )
     try:
         with written_then_renamed(p) as tmp:
             fig.savefig(tmp)
@@ -211,8 +235,9 @@ def _crop_box(crop) -> tuple[np.ndarray, np.ndarray]:
     try:
         lo, hi = (np.asarray(c, dtype=np.float64).reshape(3) for c in crop)
     except (TypeError, ValueError):
-        raise ValueError(f"crop box {crop!r}: expected ((xmin, ymin, zmin), (xmax, ymax, zmax))") \
-            from None
+        raise ValueError(
+            f"crop box {crop!r}: expected ((xmin, ymin, zmin), (xmax, ymax, zmax))"
+        ) from None
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (lo > hi).any():
         raise ValueError(f"crop box {lo.tolist()}..{hi.tolist()} is empty or not finite")
     return lo, hi
@@ -228,8 +253,14 @@ def _z_range(z_range) -> tuple[float, float]:
     return z0, z1
 
 
-def write_map_cloud(m: OccupancyMap, path: str | os.PathLike, *, occupied_only: bool = True,
-                    threshold: float = 0.0, cmap="viridis") -> Path:
+def write_map_cloud(
+    m: OccupancyMap,
+    path: str | os.PathLike,
+    *,
+    occupied_only: bool = True,
+    threshold: float = 0.0,
+    cmap="viridis",
+) -> Path:
     """Write an occupancy map as a point cloud coloured by height and return its path.
 
     One point per leaf with log-odds > ``threshold`` (``occupied_only=False``: every known
@@ -254,13 +285,20 @@ def _write_map_cloud(m, path, occupied_only, threshold, cmap) -> tuple[Path, int
         keep = logodds > np.float32(threshold)
         logodds, centers, sizes = logodds[keep], centers[keep], sizes[keep]
     if logodds.size == 0:
-        why = ("the map is empty" if m.num_leaves == 0 or not occupied_only
-               else f"no voxel has log-odds > {threshold:g}")
+        why = (
+            "the map is empty"
+            if m.num_leaves == 0 or not occupied_only
+            else f"no voxel has log-odds > {threshold:g}"
+        )
         raise ValueError(f"cannot write '{p}': no points to write ({why})")
     z = centers[:, 2]
     colors = colorize(z, cmap, float(z.min()), float(z.max()))
-    path = write_cloud(p, centers, colors,
-                       {"log_odds": logodds, "occupancy": occupancy_of(logodds), "voxel_size": sizes})
+    path = write_cloud(
+        p,
+        centers,
+        colors,
+        {"log_odds": logodds, "occupancy": occupancy_of(logodds), "voxel_size": sizes},
+    )
     return path, len(logodds)
 
 
@@ -285,9 +323,14 @@ def colorize(values, cmap, vmin: float, vmax: float) -> np.ndarray:
 
 
 # -- the `octofuse export` command -------------------------------------------------------
-def export_map(src_path: str | os.PathLike, out_path: str | os.PathLike, *,
-               occupied_only: bool = True, threshold: float = 0.0,
-               cmap: str | None = None) -> ExportResult:
+def export_map(
+    src_path: str | os.PathLike,
+    out_path: str | os.PathLike,
+    *,
+    occupied_only: bool = True,
+    threshold: float = 0.0,
+    cmap: str | None = None,
+) -> ExportResult:
     """Convert a map or an information-loss file; what ``octofuse export`` runs.
 
     ``src_path``: an OctoMap file (``.ot``/``.bt``) or an information-loss ``.npz``.
@@ -303,23 +346,32 @@ def export_map(src_path: str | os.PathLike, out_path: str | os.PathLike, *,
     src, out = Path(src_path), Path(out_path)
     out_suffix, src_suffix = out.suffix, src.suffix
     if out_suffix not in CLOUD_SUFFIXES + MAP_SUFFIXES:
-        raise ValueError(f"cannot export to '{out}': expected a point cloud "
-                         f"({', '.join(CLOUD_SUFFIXES)}) or a map ({', '.join(MAP_SUFFIXES)})")
+        raise ValueError(
+            f"cannot export to '{out}': expected a point cloud "
+            f"({', '.join(CLOUD_SUFFIXES)}) or a map ({', '.join(MAP_SUFFIXES)})"
+        )
     if src_suffix == LOSS_SUFFIX:
         if out_suffix in MAP_SUFFIXES:
-            raise ValueError(f"cannot convert the information-loss file '{src}' to '{out}': "
-                             f"it is not an occupancy map; write a .ply or .pcd heat map")
+            raise ValueError(
+                f"cannot convert the information-loss file '{src}' to '{out}': "
+                f"it is not an occupancy map; write a .ply or .pcd heat map"
+            )
         lv = read_info_loss(src)
         path = write_heatmap(lv, out, cmap=cmap or "inferno")
         return ExportResult(path, len(lv.values), "points", "information-loss heat map")
     if src_suffix not in MAP_SUFFIXES:
-        raise ValueError(f"cannot export '{src}': expected a map ({', '.join(MAP_SUFFIXES)}) "
-                         f"or an information-loss file ({LOSS_SUFFIX})")
+        raise ValueError(
+            f"cannot export '{src}': expected a map ({', '.join(MAP_SUFFIXES)}) "
+            f"or an information-loss file ({LOSS_SUFFIX})"
+        )
     m = OccupancyMap.load(src)
     if out_suffix in MAP_SUFFIXES:
         path = m.save(out)
-        kind = ("OctoMap .bt: free/occupied only" if out_suffix == ".bt"
-                else "OctoMap .ot: full log-odds")
+        kind = (
+            "OctoMap .bt: free/occupied only"
+            if out_suffix == ".bt"
+            else "OctoMap .ot: full log-odds"
+        )
         return ExportResult(path, m.num_leaves, "leaves", kind)
     path, n = _write_map_cloud(m, out, occupied_only, threshold, cmap or "viridis")
     what = "occupied voxels" if occupied_only else "all known voxels"
@@ -337,8 +389,10 @@ def _colormap(cmap):
     try:
         return matplotlib.colormaps[cmap]
     except KeyError:
-        raise ValueError(f"unknown colour map {cmap!r}: expected a matplotlib colour map name "
-                         f"such as viridis, inferno, magma, plasma, cividis or turbo") from None
+        raise ValueError(
+            f"unknown colour map {cmap!r}: expected a matplotlib colour map name "
+            f"such as viridis, inferno, magma, plasma, cividis or turbo"
+        ) from None
 
 
 def _color_range(values: np.ndarray, vmin: float, vmax: float | None) -> tuple[float, float]:

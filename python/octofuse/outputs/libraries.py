@@ -5,7 +5,7 @@ of their own while it computes, since together they take a second or more of CPU
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 from ..interrupts import interrupted
 
@@ -43,8 +43,9 @@ def import_output_libraries() -> threading.Thread:
     return thread
 
 
-def import_once_under_way(progress: Callable[[int, int], None],
-                          share: float = IMPORT_AFTER) -> Callable[[int, int], None]:
+def import_once_under_way(
+    progress: Callable[[int, int], None], share: float = IMPORT_AFTER
+) -> Callable[[int, int], None]:
     """``progress(done, total)`` that also starts :func:`import_output_libraries` once
     ``share`` of the total is done (a run that ends sooner imports them where they are
     needed)."""

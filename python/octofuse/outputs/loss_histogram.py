@@ -4,9 +4,9 @@ drawn (Matplotlib)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Sequence
 
 import numpy as np
 
@@ -27,8 +27,9 @@ class LossHistograms:
     fractions: dict[str, np.ndarray]
 
 
-def count_loss_histograms(data: dict[str, Sequence[tuple[np.ndarray, np.ndarray]]],
-                          threads: int = 1) -> Optional[LossHistograms]:
+def count_loss_histograms(
+    data: dict[str, Sequence[tuple[np.ndarray, np.ndarray]]], threads: int = 1
+) -> LossHistograms | None:
     """The histograms of ``data``, which maps a rule to the loss values and depths of each of
     its agents' loss leaves (:attr:`.map_exports.MapExports.histogram`; a leaf weighs the
     voxels it covers), counted on ``threads`` threads; None without rules. The values are
@@ -37,19 +38,25 @@ def count_loss_histograms(data: dict[str, Sequence[tuple[np.ndarray, np.ndarray]
         return None
     rules = [r for r, leaves in data.items() if any(len(v) for v, _ in leaves)]
     # the values of all agents, copied into one array, partitioned in place by the percentile
-    tops = thread_map(lambda r: float(np.percentile(np.concatenate([v for v, _ in data[r]]), 99.5,
-                                                    overwrite_input=True)), rules, threads)
+    tops = thread_map(
+        lambda r: float(
+            np.percentile(np.concatenate([v for v, _ in data[r]]), 99.5, overwrite_input=True)
+        ),
+        rules,
+        threads,
+    )
     top = max([0.0, *tops]) or 1.0
 
     def fractions(r):
         per_bin, total = voxels_in_bins(data[r], NBINS, top)
         return per_bin / total
 
-    return LossHistograms(np.linspace(0, top, NBINS + 1),
-                          dict(zip(rules, thread_map(fractions, rules, threads))))
+    return LossHistograms(
+        np.linspace(0, top, NBINS + 1), dict(zip(rules, thread_map(fractions, rules, threads)))
+    )
 
 
-def plot_loss_histograms(hist: Optional[LossHistograms], path: Path) -> Optional[Path]:
+def plot_loss_histograms(hist: LossHistograms | None, path: Path) -> Path | None:
     """The histograms drawn into the PNG ``path`` (log scale); None, and nothing written,
     for None."""
     if hist is None:
@@ -66,8 +73,13 @@ def loss_histogram_figure(hist: LossHistograms):
     # rules with equal histograms draw on top of each other: each its own dash, the later
     # ones thinner, so that every line shows
     for i, (r, h) in enumerate(hist.fractions.items()):
-        ax.stairs(h, hist.bins, lw=2.4 - 1.2 * i / max(1, len(hist.fractions) - 1),
-                  ls=LINE_STYLES[i % len(LINE_STYLES)], label=r)
+        ax.stairs(
+            h,
+            hist.bins,
+            lw=2.4 - 1.2 * i / max(1, len(hist.fractions) - 1),
+            ls=LINE_STYLES[i % len(LINE_STYLES)],
+            label=r,
+        )
     ax.set_xlabel("accumulated information loss per voxel [nats]")
     ax.set_ylabel("fraction of fused voxels")
     ax.set_yscale("log")

@@ -5,8 +5,8 @@ heat maps, colour bar and top views with one colour range for every rule."""
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -15,8 +15,14 @@ from ..fusion.results import SimResult
 from ..threads import thread_map
 
 #: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
-TOPVIEW_RULES = ("chernoff", "kld-weighted-chernoff", "min-info-loss",
-                 "entropy-weighted-chernoff", "bhattacharyya", "min-entropy")
+TOPVIEW_RULES = (
+    "chernoff",
+    "kld-weighted-chernoff",
+    "min-info-loss",
+    "entropy-weighted-chernoff",
+    "bhattacharyya",
+    "min-entropy",
+)
 COLORBAR = "info_loss_colorbar.png"
 
 
@@ -30,8 +36,15 @@ class MapExports:
     """Writes the maps of ``rules`` into ``out`` as results arrive (:meth:`add`), so that a
     rule's maps can be freed once written; :meth:`finish` writes what needs every rule."""
 
-    def __init__(self, out: Path, cfg: RunConfig, rules: Sequence[str], agents: Sequence[str],
-                 heatmaps: bool = True, threads: int = 1):
+    def __init__(
+        self,
+        out: Path,
+        cfg: RunConfig,
+        rules: Sequence[str],
+        agents: Sequence[str],
+        heatmaps: bool = True,
+        threads: int = 1,
+    ):
         self.out, self.cfg, self.agents = Path(out), cfg, list(agents)
         self.threads = max(1, threads)  #: files written side by side
         self.views = topview_rules(rules)
@@ -74,8 +87,9 @@ class MapExports:
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
             if r not in ("naive-bayes", *EXACT_MODES):
-                self.histogram[r] = thread_map(lambda a: res.loss_leaves_of(r, a), res.agents,
-                                               self.threads)
+                self.histogram[r] = thread_map(
+                    lambda a: res.loss_leaves_of(r, a), res.agents, self.threads
+                )
         self.seconds += time.perf_counter() - t0
 
     def finish(self) -> dict:
@@ -86,18 +100,30 @@ class MapExports:
 
         t0 = time.perf_counter()
         cfg, out = self.cfg, self.out
-        info: dict = {"export": cfg.export, "formats": list(cfg.formats), "heatmaps": [],
-                      "topviews": [], "range": None}
+        info: dict = {
+            "export": cfg.export,
+            "formats": list(cfg.formats),
+            "heatmaps": [],
+            "topviews": [],
+            "range": None,
+        }
         if not self.agents or not self.voxels:
             self.seconds += time.perf_counter() - t0
             return info
         lo, hi = shared_color_range(self.voxels.values())
         info["range"] = [lo, hi]
         if self.heatmaps:
-            jobs = [(v, out / r / f"{a}_info_loss.{ext}") for (r, a), v in self.voxels.items()
-                    for ext in cfg.formats]
-            info["heatmaps"] = [p.name for p in thread_map(
-                lambda job: write_heatmap(job[0], job[1], vmin=lo, vmax=hi), jobs, self.threads)]
+            jobs = [
+                (v, out / r / f"{a}_info_loss.{ext}")
+                for (r, a), v in self.voxels.items()
+                for ext in cfg.formats
+            ]
+            info["heatmaps"] = [
+                p.name
+                for p in thread_map(
+                    lambda job: write_heatmap(job[0], job[1], vmin=lo, vmax=hi), jobs, self.threads
+                )
+            ]
             write_colorbar(out / COLORBAR, "inferno", lo, hi, label="information loss [nats]")
             info["colorbar"] = COLORBAR
         first = self.agents[0]
@@ -105,9 +131,15 @@ class MapExports:
             v = self.voxels.get((r, first))
             if v is not None:
                 name = f"topview_{r}.png"
-                write_topview(v, self.resolution[(r, first)], out / name, vmin=lo, vmax=hi,
-                              title=f"{first}, {r}: accumulated information loss of the "
-                                    "occupied voxels (max over height)")
+                write_topview(
+                    v,
+                    self.resolution[(r, first)],
+                    out / name,
+                    vmin=lo,
+                    vmax=hi,
+                    title=f"{first}, {r}: accumulated information loss of the "
+                    "occupied voxels (max over height)",
+                )
                 info["topviews"].append({"rule": r, "agent": first, "file": name})
         self.seconds += time.perf_counter() - t0
         return info

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -84,10 +84,17 @@ def typestore(ros1: bool):
     return ts
 
 
-def write_map_bag(path: str | os.PathLike, maps: Mapping[str, object] | Iterable[MapEvent], *,
-                  kind: str | None = None, frame_id: str = "map", stamp_ns: int = 0,
-                  topic: str = "/{name}/octomap", cloud_topic: str | None = "/{name}/occupied_cells",
-                  occupied: float = 0.0) -> Path:
+def write_map_bag(
+    path: str | os.PathLike,
+    maps: Mapping[str, object] | Iterable[MapEvent],
+    *,
+    kind: str | None = None,
+    frame_id: str = "map",
+    stamp_ns: int = 0,
+    topic: str = "/{name}/octomap",
+    cloud_topic: str | None = "/{name}/occupied_cells",
+    occupied: float = 0.0,
+) -> Path:
     """Write maps as ``octomap_msgs/msg/Octomap`` (and occupied voxels as PointCloud2) messages.
 
     ``maps`` is ``{name: map}`` (all stamped ``stamp_ns``) or :class:`MapEvent` items in any
@@ -103,11 +110,14 @@ def write_map_bag(path: str | os.PathLike, maps: Mapping[str, object] | Iterable
         raise ValueError("no maps to write")
     for e in events:
         if not isinstance(e, MapEvent):
-            raise TypeError(f"expected MapEvent items or a {{name: map}} mapping, got {type(e).__name__}")
+            raise TypeError(
+                f"expected MapEvent items or a {{name: map}} mapping, got {type(e).__name__}"
+            )
         _check_stamp(e)
     events.sort(key=lambda e: e.stamp_ns)
-    with MapBagWriter(path, kind=kind, frame_id=frame_id, topic=topic, cloud_topic=cloud_topic,
-                      occupied=occupied) as writer:
+    with MapBagWriter(
+        path, kind=kind, frame_id=frame_id, topic=topic, cloud_topic=cloud_topic, occupied=occupied
+    ) as writer:
         for e in events:
             writer.write(e)
     return writer.path
@@ -124,9 +134,16 @@ class MapBagWriter:
     leaving the ``with`` block by an exception) removes everything written.
     """
 
-    def __init__(self, path: str | os.PathLike, *, kind: str | None = None,
-                 frame_id: str = "map", topic: str | None = "/{name}/octomap",
-                 cloud_topic: str | None = "/{name}/occupied_cells", occupied: float = 0.0):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        kind: str | None = None,
+        frame_id: str = "map",
+        topic: str | None = "/{name}/octomap",
+        cloud_topic: str | None = "/{name}/occupied_cells",
+        occupied: float = 0.0,
+    ):
         from rosbags.rosbag1 import Writer as Writer1
         from rosbags.rosbag2 import StoragePlugin
         from rosbags.rosbag2 import Writer as Writer2
@@ -158,8 +175,7 @@ class MapBagWriter:
                 self._writer = Writer1(self._staged)
             else:
                 self._staged = self._tmp / "bag"
-                self._writer = Writer2(self._staged, version=9,
-                                       storage_plugin=StoragePlugin.MCAP)
+                self._writer = Writer2(self._staged, version=9, storage_plugin=StoragePlugin.MCAP)
             self._writer.open()
         except BaseException:
             shutil.rmtree(self._tmp, ignore_errors=True)
@@ -174,11 +190,19 @@ class MapBagWriter:
         _check_stamp(e)
         hdr = _header(self._ts, e.stamp_ns, self._frame)
         if self._topic is not None:
-            self._put(self._topic.format(name=e.name), OCTOMAP,
-                      octomap_message(self._ts, e.map, hdr), e.stamp_ns)
+            self._put(
+                self._topic.format(name=e.name),
+                OCTOMAP,
+                octomap_message(self._ts, e.map, hdr),
+                e.stamp_ns,
+            )
         if self._cloud_topic is not None:
-            self._put(self._cloud_topic.format(name=e.name), POINTCLOUD2,
-                      occupied_cloud(self._ts, e.map, hdr, self._occupied), e.stamp_ns)
+            self._put(
+                self._cloud_topic.format(name=e.name),
+                POINTCLOUD2,
+                occupied_cloud(self._ts, e.map, hdr, self._occupied),
+                e.stamp_ns,
+            )
         self.count += 1
 
     def finish(self) -> None:
@@ -223,7 +247,7 @@ class MapBagWriter:
         self._done = None
         shutil.rmtree(self._tmp, ignore_errors=True)
 
-    def __enter__(self) -> "MapBagWriter":
+    def __enter__(self) -> MapBagWriter:
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
@@ -250,8 +274,9 @@ def _check_stamp(e: MapEvent) -> None:
 def octomap_message(ts, m, header):
     """An ``octomap_msgs/msg/Octomap`` of map ``m`` (full tree, log-odds kept)."""
     data = np.frombuffer(m.tree_data(), dtype=np.int8)
-    return ts.types[OCTOMAP](header=header, binary=False, id="OcTree",
-                             resolution=float(m.resolution), data=data)
+    return ts.types[OCTOMAP](
+        header=header, binary=False, id="OcTree", resolution=float(m.resolution), data=data
+    )
 
 
 def occupied_cloud(ts, m, header, occupied: float = 0.0):
@@ -263,23 +288,35 @@ def occupied_cloud(ts, m, header, occupied: float = 0.0):
     sel = lv.values > occupied
     # log-odds per finest voxel: expand like occupied_centers (a coarse leaf gives its voxels)
     span = np.rint(lv.sizes[sel] / m.resolution).astype(np.int64)
-    vals = [lv.values[sel][span == 1]] + [np.repeat(lv.values[sel][span == n], n ** 3)
-                                          for n in np.unique(span[span > 1])]
+    vals = [lv.values[sel][span == 1]] + [
+        np.repeat(lv.values[sel][span == n], n**3) for n in np.unique(span[span > 1])
+    ]
     xyz = occupied_centers(m, occupied)
     lo = np.concatenate(vals).astype(np.float32) if vals else np.empty(0, np.float32)
-    rec = np.zeros(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                    ("log_odds", "<f4"), ("occupancy", "<f4")])
+    rec = np.zeros(
+        len(xyz),
+        dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("log_odds", "<f4"), ("occupancy", "<f4")],
+    )
     rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     rec["log_odds"] = lo
     rec["occupancy"] = 1.0 / (1.0 + np.exp(-lo.astype(np.float64)))
     pf = ts.types["sensor_msgs/msg/PointField"]
-    fields = [pf(name=n, offset=4 * i, datatype=7, count=1)  # 7 = FLOAT32
-              for i, n in enumerate(rec.dtype.names)]
+    fields = [
+        pf(name=n, offset=4 * i, datatype=7, count=1)  # 7 = FLOAT32
+        for i, n in enumerate(rec.dtype.names)
+    ]
     step = rec.dtype.itemsize
     return ts.types[POINTCLOUD2](
-        header=header, height=1, width=len(rec), fields=fields, is_bigendian=False,
-        point_step=step, row_step=step * len(rec),
-        data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=True)
+        header=header,
+        height=1,
+        width=len(rec),
+        fields=fields,
+        is_bigendian=False,
+        point_step=step,
+        row_step=step * len(rec),
+        data=np.frombuffer(rec.tobytes(), dtype=np.uint8),
+        is_dense=True,
+    )
 
 
 def read_map_bag(path: str | os.PathLike) -> list[tuple[str, int, object]]:
@@ -297,8 +334,10 @@ def read_map_bag(path: str | os.PathLike) -> list[tuple[str, int, object]]:
             return out
         for topic, _log, msg in bags.messages(topics):
             if msg.binary or msg.id != "OcTree":
-                raise ValueError(f"'{p}': {topic} holds a {'binary ' if msg.binary else ''}"
-                                 f"'{msg.id}' octomap; only full OcTree maps are read")
+                raise ValueError(
+                    f"'{p}': {topic} holds a {'binary ' if msg.binary else ''}"
+                    f"'{msg.id}' octomap; only full OcTree maps are read"
+                )
             m = OccupancyMap.from_tree_data(np.asarray(msg.data).tobytes(), msg.resolution)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             out.append((topic, int(stamp), m))
@@ -306,8 +345,9 @@ def read_map_bag(path: str | os.PathLike) -> list[tuple[str, int, object]]:
 
 
 def _header(ts, stamp_ns: int, frame: str):
-    stamp = ts.types["builtin_interfaces/msg/Time"](sec=int(stamp_ns) // 1_000_000_000,
-                                                    nanosec=int(stamp_ns) % 1_000_000_000)
+    stamp = ts.types["builtin_interfaces/msg/Time"](
+        sec=int(stamp_ns) // 1_000_000_000, nanosec=int(stamp_ns) % 1_000_000_000
+    )
     if "seq" in [f[0] for f in ts.fielddefs["std_msgs/msg/Header"][1]]:
         return ts.types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
     return ts.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)

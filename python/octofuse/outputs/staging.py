@@ -16,8 +16,8 @@ import re
 import secrets
 import shutil
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 from ..interrupts import held, outputs_in_place, raise_if_interrupted
 
@@ -32,8 +32,10 @@ def check_replaceable(out: str | os.PathLike) -> Path:
         if not p.is_dir() or p.is_symlink():
             raise ValueError(f"--out '{p}' exists and is not a folder; give a folder name")
         if any(p.iterdir()) and not (p / MARKER).is_file():
-            raise ValueError(f"--out '{p}' is a folder that octofuse did not write; refusing to "
-                             "replace it (give a new or empty folder)")
+            raise ValueError(
+                f"--out '{p}' is a folder that octofuse did not write; refusing to "
+                "replace it (give a new or empty folder)"
+            )
     return p
 
 
@@ -65,7 +67,11 @@ def clean_leftovers(final: str | os.PathLike) -> list[Path]:
         m = pattern.match(p.name)
         if m is None or (m.group(1) and _running(int(m.group(1)))):
             continue
-        if m.group(2) == "old" and (p / final.name).exists() and not (final.exists() or final.is_symlink()):
+        if (
+            m.group(2) == "old"
+            and (p / final.name).exists()
+            and not (final.exists() or final.is_symlink())
+        ):
             os.rename(p / final.name, final)
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
@@ -99,8 +105,9 @@ def put_in_place(*moves: Callable[[], None]) -> None:
 
 
 @contextlib.contextmanager
-def staged_folder(out: str | os.PathLike, command: str,
-                  also: tuple[Callable[[], None], ...] = ()) -> Iterator[Path]:
+def staged_folder(
+    out: str | os.PathLike, command: str, also: tuple[Callable[[], None], ...] = ()
+) -> Iterator[Path]:
     """Yield a fresh folder to write into; on success it replaces ``out`` in one rename, and the
     renames ``also`` (other outputs of the command, such as a bag) run first in the same step."""
     final = check_replaceable(out).absolute()
@@ -118,8 +125,9 @@ def staged_folder(out: str | os.PathLike, command: str,
 
 
 @contextlib.contextmanager
-def staged_file(out: str | os.PathLike,
-                also: tuple[Callable[[], None], ...] = ()) -> Iterator[Path]:
+def staged_file(
+    out: str | os.PathLike, also: tuple[Callable[[], None], ...] = ()
+) -> Iterator[Path]:
     """Yield a new name beside the file ``out`` (its suffix kept) to write it under; on success
     it replaces ``out`` in one rename (:func:`put_in_place`, after the renames ``also``), on
     failure or interruption it is removed and ``out`` is left as it was."""
@@ -139,6 +147,7 @@ def staged_file(out: str | os.PathLike,
 
 def _name_final_paths(e: BaseException, stage: Path, final: Path) -> None:
     """Errors name the files as the user will find them (``--out``), not the staging folder."""
+
     def fix(x):
         return x.replace(str(stage), str(final)) if isinstance(x, str) else x
 

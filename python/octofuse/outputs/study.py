@@ -23,16 +23,17 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence
+from typing import Any
 
 from ..config import RunConfig, to_dict
 from ..fusion.agent_frames import AgentFrames
 from ..fusion.executors import Executor, SerialExecutor, make_executor
 from ..fusion.graph import make_graph
-from .report import COLUMNS, mean_scores
 from .libraries import pyplot
+from .report import COLUMNS, mean_scores
 
 #: per-cell results inside a study's output folder
 CELLS_DIR = "cells"
@@ -50,19 +51,35 @@ class Cell:
     seed: int
 
     def label(self, axes: Sequence[str]) -> str:
-        parts = {"bags": "+".join(Path(b).name for b in self.bags), "topology": self.topology,
-                 "schedule": self.schedule, "seed": f"seed {self.seed}"}
+        parts = {
+            "bags": "+".join(Path(b).name for b in self.bags),
+            "topology": self.topology,
+            "schedule": self.schedule,
+            "seed": f"seed {self.seed}",
+        }
         return " ".join(parts[a] for a in axes) or self.topology
 
 
-def study_cells(cfg: RunConfig, topologies: Sequence[str], schedules: Optional[Sequence[str]] = None,
-                seeds: Optional[Sequence[int]] = None,
-                bag_sets: Optional[Sequence[Sequence[str]]] = None) -> list[Cell]:
+def study_cells(
+    cfg: RunConfig,
+    topologies: Sequence[str],
+    schedules: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    bag_sets: Sequence[Sequence[str]] | None = None,
+) -> list[Cell]:
     """The grid, bags outermost, then topology, schedule and seed."""
     schedules = list(schedules) if schedules else [cfg.fuse.schedule]
     seeds = [int(s) for s in seeds] if seeds is not None and len(seeds) else [cfg.fuse.seed]
-    bag_sets = [tuple(str(b) for b in bs) for bs in bag_sets] if bag_sets else [tuple(cfg.build.bags)]
-    return [Cell(b, t, s, seed) for b in bag_sets for t in topologies for s in schedules for seed in seeds]
+    bag_sets = (
+        [tuple(str(b) for b in bs) for bs in bag_sets] if bag_sets else [tuple(cfg.build.bags)]
+    )
+    return [
+        Cell(b, t, s, seed)
+        for b in bag_sets
+        for t in topologies
+        for s in schedules
+        for seed in seeds
+    ]
 
 
 def cell_config(cfg: RunConfig, cell: Cell) -> RunConfig:
@@ -85,10 +102,14 @@ def cell_key(cfg: RunConfig, cell: Cell) -> str:
             bags.append([os.path.basename(b), os.path.getsize(b)])
         except OSError:
             bags.append([os.path.basename(b), None])
-    blob = json.dumps({"format": CELL_FORMAT, "config": d, "bags": bags}, sort_keys=True, default=str)
+    blob = json.dumps(
+        {"format": CELL_FORMAT, "config": d, "bags": bags}, sort_keys=True, default=str
+    )
     digest = hashlib.sha256(blob.encode()).hexdigest()[:16]
-    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in
-                   f"{cell.topology}_{cell.schedule}_s{cell.seed}")[:60]
+    safe = "".join(
+        ch if ch.isalnum() or ch in "-_." else "_"
+        for ch in f"{cell.topology}_{cell.schedule}_s{cell.seed}"
+    )[:60]
     return f"{safe}_{digest}"
 
 
@@ -104,10 +125,14 @@ def run_cell(payload: tuple) -> dict:
     if threads is not None:
         c.build.threads = int(threads)
     # a few rules at a time with fuse.rules_per_pass: each group's maps dropped as it comes
-    res = merge_rule_results([
-        without_maps(part)
-        for part in simulate_in_rule_groups(c.build, c.fuse, samples=0, truth=truth,
-                                            source=source)])
+    res = merge_rule_results(
+        [
+            without_maps(part)
+            for part in simulate_in_rule_groups(
+                c.build, c.fuse, samples=0, truth=truth, source=source
+            )
+        ]
+    )
     rows = []
     for rule, row in mean_scores(res.scores).items():
         messages = res.traffic[rule].messages if rule in res.traffic else 0  # local-only: none
@@ -141,13 +166,24 @@ def _write_json(path: Path, obj: Any) -> None:
     os.replace(tmp, path)
 
 
-def run_study(cfg: RunConfig, topologies: Sequence[str], out: str | Path, *, truth=None,
-              progress: Optional[Callable] = None, log: Optional[Callable[[str], None]] = None,
-              schedules: Optional[Sequence[str]] = None, seeds: Optional[Sequence[int]] = None,
-              bag_sets: Optional[Sequence[Sequence[str]]] = None,
-              executor: "str | Executor | None" = "serial", ray_address: Optional[str] = None,
-              resume_from: Sequence[str | os.PathLike] = (), journal: Optional[str | os.PathLike] = None,
-              cpus_per_cell: int = 1, memory_per_cell: Optional[int] = None) -> list[Path]:
+def run_study(
+    cfg: RunConfig,
+    topologies: Sequence[str],
+    out: str | Path,
+    *,
+    truth=None,
+    progress: Callable | None = None,
+    log: Callable[[str], None] | None = None,
+    schedules: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    bag_sets: Sequence[Sequence[str]] | None = None,
+    executor: str | Executor | None = "serial",
+    ray_address: str | None = None,
+    resume_from: Sequence[str | os.PathLike] = (),
+    journal: str | os.PathLike | None = None,
+    cpus_per_cell: int = 1,
+    memory_per_cell: int | None = None,
+) -> list[Path]:
     """Run the grid rules x topologies x ``schedules`` x ``seeds`` x ``bag_sets`` and write
     ``bench.csv``, ``bench.md``, ``bench_*.png`` and ``cells/*.json`` into ``out``; returns
     the paths of the tables and plots.
@@ -178,23 +214,57 @@ def run_study(cfg: RunConfig, topologies: Sequence[str], out: str | Path, *, tru
         _check_cell(cfg, cell)
     stack = contextlib.ExitStack()
     with stack:
-        return _run(cfg, cells, out, stack, truth=truth, progress=progress, log=log,
-                    executor=executor, ray_address=ray_address, resume_from=resume_from,
-                    journal=journal, cpus_per_cell=cpus_per_cell, memory_per_cell=memory_per_cell)
+        return _run(
+            cfg,
+            cells,
+            out,
+            stack,
+            truth=truth,
+            progress=progress,
+            log=log,
+            executor=executor,
+            ray_address=ray_address,
+            resume_from=resume_from,
+            journal=journal,
+            cpus_per_cell=cpus_per_cell,
+            memory_per_cell=memory_per_cell,
+        )
 
 
-def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address, resume_from, journal,
-         cpus_per_cell, memory_per_cell) -> list[Path]:
+def _run(
+    cfg,
+    cells,
+    out,
+    stack,
+    *,
+    truth,
+    progress,
+    log,
+    executor,
+    ray_address,
+    resume_from,
+    journal,
+    cpus_per_cell,
+    memory_per_cell,
+) -> list[Path]:
     sources = _SharedSources(stack)
     n_agents = _agent_counts(cfg, cells, sources)
     for cell in cells:  # the graphs and agent frames on the bags' agents, before any cell
         if cell.bags in n_agents:
-            make_graph(cell.topology, n_agents[cell.bags][0], seed=cell.seed,
-                       names=n_agents[cell.bags][1])
+            make_graph(
+                cell.topology, n_agents[cell.bags][0], seed=cell.seed, names=n_agents[cell.bags][1]
+            )
             AgentFrames.from_config(n_agents[cell.bags][1], cfg.fuse)
-    axes = [a for a, vals in (("bags", {c.bags for c in cells}), ("topology", {c.topology for c in cells}),
-                              ("schedule", {c.schedule for c in cells}), ("seed", {c.seed for c in cells}))
-            if len(vals) > 1 or a == "topology"]
+    axes = [
+        a
+        for a, vals in (
+            ("bags", {c.bags for c in cells}),
+            ("topology", {c.topology for c in cells}),
+            ("schedule", {c.schedule for c in cells}),
+            ("seed", {c.seed for c in cells}),
+        )
+        if len(vals) > 1 or a == "topology"
+    ]
     keys = [cell_key(cfg, c) for c in cells]
     cells_dir = out / CELLS_DIR
     cells_dir.mkdir(parents=True, exist_ok=True)
@@ -212,8 +282,17 @@ def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address,
     if records:
         say(f"resuming: {len(records)} of {len(cells)} cell(s) already done")
 
-    ex = executor if not isinstance(executor, (str, type(None))) else make_executor(
-        executor or "serial", address=ray_address, log=say, cpus=cpus_per_cell, memory=memory_per_cell)
+    ex = (
+        executor
+        if not isinstance(executor, (str, type(None)))
+        else make_executor(
+            executor or "serial",
+            address=ray_address,
+            log=say,
+            cpus=cpus_per_cell,
+            memory=memory_per_cell,
+        )
+    )
     owned = isinstance(executor, (str, type(None)))
     tr = truth if callable(truth) else (lambda _bags, t=truth: t)
     truths = {c.bags: tr(list(c.bags)) for c in cells}
@@ -228,11 +307,18 @@ def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address,
             nonlocal done
             i = todo[o.index]
             cell, key = cells[i], keys[i]
-            rec = {"key": key, "format": CELL_FORMAT, "cell": _cell_dict(cell),
-                   "status": "ok" if o.ok else "failed", "seconds": o.seconds}
+            rec = {
+                "key": key,
+                "format": CELL_FORMAT,
+                "cell": _cell_dict(cell),
+                "status": "ok" if o.ok else "failed",
+                "seconds": o.seconds,
+            }
             if o.ok:
                 rec.update(o.value)
-                say(f"{cell.label(axes)}: done in {o.value['timings'].get('total', o.seconds):.1f} s")
+                say(
+                    f"{cell.label(axes)}: done in {o.value['timings'].get('total', o.seconds):.1f} s"
+                )
             else:
                 rec.update(error=o.error, details=o.details)
                 failed.append(rec)
@@ -247,8 +333,10 @@ def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address,
 
         if todo:
             if isinstance(ex, SerialExecutor):
-                fn, payloads = _serial_cell, [(cfg, cells[i], truths[cells[i].bags], None, sources)
-                                              for i in todo]
+                fn, payloads = (
+                    _serial_cell,
+                    [(cfg, cells[i], truths[cells[i].bags], None, sources) for i in todo],
+                )
             else:
                 fn = run_cell
                 payloads = [(cfg, cells[i], truths[cells[i].bags], cpus_per_cell) for i in todo]
@@ -259,12 +347,18 @@ def _run(cfg, cells, out, stack, *, truth, progress, log, executor, ray_address,
                     ex.close()
     ok = [(c, records[k]) for c, k in zip(cells, keys) if records.get(k, {}).get("status") == "ok"]
     if not ok:
-        raise RuntimeError("every cell of the study failed: " + "; ".join(
-            f"{Cell(**{**f['cell'], 'bags': tuple(f['cell']['bags'])}).label(axes)}: {f['error']}"
-            for f in failed))
+        raise RuntimeError(
+            "every cell of the study failed: "
+            + "; ".join(
+                f"{Cell(**{**f['cell'], 'bags': tuple(f['cell']['bags'])}).label(axes)}: {f['error']}"
+                for f in failed
+            )
+        )
     rows = _aggregate(ok)
     paths = _write_tables(cfg, rows, ok, failed, axes, out)
-    paths += _plots(rows, [r for r in dict.fromkeys(_group_label(r, axes) for r in rows)], axes, out)
+    paths += _plots(
+        rows, [r for r in dict.fromkeys(_group_label(r, axes) for r in rows)], axes, out
+    )
     return paths
 
 
@@ -294,13 +388,15 @@ def _check_cell(cfg: RunConfig, cell: Cell) -> None:
 
     spec = parse_schedule(cell.schedule)
     if spec.kind == "rounds":
-        raise ValueError(f"schedule {cell.schedule!r} fuses finished maps; a study takes "
-                         "aperiodic:MEAN_S or periodic:PERIOD_S")
+        raise ValueError(
+            f"schedule {cell.schedule!r} fuses finished maps; a study takes "
+            "aperiodic:MEAN_S or periodic:PERIOD_S"
+        )
     if cell.seed < 0:
         raise ValueError(f"seed {cell.seed}: expected a non-negative integer")
 
 
-def _agent_counts(cfg: RunConfig, cells: Sequence[Cell], sources: "_SharedSources") -> dict:
+def _agent_counts(cfg: RunConfig, cells: Sequence[Cell], sources: _SharedSources) -> dict:
     """Agents of every bag set (to check the topologies before running anything); a bag set
     that cannot be read is left out: its cells fail and are reported."""
     out = {}
@@ -316,8 +412,12 @@ def _agent_counts(cfg: RunConfig, cells: Sequence[Cell], sources: "_SharedSource
 
 
 def _cell_dict(cell: Cell) -> dict:
-    return {"bags": list(cell.bags), "topology": cell.topology, "schedule": cell.schedule,
-            "seed": cell.seed}
+    return {
+        "bags": list(cell.bags),
+        "topology": cell.topology,
+        "schedule": cell.schedule,
+        "seed": cell.seed,
+    }
 
 
 def _aggregate(ok: list) -> list[dict]:
@@ -328,17 +428,29 @@ def _aggregate(ok: list) -> list[dict]:
             groups.setdefault((cell.bags, cell.topology, cell.schedule, r["rule"]), []).append(r)
     rows = []
     for (bags, topo, sched, rule), rs in groups.items():
-        row: dict = {"bags": "+".join(bags), "topology": topo, "schedule": sched, "rule": rule,
-                     "seeds": len(rs)}
+        row: dict = {
+            "bags": "+".join(bags),
+            "topology": topo,
+            "schedule": sched,
+            "rule": rule,
+            "seeds": len(rs),
+        }
         for k in ["messages"] + [k for k, _, _ in COLUMNS]:
             vals = [r.get(k) for r in rs]
-            vals = [float(v) for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+            vals = [
+                float(v)
+                for v in vals
+                if v is not None and not (isinstance(v, float) and math.isnan(v))
+            ]
             mean = sum(vals) / len(vals) if vals else None
             if k == "messages" and mean is not None and mean == int(mean):
                 mean = int(mean)
             row[k] = mean
-            row[f"{k}_sd"] = (math.sqrt(sum((v - mean) ** 2 for v in vals) / (len(vals) - 1))
-                              if len(vals) > 1 else None)
+            row[f"{k}_sd"] = (
+                math.sqrt(sum((v - mean) ** 2 for v in vals) / (len(vals) - 1))
+                if len(vals) > 1
+                else None
+            )
         rows.append(row)
     return rows
 
@@ -348,11 +460,16 @@ def _group_label(row: dict, axes: Sequence[str]) -> str:
     return " ".join(parts[a] for a in axes if a in parts)
 
 
-def _write_tables(cfg: RunConfig, rows: list[dict], ok: list, failed: list[dict],
-                  axes: Sequence[str], out: Path) -> list[Path]:
+def _write_tables(
+    cfg: RunConfig, rows: list[dict], ok: list, failed: list[dict], axes: Sequence[str], out: Path
+) -> list[Path]:
     metrics = ["messages"] + [k for k, _, _ in COLUMNS]
     multi_seed = any(r["seeds"] > 1 for r in rows)
-    keys = ["topology", "rule", "messages"] + [k for k, _, _ in COLUMNS] + ["schedule", "bags", "seeds"]
+    keys = (
+        ["topology", "rule", "messages"]
+        + [k for k, _, _ in COLUMNS]
+        + ["schedule", "bags", "seeds"]
+    )
     if multi_seed:
         keys += [f"{k}_sd" for k in metrics]
     tmp = out / "bench.csv.tmp"
@@ -367,10 +484,15 @@ def _write_tables(cfg: RunConfig, rows: list[dict], ok: list, failed: list[dict]
     seeds = sorted({c.seed for c, _ in ok})
     schedules = list(dict.fromkeys(c.schedule for c, _ in ok))
     bags = list(dict.fromkeys("+".join(c.bags) for c, _ in ok))
-    md = ["# octofuse bench", "",
-          f"bags: {', '.join(bags)}; schedule{'s' if len(schedules) > 1 else ''} "
-          + ", ".join(f"`{s}`" for s in schedules) + "; means over agents against the centralized map"
-          + (f"; mean ± sd over seeds {', '.join(map(str, seeds))}" if multi_seed else ""), ""]
+    md = [
+        "# octofuse bench",
+        "",
+        f"bags: {', '.join(bags)}; schedule{'s' if len(schedules) > 1 else ''} "
+        + ", ".join(f"`{s}`" for s in schedules)
+        + "; means over agents against the centralized map"
+        + (f"; mean ± sd over seeds {', '.join(map(str, seeds))}" if multi_seed else ""),
+        "",
+    ]
     head = group_axes + ["rule"] + [h for _, h, _ in COLUMNS]
     md += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
@@ -386,16 +508,22 @@ def _write_tables(cfg: RunConfig, rows: list[dict], ok: list, failed: list[dict]
     time_axes = list(axes)
     md += ["", "| " + " | ".join(time_axes) + " | seconds |", "|" + "---|" * (len(time_axes) + 1)]
     for c, rec in ok:
-        vals = {"bags": "+".join(c.bags), "topology": c.topology, "schedule": c.schedule,
-                "seed": str(c.seed)}
+        vals = {
+            "bags": "+".join(c.bags),
+            "topology": c.topology,
+            "schedule": c.schedule,
+            "seed": str(c.seed),
+        }
         total = rec.get("timings", {}).get("total", rec.get("seconds", 0.0))
         md.append("| " + " | ".join(f"`{vals[a]}`" for a in time_axes) + f" | {total:.1f} |")
     if failed:
         md += ["", "## Failed cells", "", "| cell | error |", "|---|---|"]
         for f in failed:
             c = f["cell"]
-            md.append(f"| `{'+'.join(c['bags'])}` `{c['topology']}` `{c['schedule']}` seed {c['seed']} "
-                      f"| {f['error'].replace('|', '/')} |")
+            md.append(
+                f"| `{'+'.join(c['bags'])}` `{c['topology']}` `{c['schedule']}` seed {c['seed']} "
+                f"| {f['error'].replace('|', '/')} |"
+            )
     (out / "bench.md").write_text("\n".join(md) + "\n")
     return [out / "bench.csv", out / "bench.md"]
 
@@ -406,21 +534,34 @@ def _plots(rows: list[dict], groups: list[str], axes: Sequence[str], out: Path) 
 
     rules = list(dict.fromkeys(r["rule"] for r in rows))
     paths = []
-    for key, label in [("kl_mean", "KL(central ‖ agent)"), ("overconfidence", "over-confident fraction"),
-                       ("loss_mean", "mean accumulated information loss [nats]")]:
+    for key, label in [
+        ("kl_mean", "KL(central ‖ agent)"),
+        ("overconfidence", "over-confident fraction"),
+        ("loss_mean", "mean accumulated information loss [nats]"),
+    ]:
         fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(rules)), 4))
         width = 0.8 / max(len(groups), 1)
         x = np.arange(len(rules))
         for i, g in enumerate(groups):
-            sel = [next((r for r in rows if _group_label(r, axes) == g and r["rule"] == ru), None)
-                   for ru in rules]
+            sel = [
+                next((r for r in rows if _group_label(r, axes) == g and r["rule"] == ru), None)
+                for ru in rules
+            ]
             vals = [np.nan if r is None or r.get(key) is None else r[key] for r in sel]
             err = [0.0 if r is None or r.get(f"{key}_sd") is None else r[f"{key}_sd"] for r in sel]
-            ax.bar(x + i * width, vals, width, label=g,
-                   yerr=err if any(e > 0 for e in err) else None, capsize=2)
+            ax.bar(
+                x + i * width,
+                vals,
+                width,
+                label=g,
+                yerr=err if any(e > 0 for e in err) else None,
+                capsize=2,
+            )
         ax.set_xticks(x + width * (len(groups) - 1) / 2)
         ax.set_xticklabels(rules, rotation=30, ha="right", fontsize=8)
-        ax.set_ylabel(label + (" (mean ± sd over seeds)" if any(r["seeds"] > 1 for r in rows) else ""))
+        ax.set_ylabel(
+            label + (" (mean ± sd over seeds)" if any(r["seeds"] > 1 for r in rows) else "")
+        )
         ax.legend(fontsize=8)
         ax.grid(axis="y", alpha=0.3)
         fig.tight_layout()

@@ -11,13 +11,12 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
 from .export import MapVoxelLoss, _colormap
-from .staging import written_then_renamed
 from .libraries import pyplot
+from .staging import written_then_renamed
 
 #: a drawn cell takes at least MIN_CELL_PX and at most MAX_CELL_PX pixels a side; the axes at
 #: most MAX_SIDE_PX and at least MIN_SIDE_PX wide; the margins hold the labels and colour bar
@@ -26,8 +25,9 @@ MAX_SIDE_PX, MIN_SIDE_PX = 1800, 480
 MARGIN_PX = (240, 110)
 
 
-def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
-                 ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+def topview_grid(
+    v: MapVoxelLoss, resolution: float, z_range=None
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """The max-over-z loss of every x-y cell (NaN where no voxel is) as an array indexed
     ``[iy, ix]``, and its extent ``(xmin, xmax, ymin, ymax)`` in metres."""
     centers, sizes, loss = v.centers, v.sizes, np.asarray(v.loss, dtype=np.float64)
@@ -35,8 +35,10 @@ def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
         keep = (centers[:, 2] >= z_range[0]) & (centers[:, 2] <= z_range[1])
         centers, sizes, loss = centers[keep], sizes[keep], loss[keep]
     if len(loss) == 0:
-        raise ValueError("no occupied voxel to draw" + (
-            f" with z in [{z_range[0]:g}, {z_range[1]:g}]" if z_range is not None else ""))
+        raise ValueError(
+            "no occupied voxel to draw"
+            + (f" with z in [{z_range[0]:g}, {z_range[1]:g}]" if z_range is not None else "")
+        )
     lo = np.floor((centers[:, :2] - sizes[:, None] / 2) / resolution + 0.5).astype(np.int64)
     span = np.maximum(np.rint(sizes / resolution).astype(np.int64), 1)
     xs, ys, vals = [], [], []
@@ -52,13 +54,18 @@ def topview_grid(v: MapVoxelLoss, resolution: float, z_range=None
     grid = np.full((iy.max() - y0 + 1, ix.max() - x0 + 1), -np.inf)
     np.maximum.at(grid, (iy - y0, ix - x0), val)
     grid[np.isneginf(grid)] = np.nan
-    extent = (x0 * resolution, (ix.max() + 1) * resolution,
-              y0 * resolution, (iy.max() + 1) * resolution)
+    extent = (
+        x0 * resolution,
+        (ix.max() + 1) * resolution,
+        y0 * resolution,
+        (iy.max() + 1) * resolution,
+    )
     return grid, extent
 
 
-def above_floor(v: MapVoxelLoss, resolution: float, ratio: float = 3.0,
-                max_layers: int = 3) -> Optional[tuple]:
+def above_floor(
+    v: MapVoxelLoss, resolution: float, ratio: float = 3.0, max_layers: int = 3
+) -> tuple | None:
     """A height slice without the floor, or None (keep every voxel). Starting from the
     lowest, a layer of occupied voxels is floor when it holds more than ``ratio`` times the
     voxels of the median layer (a scanned floor spans the whole area, a wall's layer only its
@@ -69,7 +76,7 @@ def above_floor(v: MapVoxelLoss, resolution: float, ratio: float = 3.0,
     levels, counts = np.unique(layer, return_counts=True)
     typical = np.median(counts)
     cut = None
-    for low, n in list(zip(levels, counts))[:min(max_layers, len(levels) - 1)]:
+    for low, n in list(zip(levels, counts))[: min(max_layers, len(levels) - 1)]:
         if n <= ratio * typical:
             break
         cut = low + 1
@@ -83,7 +90,7 @@ def pooled_max(grid: np.ndarray, factor: int) -> np.ndarray:
         return grid
     ny, nx = -(-grid.shape[0] // factor) * factor, -(-grid.shape[1] // factor) * factor
     padded = np.full((ny, nx), np.nan)
-    padded[:grid.shape[0], :grid.shape[1]] = grid
+    padded[: grid.shape[0], : grid.shape[1]] = grid
     blocks = padded.reshape(ny // factor, factor, nx // factor, factor)
     return np.fmax.reduce(np.fmax.reduce(blocks, axis=3), axis=1)
 
@@ -100,10 +107,19 @@ def frame_for(cells: tuple[int, int]) -> tuple[int, tuple[int, int]]:
     return pool, (int(width) + MARGIN_PX[0], int(height) + MARGIN_PX[1])
 
 
-def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *,
-                  vmin: float, vmax: float, cmap="inferno", title: str = "",
-                  size_px: Optional[tuple[int, int]] = None, dpi: int = 100,
-                  label: str = "information loss [nats]") -> Path:
+def write_topview(
+    v: MapVoxelLoss,
+    resolution: float,
+    path: str | os.PathLike,
+    *,
+    vmin: float,
+    vmax: float,
+    cmap="inferno",
+    title: str = "",
+    size_px: tuple[int, int] | None = None,
+    dpi: int = 100,
+    label: str = "information loss [nats]",
+) -> Path:
     """A PNG: the top view of ``v`` (:func:`topview_grid`, the floor left out by
     :func:`above_floor`) over the colour range [vmin, vmax], axes in metres and a colour bar.
     The image is sized to the map (:func:`frame_for`: every drawn cell at least a few pixels,
@@ -119,13 +135,18 @@ def write_topview(v: MapVoxelLoss, resolution: float, path: str | os.PathLike, *
     pool, fitted = frame_for(grid.shape)
     grid, size_px = pooled_max(grid, pool), size_px or fitted
     x0, _, y0, _ = extent  # a pooled grid's last blocks reach past the map
-    extent = (x0, x0 + grid.shape[1] * pool * resolution, y0, y0 + grid.shape[0] * pool * resolution)
+    extent = (
+        x0,
+        x0 + grid.shape[1] * pool * resolution,
+        y0,
+        y0 + grid.shape[0] * pool * resolution,
+    )
     cm = _colormap(cmap).with_extremes(bad="white")
     norm = Normalize(vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12)
-    fig, ax = plt.subplots(figsize=(size_px[0] / dpi, size_px[1] / dpi), dpi=dpi,
-                           layout="constrained")
-    im = ax.imshow(grid, origin="lower", extent=extent, cmap=cm, norm=norm,
-                   interpolation="nearest")
+    fig, ax = plt.subplots(
+        figsize=(size_px[0] / dpi, size_px[1] / dpi), dpi=dpi, layout="constrained"
+    )
+    im = ax.imshow(grid, origin="lower", extent=extent, cmap=cm, norm=norm, interpolation="nearest")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")

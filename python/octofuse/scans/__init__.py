@@ -11,8 +11,8 @@
 """
 
 from .bags import BagError, BagMessage, BagSet, TopicInfo
-from .msgtypes import normalize_msgtype
 from .decode import POINTFIELD_DTYPES, laserscan_to_xyz, pointcloud2_to_xyz, stamp_to_ns
+from .msgtypes import normalize_msgtype
 from .se3 import invert_transform, matrix_to_quaternion, quaternion_to_matrix, transform_matrix
 from .tf import (
     ConnectivityError,

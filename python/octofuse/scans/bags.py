@@ -131,8 +131,10 @@ class _Input:
             path = path.parent
             self.path = path
         if not path.is_dir() and not path.is_file():
-            raise BagError(f"{path}: not a regular file or folder (a device, FIFO or socket);"
-                           " give a bag file or a ROS 2 bag folder")
+            raise BagError(
+                f"{path}: not a regular file or folder (a device, FIFO or socket);"
+                " give a bag file or a ROS 2 bag folder"
+            )
         if path.is_dir():
             if not (path / "metadata.yaml").is_file():
                 raise BagError(f"{path}: directory is not a ROS 2 bag (it has no metadata.yaml)")

@@ -95,8 +95,10 @@ def pointcloud2_to_xyz(msg: Any) -> np.ndarray:
     except (TypeError, ValueError, OverflowError) as e:
         raise ValueError(f"PointCloud2 layout is not a set of whole numbers ({e})") from None
     if min(height, width, point_step, row_step) < 0:
-        raise ValueError(f"PointCloud2 layout has a negative size (height {height}, width {width},"
-                         f" point_step {point_step}, row_step {row_step})")
+        raise ValueError(
+            f"PointCloud2 layout has a negative size (height {height}, width {width},"
+            f" point_step {point_step}, row_step {row_step})"
+        )
     order = ">" if msg.is_bigendian else "<"
     formats, offsets = [], []
     for name in ("x", "y", "z"):

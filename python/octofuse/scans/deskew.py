@@ -3,7 +3,7 @@ point is moved by the sensor's motion between the scan's stamp and its beam's ti
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -14,8 +14,9 @@ from .tf import TransformBuffer
 TimeRange = Callable[[str, str], tuple]
 
 
-def beam_times(points: np.ndarray, angle_min, angle_increment, time_increment_ns,
-               stamp) -> np.ndarray:
+def beam_times(
+    points: np.ndarray, angle_min, angle_increment, time_increment_ns, stamp
+) -> np.ndarray:
     """Stamps (float ns) of the beams that gave the points of a LaserScan: the beam index
     from each point's bearing, ``stamp + index * time_increment`` (scalars or per point)."""
     ang = np.arctan2(points[:, 1], points[:, 0])
@@ -24,16 +25,25 @@ def beam_times(points: np.ndarray, angle_min, angle_increment, time_increment_ns
         return stamp + idx * time_increment_ns
 
 
-def deskew_scan(tf: TransformBuffer, time_range: TimeRange, fixed: str, msg, points: np.ndarray,
-                frame: str, stamp: int, pose: np.ndarray) -> np.ndarray:
+def deskew_scan(
+    tf: TransformBuffer,
+    time_range: TimeRange,
+    fixed: str,
+    msg,
+    points: np.ndarray,
+    frame: str,
+    stamp: int,
+    pose: np.ndarray,
+) -> np.ndarray:
     """One scan's points, each moved by the sensor motion between the scan's stamp and its
     beam's time (a 4x4 transform per beam).
 
     Points come back in the sensor frame at ``stamp``: p = T(stamp)^-1 T(t_i) p_i, with
     t_i = stamp + i * time_increment (beam times clipped to the transforms' time range).
     """
-    t = beam_times(points, msg.angle_min, msg.angle_increment,
-                   float(msg.time_increment) * 1e9, stamp)
+    t = beam_times(
+        points, msg.angle_min, msg.angle_increment, float(msg.time_increment) * 1e9, stamp
+    )
     if not np.all(np.isfinite(t)):  # degenerate beam timing: no motion correction
         return points
     lo, hi = time_range(fixed, frame)
@@ -44,18 +54,29 @@ def deskew_scan(tf: TransformBuffer, time_range: TimeRange, fixed: str, msg, poi
     return _into_sensor_frame(world, pose)
 
 
-def deskew_scans(tf: TransformBuffer, time_range: TimeRange, fixed: str, msgs: Sequence,
-                 points: Sequence[np.ndarray], frames: Sequence[str], stamps: Sequence[int],
-                 poses: Sequence[np.ndarray]) -> list[np.ndarray]:
+def deskew_scans(
+    tf: TransformBuffer,
+    time_range: TimeRange,
+    fixed: str,
+    msgs: Sequence,
+    points: Sequence[np.ndarray],
+    frames: Sequence[str],
+    stamps: Sequence[int],
+    poses: Sequence[np.ndarray],
+) -> list[np.ndarray]:
     """:func:`deskew_scan` of several scans: the beam times of all of them at once, and one
     :meth:`TransformBuffer.transform_points` per frame over all their beams (no 4x4 matrix per
     beam)."""
     sizes = np.array([len(p) for p in points])
     starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
     per_beam = lambda values: np.repeat(np.array(values, dtype=np.float64), sizes)  # noqa: E731
-    t = beam_times(np.concatenate(points), per_beam([m.angle_min for m in msgs]),
-                   per_beam([m.angle_increment for m in msgs]),
-                   per_beam([float(m.time_increment) * 1e9 for m in msgs]), per_beam(stamps))
+    t = beam_times(
+        np.concatenate(points),
+        per_beam([m.angle_min for m in msgs]),
+        per_beam([m.angle_increment for m in msgs]),
+        per_beam([float(m.time_increment) * 1e9 for m in msgs]),
+        per_beam(stamps),
+    )
     timed = np.logical_and.reduceat(np.isfinite(t), starts)  # else no motion correction
     by_frame: dict[str, list[int]] = {}
     for j, frame in enumerate(frames):
@@ -68,11 +89,12 @@ def deskew_scans(tf: TransformBuffer, time_range: TimeRange, fixed: str, msgs: S
         lo, hi = time_range(fixed, frame)
         if lo is not None:
             tf_ns = np.clip(tf_ns, lo, hi)
-        world = tf.transform_points(fixed, frame, tf_ns.astype(np.int64),
-                                    np.concatenate([points[j] for j in js]))
+        world = tf.transform_points(
+            fixed, frame, tf_ns.astype(np.int64), np.concatenate([points[j] for j in js])
+        )
         at = 0
         for j in js:
-            mine = world[at:at + sizes[j]]
+            mine = world[at : at + sizes[j]]
             at += sizes[j]
             out[j] = _into_sensor_frame(mine, poses[j])
     return out

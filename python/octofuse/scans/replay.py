@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Iterator, Optional
+from collections.abc import Iterator
 
 from .source import Scan, ScanSource
 
@@ -19,7 +19,7 @@ class ScanReplay:
 
     def __init__(self, source: ScanSource, passes: int, max_bytes: int = REPLAY_BYTES):
         self.source, self.passes, self.max_bytes = source, passes, max_bytes
-        self._kept: Optional[list[Scan]] = None  # the first pass's scans, if they fitted
+        self._kept: list[Scan] | None = None  # the first pass's scans, if they fitted
         self._pass = 0
 
     def __getattr__(self, name):

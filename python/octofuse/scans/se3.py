@@ -6,8 +6,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_rigid", "invert_transform", "matrix_to_quaternion", "quaternion_to_matrix",
-           "rotate_vectors", "slerp", "transform_matrix"]
+__all__ = [
+    "check_rigid",
+    "invert_transform",
+    "matrix_to_quaternion",
+    "quaternion_to_matrix",
+    "rotate_vectors",
+    "slerp",
+    "transform_matrix",
+]
 
 
 def normalize_quaternions(q: np.ndarray) -> np.ndarray:
@@ -148,8 +155,9 @@ def slerp_arcs(q0: np.ndarray, q1: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return q1, theta, np.sin(theta)
 
 
-def slerp_at(q0: np.ndarray, q1: np.ndarray, theta: np.ndarray, sin_t: np.ndarray,
-             a: np.ndarray) -> np.ndarray:
+def slerp_at(
+    q0: np.ndarray, q1: np.ndarray, theta: np.ndarray, sin_t: np.ndarray, a: np.ndarray
+) -> np.ndarray:
     """Slerp at fractions a (K,) between q0 and q1 (K, 4) given their :func:`slerp_arcs`."""
     small = sin_t < 1e-9
     safe = np.where(small, 1.0, sin_t)
@@ -178,16 +186,21 @@ def check_rigid(T, what: str = "T") -> np.ndarray:
         i, j = bad[0]
         raise ValueError(f"{what}[{i}, {j}] is {A[i, j]}: a transform must be finite")
     if not np.allclose(A[3], (0.0, 0.0, 0.0, 1.0), atol=1e-12, rtol=0.0):
-        raise ValueError(f"{what} is not a rigid transform: its last row is "
-                         f"{np.array2string(A[3], precision=6)}, expected [0 0 0 1]")
+        raise ValueError(
+            f"{what} is not a rigid transform: its last row is "
+            f"{np.array2string(A[3], precision=6)}, expected [0 0 0 1]"
+        )
     R = A[:3, :3]
     dev = float(np.abs(R.T @ R - np.eye(3)).max())
     if dev > RIGID_TOL:
-        raise ValueError(f"{what} is not a rigid transform: its rotation part is not orthonormal "
-                         f"(R^T R differs from the identity by {dev:.3g}; scale or shear?): "
-                         f"{np.array2string(R, precision=6)}")
+        raise ValueError(
+            f"{what} is not a rigid transform: its rotation part is not orthonormal "
+            f"(R^T R differs from the identity by {dev:.3g}; scale or shear?): "
+            f"{np.array2string(R, precision=6)}"
+        )
     det = float(np.linalg.det(R))
     if det < 0:
-        raise ValueError(f"{what} is not a rigid transform: its rotation part is a reflection "
-                         f"(det = {det:.6g})")
+        raise ValueError(
+            f"{what} is not a rigid transform: its rotation part is a reflection (det = {det:.6g})"
+        )
     return np.ascontiguousarray(A)

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from collections import Counter
-from dataclasses import dataclass, field
 import queue
 import threading
 import time
-from typing import Iterable, Iterator
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -115,7 +115,8 @@ class ScanSource:
         if not self.agents:
             raise ValueError(
                 "no LaserScan or PointCloud2 topic in the bags; they contain: "
-                + self.bags.describe_topics())
+                + self.bags.describe_topics()
+            )
         names = [a.name for a in self.agents]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -126,8 +127,10 @@ class ScanSource:
             raise ValueError(f"topic(s) given to more than one agent: {', '.join(dup)}")
         bad = [n for n in names if n in RESERVED_NAMES or not n or "/" in n]
         if bad:
-            raise ValueError(f"invalid agent name(s) {', '.join(map(repr, bad))}: "
-                             f"'centralized' is reserved and names may not contain '/'")
+            raise ValueError(
+                f"invalid agent name(s) {', '.join(map(repr, bad))}: "
+                f"'centralized' is reserved and names may not contain '/'"
+            )
         self.bags.check_topics({a.topic: list(SCAN_TYPES) for a in self.agents})
         pose_sources = []
         self._pose_frames: dict[int, str] = {}
@@ -135,8 +138,11 @@ class ScanSource:
             if a.pose_topic:
                 self.bags.check_topics({a.pose_topic: list(POSE_TYPES)})
                 frame = f"octofuse/{a.name}/sensor"
-                pose_sources.append(PoseSource(a.pose_topic, frame, cfg.fixed_frame,
-                                               _offset_matrix(a.sensor_offset)))
+                pose_sources.append(
+                    PoseSource(
+                        a.pose_topic, frame, cfg.fixed_frame, _offset_matrix(a.sensor_offset)
+                    )
+                )
                 self._pose_frames[i] = frame
             elif a.sensor_offset is not None:
                 raise ValueError(f"agent {a.name}: sensor_offset needs a pose_topic")
@@ -144,8 +150,10 @@ class ScanSource:
         frames = self.tf.frames
         if cfg.fixed_frame.lstrip("/") not in frames:
             known = ", ".join(sorted(frames)) or "none (no /tf, /tf_static or pose topic)"
-            raise ValueError(f"fixed frame '{cfg.fixed_frame}' is not in the bags' transforms; "
-                             f"frames present: {known}")
+            raise ValueError(
+                f"fixed frame '{cfg.fixed_frame}' is not in the bags' transforms; "
+                f"frames present: {known}"
+            )
         self.topic_agent = {a.topic: i for i, a in enumerate(self.agents)}
         self._time_ranges: dict[str, tuple] = {}
         self.stats = [AgentStats(a.name, a.topic) for a in self.agents]
@@ -161,14 +169,17 @@ class ScanSource:
         """Transform samples skipped and points dropped, one line each (scans skipped are in
         :attr:`stats`)."""
         out = list(self.tf_skipped)
-        out += [f"{s.name}: dropped {n} point(s): {why}"
-                for s in self.stats for why, n in sorted(s.dropped.items())]
+        out += [
+            f"{s.name}: dropped {n} point(s): {why}"
+            for s in self.stats
+            for why, n in sorted(s.dropped.items())
+        ]
         return out
 
     def close(self) -> None:
         self.bags.close()
 
-    def __enter__(self) -> "ScanSource":
+    def __enter__(self) -> ScanSource:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -178,9 +189,13 @@ class ScanSource:
         """After :meth:`scans`: raise ``ValueError`` saying why if no scan could be placed."""
         if any(s.scans_used for s in self.stats):
             return
-        reasons = "; ".join(f"{s.name}: {n} {why}" for s in self.stats for why, n in s.skipped.items())
-        raise ValueError(f"no scan of {', '.join(self.cfg.bags)} could be placed in the fixed "
-                         f"frame '{self.cfg.fixed_frame}' ({reasons or 'the scan topics are empty'})")
+        reasons = "; ".join(
+            f"{s.name}: {n} {why}" for s in self.stats for why, n in s.skipped.items()
+        )
+        raise ValueError(
+            f"no scan of {', '.join(self.cfg.bags)} could be placed in the fixed "
+            f"frame '{self.cfg.fixed_frame}' ({reasons or 'the scan topics are empty'})"
+        )
 
     def scans(self) -> Iterator[Scan]:
         """Scans of all agents in log-time order (skipped scans are counted, not yielded)."""
@@ -202,8 +217,10 @@ class ScanSource:
                 stamp = stamp_to_ns(msg.header)
                 frame = self._pose_frames.get(i, str(msg.header.frame_id))
             except (AttributeError, TypeError, ValueError, OverflowError) as e:
-                raise ValueError(f"the message on '{m.topic}' logged at {m.log_time_ns} ns has no "
-                                 f"usable header ({type(e).__name__}: {e})") from None
+                raise ValueError(
+                    f"the message on '{m.topic}' logged at {m.log_time_ns} ns has no "
+                    f"usable header ({type(e).__name__}: {e})"
+                ) from None
             bad = _laserscan_problem(msg) if hasattr(msg, "ranges") else None
             if bad:
                 st.skipped[bad] += 1
@@ -218,7 +235,7 @@ class ScanSource:
                 pending = []
         yield from self._place(pending, fixed)
 
-    def _place(self, pending: list["_Pending"], fixed: str) -> list[Scan]:
+    def _place(self, pending: list[_Pending], fixed: str) -> list[Scan]:
         """Poses, decoding, de-skew and range checks of consecutive scans; the scans placed.
 
         Poses and per-beam poses are looked up for all the scans of one frame at once (one
@@ -235,16 +252,24 @@ class ScanSource:
             if not self._in_extent(pose[:3, 3]):
                 self.stats[p.agent].skipped[
                     "sensor pose outside the map's extent "
-                    f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] += 1
+                    f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"
+                ] += 1
                 continue
             try:
                 points, max_range = self._decode(p.msg)
             except (ValueError, AttributeError, TypeError, OverflowError) as e:
-                raise ValueError(f"cannot decode the message on '{p.topic}' stamped {p.stamp} ns: "
-                                 f"{e}") from None
+                raise ValueError(
+                    f"cannot decode the message on '{p.topic}' stamped {p.stamp} ns: {e}"
+                ) from None
             placed.append((p, points, pose, max_range))
-        skewed = [k for k, (p, points, _, _) in enumerate(placed) if self.cfg.deskew
-                  and hasattr(p.msg, "ranges") and p.msg.time_increment > 0 and len(points)]
+        skewed = [
+            k
+            for k, (p, points, _, _) in enumerate(placed)
+            if self.cfg.deskew
+            and hasattr(p.msg, "ranges")
+            and p.msg.time_increment > 0
+            and len(points)
+        ]
         for p, _, _, _ in placed:
             self.stats[p.agent].laserscans += hasattr(p.msg, "ranges")
         for k in skewed:
@@ -252,12 +277,23 @@ class ScanSource:
         if skewed:
             rows = [placed[k] for k in skewed]
             if self.per_scan_transforms:
-                moved = [deskew_scan(self.tf, self._time_range, fixed, p.msg, points, p.frame,
-                                     p.stamp, pose) for p, points, pose, _ in rows]
+                moved = [
+                    deskew_scan(
+                        self.tf, self._time_range, fixed, p.msg, points, p.frame, p.stamp, pose
+                    )
+                    for p, points, pose, _ in rows
+                ]
             else:
-                moved = deskew_scans(self.tf, self._time_range, fixed, [r[0].msg for r in rows],
-                                     [r[1] for r in rows], [r[0].frame for r in rows],
-                                     [r[0].stamp for r in rows], [r[2] for r in rows])
+                moved = deskew_scans(
+                    self.tf,
+                    self._time_range,
+                    fixed,
+                    [r[0].msg for r in rows],
+                    [r[1] for r in rows],
+                    [r[0].frame for r in rows],
+                    [r[0].stamp for r in rows],
+                    [r[2] for r in rows],
+                )
             for k, points in zip(skewed, moved):
                 p, _, pose, max_range = placed[k]
                 placed[k] = (p, points, pose, max_range)
@@ -275,7 +311,7 @@ class ScanSource:
             self.stats[p.agent].seconds += dt
         return out
 
-    def _poses(self, pending: list["_Pending"], fixed: str) -> list[np.ndarray | None]:
+    def _poses(self, pending: list[_Pending], fixed: str) -> list[np.ndarray | None]:
         """The sensor pose of each scan at its stamp, or ``None`` (the skip counted)."""
         poses: list[np.ndarray | None] = [None] * len(pending)
         if self.per_scan_transforms:
@@ -310,14 +346,15 @@ class ScanSource:
                 self._time_ranges[frame] = None
         return self._time_ranges[frame]
 
-    def _pose_or_skip(self, p: "_Pending", fixed: str) -> np.ndarray | None:
+    def _pose_or_skip(self, p: _Pending, fixed: str) -> np.ndarray | None:
         """One scan's pose, or ``None`` with the reason counted in its agent's skips."""
         st = self.stats[p.agent]
         try:
             return self.tf.lookup(fixed, p.frame, p.stamp)
         except ExtrapolationError as e:
-            st.skipped["before the first transform" if p.stamp < e.first_ns
-                       else "after the last transform"] += 1
+            st.skipped[
+                "before the first transform" if p.stamp < e.first_ns else "after the last transform"
+            ] += 1
         except ConnectivityError:
             st.skipped[f"no transform chain from '{p.frame}' to '{fixed}'"] += 1
         except UnknownFrameError:
@@ -346,8 +383,9 @@ class ScanSource:
             inside = near[:, 0] & near[:, 1] & near[:, 2]
             x, y, z = d[:, 0], d[:, 1], d[:, 2]
             dist = np.sqrt(x * x + y * y + z * z)
-            scale = np.where(max_range > 0, np.minimum(1.0, max_range / np.maximum(dist, 1e-300)),
-                             1.0)
+            scale = np.where(
+                max_range > 0, np.minimum(1.0, max_range / np.maximum(dist, 1e-300)), 1.0
+            )
             voxels = scale * (np.abs(x) + np.abs(y) + np.abs(z)) / self.cfg.map.resolution
             short = voxels < MAX_RAY_VOXELS
         keep = inside & short
@@ -361,13 +399,15 @@ class ScanSource:
         for k, (p, points, _, _) in enumerate(placed):
             dropped = self.stats[p.agent].dropped
             if n_out[k]:
-                dropped["outside the map's extent "
-                        f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"] \
-                    += int(n_out[k])
+                dropped[
+                    "outside the map's extent "
+                    f"(±{self._extent():g} m at resolution {self.cfg.map.resolution:g} m)"
+                ] += int(n_out[k])
             if n_long[k]:
-                dropped[f"ray crosses more than {MAX_RAY_VOXELS:,} voxels "
-                        "(set max_range to shorten it)"] += int(n_long[k])
-            out.append(points[keep[ends[k] - sizes[k]:ends[k]]])
+                dropped[
+                    f"ray crosses more than {MAX_RAY_VOXELS:,} voxels (set max_range to shorten it)"
+                ] += int(n_long[k])
+            out.append(points[keep[ends[k] - sizes[k] : ends[k]]])
         return out
 
     def _decode(self, msg) -> tuple[np.ndarray, float]:
@@ -409,8 +449,10 @@ MAX_SWEEP_S = 1.0
 def _laserscan_problem(msg) -> str | None:
     """Why a LaserScan's geometry cannot be mapped (a skip reason), or ``None``."""
     try:
-        values = {k: float(getattr(msg, k)) for k in
-                  ("angle_min", "angle_increment", "range_min", "time_increment")}
+        values = {
+            k: float(getattr(msg, k))
+            for k in ("angle_min", "angle_increment", "range_min", "time_increment")
+        }
         rmax = float(msg.range_max)
     except (AttributeError, TypeError, ValueError) as e:
         return f"LaserScan fields unusable ({e})"
@@ -426,8 +468,10 @@ def _laserscan_problem(msg) -> str | None:
     except TypeError:
         beams = 0
     if values["time_increment"] * max(beams - 1, 0) > MAX_SWEEP_S:
-        return (f"LaserScan whose beams span more than {MAX_SWEEP_S:g} s "
-                "(time_increment x beams): no real scanner sweeps that slowly")
+        return (
+            f"LaserScan whose beams span more than {MAX_SWEEP_S:g} s "
+            "(time_increment x beams): no real scanner sweeps that slowly"
+        )
     return None
 
 

@@ -33,12 +33,11 @@ from .se3 import (
     normalize_quaternions,
     transform_matrix,
 )
-
 from .tf_link import (
     ConnectivityError,
     ExtrapolationError,
-    TransformError,
     Link,
+    TransformError,
     UnknownFrameError,
     fmt_ns,
     sample_problem,
@@ -89,9 +88,11 @@ class TransformBuffer:
 
     def skipped_notes(self) -> list[str]:
         """One line per topic, link and reason for the transform samples that were skipped."""
-        return [f"{topic}: skipped {n} transform sample(s) {parent!r} -> {child!r} "
-                f"(first stamped {fmt_ns(first)}): {reason}"
-                for (topic, parent, child, reason), (n, first) in sorted(self.skipped.items())]
+        return [
+            f"{topic}: skipped {n} transform sample(s) {parent!r} -> {child!r} "
+            f"(first stamped {fmt_ns(first)}): {reason}"
+            for (topic, parent, child, reason), (n, first) in sorted(self.skipped.items())
+        ]
 
     # -- building ---------------------------------------------------------------------------
     def _link(self, parent: str, child: str, static: bool) -> Link:
@@ -160,12 +161,17 @@ class TransformBuffer:
         rotation : array_like, shape (4,)
             Quaternion ``(x, y, z, w)``, normalized here.
         """
-        self._add_sample(parent, child, int(stamp_ns),
-                         [float(x) for x in np.asarray(translation, dtype=np.float64).reshape(3)],
-                         [float(x) for x in np.asarray(rotation, dtype=np.float64).reshape(4)])
+        self._add_sample(
+            parent,
+            child,
+            int(stamp_ns),
+            [float(x) for x in np.asarray(translation, dtype=np.float64).reshape(3)],
+            [float(x) for x in np.asarray(rotation, dtype=np.float64).reshape(4)],
+        )
 
-    def _add_sample(self, parent: str, child: str, stamp_ns: int, t: Sequence[float],
-                    q: Sequence[float]) -> None:
+    def _add_sample(
+        self, parent: str, child: str, stamp_ns: int, t: Sequence[float], q: Sequence[float]
+    ) -> None:
         """:meth:`add_transform` of Python floats (checked here, made into arrays when the
         link is read: a sample costs microseconds, not a few numpy calls)."""
         why = sample_problem(t, q)
@@ -227,8 +233,9 @@ class TransformBuffer:
             elif topic is not None:  # checked above
                 self._link(parent, child, static=False).add_sample(stamp_to_ns(ts.header), t, q)
             else:
-                self._add_sample(ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header),
-                                 t, q)
+                self._add_sample(
+                    ts.header.frame_id, ts.child_frame_id, stamp_to_ns(ts.header), t, q
+                )
 
     def add_pose_message(
         self,
@@ -385,8 +392,7 @@ class TransformBuffer:
             result = invert_transform(t_anc_tgt) @ t_anc_src
         return np.array(result, dtype=np.float64)
 
-    def transform_points(self, target: str, source: str, stamps_ns: Any,
-                         points: Any) -> np.ndarray:
+    def transform_points(self, target: str, source: str, stamps_ns: Any, points: Any) -> np.ndarray:
         """Points of ``source``, each at its own stamp, in ``target``.
 
         ``out[k] = T_target_source(stamps_ns[k]) @ points[k]``, as :meth:`lookup_many` would

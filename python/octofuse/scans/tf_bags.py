@@ -101,13 +101,16 @@ def load_transforms(
         try:
             if topic in poses:
                 p = poses[topic]
-                buf.add_pose_message(msg, p.child_frame, parent_frame=p.parent_frame,
-                                     offset=p.offset, topic=topic)
+                buf.add_pose_message(
+                    msg, p.child_frame, parent_frame=p.parent_frame, offset=p.offset, topic=topic
+                )
             else:
                 buf.add_tf_message(msg, static=topic in static_set, topic=topic)
         except TransformError as err:
             raise TransformError(f"{topic} (message logged at {log_ns} ns): {err}") from None
         except (AttributeError, TypeError, ValueError, OverflowError) as err:
-            raise TransformError(f"{topic}: the message logged at {log_ns} ns is not a usable "
-                                 f"transform ({type(err).__name__}: {err})") from None
+            raise TransformError(
+                f"{topic}: the message logged at {log_ns} ns is not a usable "
+                f"transform ({type(err).__name__}: {err})"
+            ) from None
     return buf

@@ -5,7 +5,7 @@ errors of looking transforms up. :class:`octofuse.scans.tf.TransformBuffer` chai
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -113,8 +113,13 @@ class Link:
             stamps, t, q = zip(*self._samples)
             self._samples.clear()
             quats = normalize_quaternions(np.array(q, dtype=np.float64).reshape(-1, 4))
-            self._pending.append((np.array(stamps, dtype=np.int64),
-                                  np.array(t, dtype=np.float64).reshape(-1, 3), quats))
+            self._pending.append(
+                (
+                    np.array(stamps, dtype=np.int64),
+                    np.array(t, dtype=np.float64).reshape(-1, 3),
+                    quats,
+                )
+            )
 
     def _finalize(self) -> None:
         self._take_samples()
@@ -181,24 +186,27 @@ class Link:
         m[:, 3, 3] = 1.0
         return m
 
-    def to_parent(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
-                  what: str) -> np.ndarray:
+    def to_parent(
+        self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int, what: str
+    ) -> np.ndarray:
         """Points (K, 3) of the child frame, each at its stamp (K,), in the parent frame."""
         if self.static:
             return points @ self.static_matrix[:3, :3].T + self.static_matrix[:3, 3]
         trans, quats = self.interpolate(stamps, tolerance_ns, what)
         return rotate_vectors(quats, points) + trans
 
-    def to_child(self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int,
-                 what: str) -> np.ndarray:
+    def to_child(
+        self, points: np.ndarray, stamps: np.ndarray, tolerance_ns: int, what: str
+    ) -> np.ndarray:
         """Points (K, 3) of the parent frame, each at its stamp (K,), in the child frame."""
         if self.static:
             return (points - self.static_matrix[:3, 3]) @ self.static_matrix[:3, :3]
         trans, quats = self.interpolate(stamps, tolerance_ns, what)
         return rotate_vectors(quats * _CONJUGATE, points - trans)
 
-    def interpolate(self, stamps: np.ndarray, tolerance_ns: int,
-                    what: str) -> tuple[np.ndarray, np.ndarray]:
+    def interpolate(
+        self, stamps: np.ndarray, tolerance_ns: int, what: str
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Translations (K, 3) and unit quaternions (K, 4) of a dynamic link at the stamps (K,)."""
         self._finalize()
         s = self.stamps

@@ -12,4 +12,10 @@ from .particle_filter import gaussian_sum_update
 from .search import SETTINGS, TargetSearchResult
 from .search_report import run_target_search
 
-__all__ = ["CameraDetector", "SETTINGS", "TargetSearchResult", "gaussian_sum_update", "run_target_search"]
+__all__ = [
+    "CameraDetector",
+    "SETTINGS",
+    "TargetSearchResult",
+    "gaussian_sum_update",
+    "run_target_search",
+]

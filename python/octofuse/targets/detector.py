@@ -44,7 +44,9 @@ class CameraDetector:
         bearing = np.arctan2(rel[..., 1], rel[..., 0]) - pose[2]
         bearing = np.abs((bearing + np.pi) % (2.0 * np.pi) - np.pi)
         s_r = _sigmoid((self.max_range - dist) / (self.edge_m / 4.0))
-        s_b = _sigmoid((math.radians(self.fov_deg / 2.0) - bearing) / (math.radians(self.edge_deg) / 4.0))
+        s_b = _sigmoid(
+            (math.radians(self.fov_deg / 2.0) - bearing) / (math.radians(self.edge_deg) / 4.0)
+        )
         return self.p_false_alarm + (self.p_detect - self.p_false_alarm) * s_r * s_b
 
     def likelihood(self, detected: bool, pose, points) -> np.ndarray:

@@ -72,7 +72,10 @@ def ring_mixture(sensor, measured_range: float, a: float, n_components: int = 16
     tangent = np.stack([-radial[:, 1], radial[:, 0]], axis=1)
     var_r = 1.0 / (8.0 * a)
     var_t = (2 * np.pi * measured_range / n_components) ** 2 / 4.0 + var_r
-    covs = var_r * radial[:, :, None] * radial[:, None, :] + var_t * tangent[:, :, None] * tangent[:, None, :]
+    covs = (
+        var_r * radial[:, :, None] * radial[:, None, :]
+        + var_t * tangent[:, :, None] * tangent[:, None, :]
+    )
     means = np.asarray(sensor, dtype=float) + measured_range * radial
     return GaussianMixture(np.full(n_components, 1.0 / n_components), means, covs)
 
@@ -83,7 +86,9 @@ class MixtureFamily:
 
     name = "mixture"
 
-    def __init__(self, sensor_a: float, rule: str = "min-info-loss", max_components: int = 8, seed: int = 0):
+    def __init__(
+        self, sensor_a: float, rule: str = "min-info-loss", max_components: int = 8, seed: int = 0
+    ):
         self.sensor_a, self.rule, self.max_components = sensor_a, rule, max_components
         self.rng = np.random.default_rng(seed)
 
@@ -93,7 +98,9 @@ class MixtureFamily:
         return GaussianMixture.gaussian(mean, cov)
 
     def update(self, belief, sensor, measured_range):
-        return belief.multiply(ring_mixture(sensor, measured_range, self.sensor_a)).reduce(self.max_components)
+        return belief.multiply(ring_mixture(sensor, measured_range, self.sensor_a)).reduce(
+            self.max_components
+        )
 
     def predict(self, belief, drift, Q):
         from ..beliefs.mixture import GaussianMixture
@@ -103,8 +110,14 @@ class MixtureFamily:
     def fuse(self, mine, received):
         from ..beliefs.mixture_fusion import fuse_mixtures
 
-        out = fuse_mixtures(mine, received, rule=self.rule, n_samples=400,
-                            max_components=self.max_components, seed=self.rng)
+        out = fuse_mixtures(
+            mine,
+            received,
+            rule=self.rule,
+            n_samples=400,
+            max_components=self.max_components,
+            seed=self.rng,
+        )
         return out.mixture, float(out.omega)
 
     def mean(self, belief):

@@ -10,7 +10,7 @@ EM, so the hole the footprint leaves survives in part. The result is reduced to 
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -45,7 +45,9 @@ def gaussian_sum_update(
     half = max(1, n_particles // 2)
     chol = np.linalg.cholesky(belief.covariances)
     z = rng.standard_normal((m, half, d))
-    z = np.concatenate([z, -z], axis=1)  # antithetic pairs: each mixand's particles have its exact mean
+    z = np.concatenate(
+        [z, -z], axis=1
+    )  # antithetic pairs: each mixand's particles have its exact mean
     x = belief.means[:, None, :] + np.matmul(z, np.swapaxes(chol, 1, 2))  # (M, N, d)
     lik = np.asarray(likelihood(x.reshape(-1, d)), dtype=float).reshape(m, 2 * half)
     mass = belief.weights * lik.mean(axis=1)

@@ -37,7 +37,13 @@ from .detector import CameraDetector
 from .particle_filter import gaussian_sum_update
 
 SETTINGS = ("3-robots", "8-robots")
-DEFAULT_RULES = ("naive-bayes", "bhattacharyya", "chernoff", "kld-weighted-chernoff", "min-info-loss")
+DEFAULT_RULES = (
+    "naive-bayes",
+    "bhattacharyya",
+    "chernoff",
+    "kld-weighted-chernoff",
+    "min-info-loss",
+)
 BASELINES = ("no-sharing", "centralized")
 LAB = (15.0, 8.0)
 SPEED = 0.3  # m/s
@@ -45,8 +51,26 @@ SPEED = 0.3  # m/s
 
 def common_prior() -> GaussianMixture:
     """The common prior over the target's position: eight modes around the lab."""
-    means = [[2.0, 6.5], [4.5, 2.0], [7.5, 4.0], [10.5, 6.5], [13.0, 2.0], [13.0, 6.0], [2.5, 3.0], [9.5, 1.5]]
-    stds = [(1.0, 0.8), (1.4, 0.9), (1.2, 1.2), (1.5, 0.8), (1.0, 1.1), (0.9, 0.9), (0.8, 1.2), (1.3, 0.7)]
+    means = [
+        [2.0, 6.5],
+        [4.5, 2.0],
+        [7.5, 4.0],
+        [10.5, 6.5],
+        [13.0, 2.0],
+        [13.0, 6.0],
+        [2.5, 3.0],
+        [9.5, 1.5],
+    ]
+    stds = [
+        (1.0, 0.8),
+        (1.4, 0.9),
+        (1.2, 1.2),
+        (1.5, 0.8),
+        (1.0, 1.1),
+        (0.9, 0.9),
+        (0.8, 1.2),
+        (1.3, 0.7),
+    ]
     rho = [0.3, -0.2, 0.0, 0.25, -0.3, 0.1, 0.0, 0.2]
     covs = [[[sx * sx, r * sx * sy], [r * sx * sy, sy * sy]] for (sx, sy), r in zip(stds, rho)]
     return GaussianMixture([0.14, 0.12, 0.16, 0.13, 0.12, 0.11, 0.12, 0.10], means, covs)
@@ -72,26 +96,36 @@ def robot_paths(setting: str, n_steps: int) -> np.ndarray:
     """Poses ``(robots, n_steps + 1, 3)``; robot 1 stands still at the bottom left, facing the wall."""
     still = np.tile([1.0, 1.0, math.radians(200.0)], (n_steps + 1, 1))
     if setting == "3-robots":
-        lanes = [[(2.0, 3.0), (13.0, 3.0), (13.0, 4.5), (2.0, 4.5)],
-                 [(13.5, 7.0), (3.0, 7.0), (3.0, 5.7), (13.5, 5.7)]]
+        lanes = [
+            [(2.0, 3.0), (13.0, 3.0), (13.0, 4.5), (2.0, 4.5)],
+            [(13.5, 7.0), (3.0, 7.0), (3.0, 5.7), (13.5, 5.7)],
+        ]
     else:
-        lanes = [[(1.5, 2.0), (14.0, 2.0), (14.0, 2.9), (1.5, 2.9)],
-                 [(14.0, 7.3), (1.0, 7.3), (1.0, 6.4), (14.0, 6.4)],
-                 [(7.0, 0.6), (14.3, 0.6), (14.3, 1.5), (7.0, 1.5)],
-                 [(1.0, 4.0), (8.0, 4.0), (8.0, 5.0), (1.0, 5.0)],
-                 [(14.3, 4.0), (8.5, 4.0), (8.5, 5.0), (14.3, 5.0)],
-                 [(0.6, 7.5), (0.6, 3.5), (1.5, 3.5), (1.5, 7.5)],
-                 [(5.5, 1.0), (5.5, 7.5), (11.5, 7.5), (11.5, 2.5)]]
+        lanes = [
+            [(1.5, 2.0), (14.0, 2.0), (14.0, 2.9), (1.5, 2.9)],
+            [(14.0, 7.3), (1.0, 7.3), (1.0, 6.4), (14.0, 6.4)],
+            [(7.0, 0.6), (14.3, 0.6), (14.3, 1.5), (7.0, 1.5)],
+            [(1.0, 4.0), (8.0, 4.0), (8.0, 5.0), (1.0, 5.0)],
+            [(14.3, 4.0), (8.5, 4.0), (8.5, 5.0), (14.3, 5.0)],
+            [(0.6, 7.5), (0.6, 3.5), (1.5, 3.5), (1.5, 7.5)],
+            [(5.5, 1.0), (5.5, 7.5), (11.5, 7.5), (11.5, 2.5)],
+        ]
     return np.stack([still] + [_polyline_poses(w, n_steps) for w in lanes])
 
 
-def pick_target(prior: GaussianMixture, poses: np.ndarray, detector: CameraDetector,
-                rng: np.random.Generator) -> np.ndarray:
+def pick_target(
+    prior: GaussianMixture, poses: np.ndarray, detector: CameraDetector, rng: np.random.Generator
+) -> np.ndarray:
     """A draw from the prior inside the lab that no robot's detector ever covers."""
     flat = poses.reshape(-1, 3)
     for _ in range(200):
         cand = prior.sample(64, rng)
-        inside = (cand[:, 0] > 0.3) & (cand[:, 0] < LAB[0] - 0.3) & (cand[:, 1] > 0.3) & (cand[:, 1] < LAB[1] - 0.3)
+        inside = (
+            (cand[:, 0] > 0.3)
+            & (cand[:, 0] < LAB[0] - 0.3)
+            & (cand[:, 1] > 0.3)
+            & (cand[:, 1] < LAB[1] - 0.3)
+        )
         for x in cand[inside]:
             if max(float(detector.p_detection(p, x)) for p in flat) < 1e-6:
                 return x
@@ -130,32 +164,63 @@ class TargetSearchResult:
     out_dir: Path | None = None
 
 
-def simulate(setting: str = "3-robots", rules=DEFAULT_RULES, seed: int = 0, *, duration: int = 65,
-             comm_period: int = 13, n_samples: int = 1000, particles: int = 1000, max_components: int = 15,
-             method: str = "moment-match", pair_samples: int = 1000, grid_step: float = 0.1,
-             progress=None) -> TargetSearchResult:
+def simulate(
+    setting: str = "3-robots",
+    rules=DEFAULT_RULES,
+    seed: int = 0,
+    *,
+    duration: int = 65,
+    comm_period: int = 13,
+    n_samples: int = 1000,
+    particles: int = 1000,
+    max_components: int = 15,
+    method: str = "moment-match",
+    pair_samples: int = 1000,
+    grid_step: float = 0.1,
+    progress=None,
+) -> TargetSearchResult:
     """Run every scheme of the search and measure it (no files written)."""
     if setting not in SETTINGS:
-        raise ValueError(f"unknown target search setting {setting!r}; choose one of {', '.join(SETTINGS)}")
+        raise ValueError(
+            f"unknown target search setting {setting!r}; choose one of {', '.join(SETTINGS)}"
+        )
     rules = tuple(check_rule(r) for r in rules)
     detector, prior = CameraDetector(), common_prior()
     poses = robot_paths(setting, duration)
     n_robots = poses.shape[0]
     target = pick_target(prior, poses, detector, np.random.default_rng([seed, 1]))
     obs_rng = np.random.default_rng([seed, 2])
-    observed = np.array([[detector.observe(poses[i, k], target, obs_rng) for k in range(duration + 1)]
-                         for i in range(n_robots)])
+    observed = np.array(
+        [
+            [detector.observe(poses[i, k], target, obs_rng) for k in range(duration + 1)]
+            for i in range(n_robots)
+        ]
+    )
     n = int(round((LAB[0] + 2.0) / grid_step)) + 1, int(round((LAB[1] + 2.0) / grid_step)) + 1
     xs, ys = np.linspace(-1.0, LAB[0] + 1.0, n[0]), np.linspace(-1.0, LAB[1] + 1.0, n[1])
     pts = np.column_stack([c.ravel() for c in np.meshgrid(xs, ys, indexing="xy")])
     log_p0 = prior.logpdf(pts)
-    res = TargetSearchResult(setting, BASELINES[::-1] + rules, seed, target, poses, prior,
-                             detections=int(observed.sum()),
-                             params=dict(duration=duration, comm_period=comm_period, n_samples=n_samples,
-                                         particles=particles, max_components=max_components, method=method,
-                                         pair_samples=pair_samples,
-                                         grid=(n[0], n[1]), grid_extent=[-1.0, LAB[0] + 1.0, -1.0, LAB[1] + 1.0],
-                                         detector=vars(detector)))
+    res = TargetSearchResult(
+        setting,
+        BASELINES[::-1] + rules,
+        seed,
+        target,
+        poses,
+        prior,
+        detections=int(observed.sum()),
+        params=dict(
+            duration=duration,
+            comm_period=comm_period,
+            n_samples=n_samples,
+            particles=particles,
+            max_components=max_components,
+            method=method,
+            pair_samples=pair_samples,
+            grid=(n[0], n[1]),
+            grid_extent=[-1.0, LAB[0] + 1.0, -1.0, LAB[1] + 1.0],
+            detector=vars(detector),
+        ),
+    )
     central_log = []
 
     def update(belief, robot, k, rng):
@@ -190,12 +255,31 @@ def simulate(setting: str = "3-robots", rules=DEFAULT_RULES, seed: int = 0, *, d
                 for round_ in exchanges(setting, n_robots, k):
                     snapshot = list(beliefs)
                     for sender, receiver in round_:
-                        out = fuse_mixtures(beliefs[receiver], snapshot[sender], rule=scheme, n_samples=n_samples,
-                                            method=method, max_components=max_components, prior=prior, seed=rng,
-                                            pair_samples=pair_samples)
-                        gains = [grid_kl(m.logpdf(pts), log_p0) for m in (beliefs[receiver], out.mixture)]
-                        res.fusions.append(dict(scheme=scheme, k=k, sender=sender + 1, receiver=receiver + 1,
-                                                gain_before=gains[0], gain_after=gains[1], **out.summary()))
+                        out = fuse_mixtures(
+                            beliefs[receiver],
+                            snapshot[sender],
+                            rule=scheme,
+                            n_samples=n_samples,
+                            method=method,
+                            max_components=max_components,
+                            prior=prior,
+                            seed=rng,
+                            pair_samples=pair_samples,
+                        )
+                        gains = [
+                            grid_kl(m.logpdf(pts), log_p0) for m in (beliefs[receiver], out.mixture)
+                        ]
+                        res.fusions.append(
+                            dict(
+                                scheme=scheme,
+                                k=k,
+                                sender=sender + 1,
+                                receiver=receiver + 1,
+                                gain_before=gains[0],
+                                gain_after=gains[1],
+                                **out.summary(),
+                            )
+                        )
                         beliefs[receiver] = out.mixture
             measure(scheme, beliefs, k)
         res.final[scheme] = beliefs

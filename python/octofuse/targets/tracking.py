@@ -49,7 +49,9 @@ def schedule(cfg: TrackingConfig) -> list[Event]:
     events = []
     n_meas = int(np.floor(cfg.duration / cfg.measure_period + 1e-9))
     for k in range(1, n_meas + 1):
-        events += [Event(round(k * cfg.measure_period, 9), "measure", i) for i in range(len(SENSORS))]
+        events += [
+            Event(round(k * cfg.measure_period, 9), "measure", i) for i in range(len(SENSORS))
+        ]
     for i, period in enumerate(cfg.send_periods):
         n_send = int(np.floor(cfg.duration / period + 1e-9))
         events += [Event(round(k * period, 9), "send", i) for k in range(1, n_send + 1)]
@@ -72,7 +74,9 @@ class GridFilter:
 
     def predict(self, drift, var):
         spectrum = np.fft.fft2(self.p)
-        spectrum *= np.exp(-1j * (self.KX * drift[0] + self.KY * drift[1]) - 0.5 * var * (self.KX**2 + self.KY**2))
+        spectrum *= np.exp(
+            -1j * (self.KX * drift[0] + self.KY * drift[1]) - 0.5 * var * (self.KX**2 + self.KY**2)
+        )
         self.p = np.clip(np.fft.ifft2(spectrum).real, 0.0, None)
         self.p /= self.p.sum()
 
@@ -110,7 +114,9 @@ def _families(cfg: TrackingConfig) -> list:
         elif name == "mixture":
             out.append(MixtureFamily(cfg.sensor_a, seed=cfg.seed))
         else:
-            raise ValueError(f"unknown belief family {name!r}; choose from expoly, gaussian, mixture")
+            raise ValueError(
+                f"unknown belief family {name!r}; choose from expoly, gaussian, mixture"
+            )
     return out
 
 
@@ -142,18 +148,31 @@ def simulate_tracking(cfg: TrackingConfig) -> TrackingResult:
         def advance(i, t):
             dt = t - clock[i]
             if dt > 0:
-                beliefs[i] = fam.predict(beliefs[i], velocity * dt, cfg.noise_std**2 * dt * np.eye(2))
+                beliefs[i] = fam.predict(
+                    beliefs[i], velocity * dt, cfg.noise_std**2 * dt * np.eye(2)
+                )
                 clock[i] = t
 
         def record(i, e, **extra):
             err = float(np.linalg.norm(fam.mean(beliefs[i]) - truth[time_index[e.time]]))
-            result.records.append(dict(family=fam.name, time=e.time, node=i + 1, event=e.kind,
-                                       error=err, renyi2=fam.renyi2(beliefs[i]), **extra))
+            result.records.append(
+                dict(
+                    family=fam.name,
+                    time=e.time,
+                    node=i + 1,
+                    event=e.kind,
+                    error=err,
+                    renyi2=fam.renyi2(beliefs[i]),
+                    **extra,
+                )
+            )
 
         for e in events:
             if e.kind == "measure":
                 advance(e.node, e.time)
-                beliefs[e.node] = fam.update(beliefs[e.node], SENSORS[e.node], measured[(e.time, e.node)])
+                beliefs[e.node] = fam.update(
+                    beliefs[e.node], SENSORS[e.node], measured[(e.time, e.node)]
+                )
                 record(e.node, e)
             else:
                 sender, receiver = e.node, (e.node + 1) % n
@@ -161,8 +180,14 @@ def simulate_tracking(cfg: TrackingConfig) -> TrackingResult:
                 advance(receiver, e.time)
                 before = fam.renyi2(beliefs[receiver])
                 beliefs[receiver], w = fam.fuse(beliefs[receiver], beliefs[sender])
-                record(receiver, e, renyi2_before=before, w=w, bytes=fam.message_bytes(beliefs[sender]),
-                       sender=sender + 1)
+                record(
+                    receiver,
+                    e,
+                    renyi2_before=before,
+                    w=w,
+                    bytes=fam.message_bytes(beliefs[sender]),
+                    sender=sender + 1,
+                )
         for i in range(n):
             advance(i, times[-1])
         result.final_beliefs[fam.name] = beliefs

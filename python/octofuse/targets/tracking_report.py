@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .tracking import SENSORS, TrackingConfig, TrackingResult, simulate_tracking
 from ..outputs.libraries import pyplot
+from .tracking import SENSORS, TrackingConfig, TrackingResult, simulate_tracking
 
 BURN_IN_S = 1.0  #: errors are summarised after this time (the prior dominates before)
 
@@ -41,7 +41,9 @@ def summarise(result: TrackingResult) -> dict:
         early = [r["error"] for r in rows if r["time"] < BURN_IN_S]
         out["families"][name] = {
             "rms_error": float(np.sqrt(np.mean(np.square(all_late)))) if all_late else None,
-            "rms_error_before_burn_in": float(np.sqrt(np.mean(np.square(early)))) if early else None,
+            "rms_error_before_burn_in": float(np.sqrt(np.mean(np.square(early))))
+            if early
+            else None,
             "per_node": per_node,
             "fusions": len(fusions),
             "entropy_rises": len(rises),
@@ -81,7 +83,9 @@ def _markdown(summary: dict) -> str:
             f"(largest {fam['largest_rise']:.3f} nats) | {_fmt(fam['bytes_per_message']['mean'], '.0f')} |"
         )
     c = summary["central"]
-    lines.append(f"| centralized grid | {_fmt(c['rms_error'])} | | | | | {_fmt(c['rms_error_before_burn_in'])} | | | |")
+    lines.append(
+        f"| centralized grid | {_fmt(c['rms_error'])} | | | | | {_fmt(c['rms_error_before_burn_in'])} | | | |"
+    )
     lines += [
         "",
         "A Renyi-2 entropy rise at a fusion event means the fused belief is less concentrated than the",
@@ -105,21 +109,51 @@ def _plots(result: TrackingResult, out: Path) -> None:
     for name in families:
         rows = [r for r in result.records if r["family"] == name]
         ax.plot([r["time"] for r in rows], [r["error"] for r in rows], ".", ms=3, label=name)
-    ax.plot([c["time"] for c in result.central], [c["error"] for c in result.central], "k-", label="centralized")
-    ax.set(xlabel="time [s]", ylabel="|mean - target| [m]", yscale="log", title="tracking error (all nodes)")
+    ax.plot(
+        [c["time"] for c in result.central],
+        [c["error"] for c in result.central],
+        "k-",
+        label="centralized",
+    )
+    ax.set(
+        xlabel="time [s]",
+        ylabel="|mean - target| [m]",
+        yscale="log",
+        title="tracking error (all nodes)",
+    )
     ax.legend()
     fig.tight_layout()
     fig.savefig(out / "error.png", dpi=110)
     plt.close(fig)
 
-    fig, axes = plt.subplots(1, len(families), figsize=(5 * len(families), 4), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(families), figsize=(5 * len(families), 4), sharey=True, squeeze=False
+    )
     for ax, name in zip(axes[0], families):
         for node in range(1, len(SENSORS) + 1):
             rows = [r for r in result.records if r["family"] == name and r["node"] == node]
-            (line,) = ax.plot([r["time"] for r in rows], [r["renyi2"] for r in rows], "-", lw=1, label=f"node {node}")
+            (line,) = ax.plot(
+                [r["time"] for r in rows],
+                [r["renyi2"] for r in rows],
+                "-",
+                lw=1,
+                label=f"node {node}",
+            )
             fus = [r for r in rows if r["event"] == "send"]
-            ax.plot([r["time"] for r in fus], [r["renyi2"] for r in fus], "o", ms=3, color=line.get_color())
-        ax.plot([c["time"] for c in result.central], [c["renyi2"] for c in result.central], "k--", lw=1, label="centralized")
+            ax.plot(
+                [r["time"] for r in fus],
+                [r["renyi2"] for r in fus],
+                "o",
+                ms=3,
+                color=line.get_color(),
+            )
+        ax.plot(
+            [c["time"] for c in result.central],
+            [c["renyi2"] for c in result.central],
+            "k--",
+            lw=1,
+            label="centralized",
+        )
         ax.set(xlabel="time [s]", title=f"{name}: Renyi-2 entropy (dots: after fusion)")
     axes[0][0].set_ylabel("nats")
     axes[0][0].legend(fontsize=8)
@@ -133,8 +167,9 @@ def _plots(result: TrackingResult, out: Path) -> None:
         xs = np.linspace(target[0] - 4, target[0] + 4, 160)
         ys = np.linspace(target[1] - 4, target[1] + 4, 160)
         X, Y = np.meshgrid(xs, ys, indexing="ij")
-        fig, axes = plt.subplots(1, len(beliefs), figsize=(4 * len(beliefs), 4.6), squeeze=False,
-                                 layout="constrained")
+        fig, axes = plt.subplots(
+            1, len(beliefs), figsize=(4 * len(beliefs), 4.6), squeeze=False, layout="constrained"
+        )
         pdfs = [b.pdf(np.stack([X, Y], axis=-1)) for b in beliefs]
         from matplotlib.ticker import MaxNLocator
 
@@ -145,13 +180,19 @@ def _plots(result: TrackingResult, out: Path) -> None:
             ax.plot(*SENSORS.T, "w^", ms=6, mec="k", label="sensors")
             ax.plot(*SENSORS[k], "r^", ms=8, label="this node's sensor")
             ax.plot(*target, "rs", mfc="none", ms=9, label="target")
-            ax.set(title=f"node {k + 1}", aspect="equal", xlim=(xs[0], xs[-1]),
-                   ylim=(ys[0], ys[-1]), xlabel="x [m]")
+            ax.set(
+                title=f"node {k + 1}",
+                aspect="equal",
+                xlim=(xs[0], xs[-1]),
+                ylim=(ys[0], ys[-1]),
+                xlabel="x [m]",
+            )
         axes[0][0].set_ylabel("y [m]")
         fig.colorbar(filled, ax=axes[0].tolist(), shrink=0.8, label="density [1/m²]")
         fig.suptitle(f"ExPoly beliefs at {result.times[-1]:.2f} s")
-        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncol=3,
-                   fontsize=8)
+        fig.legend(
+            *axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncol=3, fontsize=8
+        )
         fig.savefig(out / "beliefs.png", dpi=110)
         plt.close(fig)
 

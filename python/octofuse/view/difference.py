@@ -12,7 +12,7 @@ OVER_CONFIDENT, MISSED, AGREEING = 0, 1, 2
 CLASSES = ("over-confident", "missed", "agreeing")
 MEANINGS = {
     "over-confident": "the agent's |log-odds| exceeds the centralized map's by more than the "
-                      "run's tolerance",
+    "run's tolerance",
     "missed": "the agent's class (occupied, free or unknown) differs from the centralized map's",
     "agreeing": "both maps hold the voxel occupied",
 }
@@ -27,8 +27,9 @@ def difference_voxels(agent, central, resolution: float, tol: float) -> Voxels:
     centers = np.concatenate([p[0] for p in parts])
     sizes = np.concatenate([p[1] for p in parts])
     # a voxel both hold occupied at the same place is drawn once
-    _, first = np.unique(packed_keys(np.floor(centers / (resolution / 2)).astype(np.int64)),
-                         return_index=True)
+    _, first = np.unique(
+        packed_keys(np.floor(centers / (resolution / 2)).astype(np.int64)), return_index=True
+    )
     centers, sizes = centers[first], sizes[first]
     a = _known_or_zero(agent.values_at(centers, resolution))
     c = _known_or_zero(central.values_at(centers, resolution))
@@ -40,8 +41,10 @@ def difference_voxels(agent, central, resolution: float, tol: float) -> Voxels:
 
 def _occupied(leaves) -> tuple[np.ndarray, np.ndarray]:
     occ = np.asarray(leaves.values) > 0
-    return (np.asarray(leaves.centers, dtype=np.float64)[occ],
-            np.asarray(leaves.sizes, dtype=np.float64)[occ])
+    return (
+        np.asarray(leaves.centers, dtype=np.float64)[occ],
+        np.asarray(leaves.sizes, dtype=np.float64)[occ],
+    )
 
 
 def _known_or_zero(values: np.ndarray) -> np.ndarray:

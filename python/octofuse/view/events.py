@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 
 @dataclass
@@ -34,7 +34,7 @@ def events_of(events: Sequence[dict], rule: str) -> list[dict]:
 
 def until(events: Sequence[dict], count: int) -> Until:
     """The sums over the first ``count`` of ``events`` (one rule's, in time order)."""
-    done = events[:max(0, count)]
+    done = events[: max(0, count)]
     out = Until(len(done), done[-1]["t"] if done else 0.0, last=done[-1] if done else None)
     for e in done:
         link = (e["sender"], e["receiver"])

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import threading
-from typing import Callable, Optional
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,13 +33,14 @@ class FleetSource:
         self.cfg = cfg
         self.agents = [a.name for a in cfg.build.agents]
         self.rules = list(cfg.fuse.rules)
-        graph = make_graph(cfg.fuse.topology, len(self.agents), seed=cfg.fuse.seed,
-                           names=self.agents)
+        graph = make_graph(
+            cfg.fuse.topology, len(self.agents), seed=cfg.fuse.seed, names=self.agents
+        )
         self.links = [(self.agents[a], self.agents[b]) for a, b in graph.edges]
         self.title = f"live fleet {cfg.live.fleet}"
         self.events: list[dict] = []
         self.means: dict[str, dict] = {}
-        self.loss_range: Optional[tuple[float, float]] = None
+        self.loss_range: tuple[float, float] | None = None
         self.resolution = cfg.build.map.resolution
         self.status: dict[tuple[str, str], dict] = {}
         self.on_change: Callable[[], None] = lambda: None
@@ -49,15 +50,22 @@ class FleetSource:
         self._changed, self._closed = threading.Event(), threading.Event()
         threading.Thread(target=self._redraw, name="fleet-view", daemon=True).start()
         n = len(self.agents) * len(self.rules)
-        self.session = zenoh.open(zenoh_config(cfg.live, endpoint(cfg.live, n + 1),
-                                               [endpoint(cfg.live, k) for k in range(n)]))
-        self._subs = [self.session.declare_subscriber(keys.statuses(cfg.live.fleet),
-                                                      self._on_status)]
+        self.session = zenoh.open(
+            zenoh_config(
+                cfg.live, endpoint(cfg.live, n + 1), [endpoint(cfg.live, k) for k in range(n)]
+            )
+        )
+        self._subs = [
+            self.session.declare_subscriber(keys.statuses(cfg.live.fleet), self._on_status)
+        ]
         for rule in self.rules:
             for agent in self.agents:
-                self._subs.append(self.session.declare_subscriber(
-                    keys.fused_map(agent, rule if len(self.rules) > 1 else None),
-                    lambda s, key=(rule, agent): self._on_map(key, s)))
+                self._subs.append(
+                    self.session.declare_subscriber(
+                        keys.fused_map(agent, rule if len(self.rules) > 1 else None),
+                        lambda s, key=(rule, agent): self._on_map(key, s),
+                    )
+                )
 
     def _on_map(self, key: tuple[str, str], sample) -> None:
         try:
@@ -89,8 +97,16 @@ class FleetSource:
                 self.status[rule, agent] = s
                 for sender, state in sorted(links.items()):
                     new = state["applied"] - before.get(sender, {}).get("applied", 0)
-                    self.events += [{"t": float(s["t"]), "rule": rule, "sender": sender,
-                                     "receiver": agent, "voxels": None, "loss": None}] * max(0, new)
+                    self.events += [
+                        {
+                            "t": float(s["t"]),
+                            "rule": rule,
+                            "sender": sender,
+                            "receiver": agent,
+                            "voxels": None,
+                            "loss": None,
+                        }
+                    ] * max(0, new)
         except (ValueError, KeyError, TypeError):
             pass
 
@@ -107,7 +123,7 @@ class FleetSource:
             m = self._maps[rule, agent]
         return occupied_voxels(m.leaves())
 
-    def loss(self, rule: str, agent: str) -> Optional[Voxels]:
+    def loss(self, rule: str, agent: str) -> Voxels | None:
         return None  # a live agent publishes its map, not its loss
 
     def difference(self, rule: str, agent: str) -> Voxels:

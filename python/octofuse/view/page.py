@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import html
 import threading
-from typing import Optional
 
 import numpy as np
 
@@ -42,11 +41,16 @@ class RunPage:
         maps = ([CENTRALIZED] if source.has_central() else []) + list(source.rules)
         self.map = gui.add_dropdown("map", maps, initial_value=maps[min(1, len(maps) - 1)])
         self.agent = gui.add_dropdown("agent", self._agents(self.map.value) or ["–"])
-        self.colour = gui.add_dropdown("colour by", (OCCUPANCY, LOSS, DIFFERENCE),
-                                       initial_value=LOSS)
-        self.budget = gui.add_slider("voxel budget", min=min(10_000, budget),
-                                     max=max(2_000_000, budget), step=10_000,
-                                     initial_value=budget)
+        self.colour = gui.add_dropdown(
+            "colour by", (OCCUPANCY, LOSS, DIFFERENCE), initial_value=LOSS
+        )
+        self.budget = gui.add_slider(
+            "voxel budget",
+            min=min(10_000, budget),
+            max=max(2_000_000, budget),
+            step=10_000,
+            initial_value=budget,
+        )
         self.legend = gui.add_html("")
         self.detail = gui.add_html("")
         with gui.add_folder("fusion events"):
@@ -92,7 +96,7 @@ class RunPage:
         self._place_camera()
 
     # -- the map ---------------------------------------------------------------------
-    def chosen_voxels(self) -> tuple[Optional[Voxels], str, str]:
+    def chosen_voxels(self) -> tuple[Voxels | None, str, str]:
         """The voxels of the current choice, their colouring and a note on what is shown."""
         rule, agent, colour = self.map.value, self.agent.value, self.colour.value
         src = self.source
@@ -129,10 +133,17 @@ class RunPage:
             colours = self._colours(d.voxels, colouring, v)
             with self.server.atomic():
                 for i, (size, idx) in enumerate(by_size(d.voxels).items()):
-                    self._drawn.append(self.server.scene.add_point_cloud(
-                        f"/map/level{i}", d.voxels.centers[idx], colours[idx],
-                        point_size=size, point_shape="square", point_shading="flat",
-                        precision="float32"))
+                    self._drawn.append(
+                        self.server.scene.add_point_cloud(
+                            f"/map/level{i}",
+                            d.voxels.centers[idx],
+                            colours[idx],
+                            point_size=size,
+                            point_shape="square",
+                            point_shading="flat",
+                            precision="float32",
+                        )
+                    )
             self.status = note
             self.detail.content = detail_note(note, len(v), d)
 
@@ -160,8 +171,9 @@ class RunPage:
     def draw_events(self) -> None:
         events = self._rule_events()
         now = until(events, int(self.event.value))
-        self.event_text.content = events_note(now, len(events), self.source.agents,
-                                              self.source.links)
+        self.event_text.content = events_note(
+            now, len(events), self.source.agents, self.source.links
+        )
         self._draw_graph(now)
 
     def _draw_graph(self, now) -> None:
@@ -172,25 +184,47 @@ class RunPage:
         where = graph_layout(src.agents, lo, hi)
         scene = self.server.scene
         with self.server.atomic():
-            scene.add_point_cloud("/graph/agents", np.array([where[a] for a in src.agents]),
-                                  NODE_COLOR, point_size=float(np.max(hi - lo)) / 100,
-                                  point_shape="circle", precision="float32")
+            scene.add_point_cloud(
+                "/graph/agents",
+                np.array([where[a] for a in src.agents]),
+                NODE_COLOR,
+                point_size=float(np.max(hi - lo)) / 100,
+                point_shape="circle",
+                precision="float32",
+            )
             for a in src.agents:
-                scene.add_label(f"/graph/agent_{a}", a, position=tuple(where[a]),
-                                anchor="bottom-center")
+                scene.add_label(
+                    f"/graph/agent_{a}", a, position=tuple(where[a]), anchor="bottom-center"
+                )
             if not src.links:
                 return
             last = now.last and {now.last["sender"], now.last["receiver"]}
             points = np.array([[where[a], where[b]] for a, b in src.links])
-            colours = np.array([[LAST_LINK_COLOR if last == {a, b} else
-                                 LINK_COLOR if now.link_messages(a, b) else (200, 200, 200)] * 2
-                                for a, b in src.links], dtype=np.uint8)
-            scene.add_line_segments("/graph/links", points, colours, thickness=3,
-                                    thickness_units="screen")
+            colours = np.array(
+                [
+                    [
+                        LAST_LINK_COLOR
+                        if last == {a, b}
+                        else LINK_COLOR
+                        if now.link_messages(a, b)
+                        else (200, 200, 200)
+                    ]
+                    * 2
+                    for a, b in src.links
+                ],
+                dtype=np.uint8,
+            )
+            scene.add_line_segments(
+                "/graph/links", points, colours, thickness=3, thickness_units="screen"
+            )
             for i, (a, b) in enumerate(src.links):
-                scene.add_label(f"/graph/link{i}", f"{now.link_messages(a, b)} msg",
-                                position=tuple((where[a] + where[b]) / 2),
-                                anchor="center-center", font_screen_scale=0.7)
+                scene.add_label(
+                    f"/graph/link{i}",
+                    f"{now.link_messages(a, b)} msg",
+                    position=tuple((where[a] + where[b]) / 2),
+                    anchor="center-center",
+                    font_screen_scale=0.7,
+                )
 
 
 def graph_layout(agents, lo: np.ndarray, hi: np.ndarray) -> dict[str, np.ndarray]:
@@ -199,8 +233,13 @@ def graph_layout(agents, lo: np.ndarray, hi: np.ndarray) -> dict[str, np.ndarray
     out = {}
     for i, a in enumerate(agents):
         angle = 2 * np.pi * i / len(agents)
-        out[a] = np.array([centre[0] + 0.45 * extent * np.cos(angle),
-                           centre[1] + 0.45 * extent * np.sin(angle), hi[2] + 0.25 * extent])
+        out[a] = np.array(
+            [
+                centre[0] + 0.45 * extent * np.cos(angle),
+                centre[1] + 0.45 * extent * np.sin(angle),
+                hi[2] + 0.25 * extent,
+            ]
+        )
     return out
 
 
@@ -208,40 +247,66 @@ def detail_note(note: str, total: int, d: Detail) -> str:
     """What the map shows and at which level of detail."""
     drawn = f"{len(d.voxels):,} voxels drawn"
     if d.merged:
-        drawn += (f" of {total:,}: to fit the budget, merged into cells of up to {d.cell:g} m, "
-                  "finer near the middle of the map")
+        drawn += (
+            f" of {total:,}: to fit the budget, merged into cells of up to {d.cell:g} m, "
+            "finer near the middle of the map"
+        )
     return f"<div style='font-size:0.8em'>{html.escape(note)}<br>{drawn}</div>"
 
 
 def events_note(now, total: int, agents, links) -> str:
     """The instant, the last event, each link's traffic and each agent's loss so far."""
-    out = [f"<div style='font-size:0.8em'><b>{now.count} of {total} fusions</b>, "
-           f"t = {now.time_s:.2f} s"]
+    out = [
+        f"<div style='font-size:0.8em'><b>{now.count} of {total} fusions</b>, "
+        f"t = {now.time_s:.2f} s"
+    ]
     if now.last:
         e = now.last
         loss = "" if e.get("loss") is None else f", loss {e['loss']:.4g} nats"
-        out.append(f"<br>last: {html.escape(e['sender'])} → {html.escape(e['receiver'])}, "
-                   f"{e.get('voxels') or 0:,} voxels{loss}")
-    rows = "".join(f"<tr><td>{html.escape(a)}–{html.escape(b)}</td>"
-                   f"<td align=right>{now.link_messages(a, b)}</td>"
-                   f"<td align=right>{now.link_voxels(a, b):,}</td></tr>" for a, b in links)
-    out.append("<table style='width:100%'><tr><th align=left>link</th><th>messages</th>"
-               f"<th>voxels</th></tr>{rows}</table>")
-    rows = "".join(f"<tr><td>{html.escape(a)}</td><td align=right>{now.loss.get(a, 0.0):.4g}"
-                   "</td></tr>" for a in agents)
-    out.append("<table style='width:100%'><tr><th align=left>agent</th><th>loss so far "
-               f"[nats]</th></tr>{rows}</table></div>")
+        out.append(
+            f"<br>last: {html.escape(e['sender'])} → {html.escape(e['receiver'])}, "
+            f"{e.get('voxels') or 0:,} voxels{loss}"
+        )
+    rows = "".join(
+        f"<tr><td>{html.escape(a)}–{html.escape(b)}</td>"
+        f"<td align=right>{now.link_messages(a, b)}</td>"
+        f"<td align=right>{now.link_voxels(a, b):,}</td></tr>"
+        for a, b in links
+    )
+    out.append(
+        "<table style='width:100%'><tr><th align=left>link</th><th>messages</th>"
+        f"<th>voxels</th></tr>{rows}</table>"
+    )
+    rows = "".join(
+        f"<tr><td>{html.escape(a)}</td><td align=right>{now.loss.get(a, 0.0):.4g}</td></tr>"
+        for a in agents
+    )
+    out.append(
+        "<table style='width:100%'><tr><th align=left>agent</th><th>loss so far "
+        f"[nats]</th></tr>{rows}</table></div>"
+    )
     return "".join(out)
 
 
 def summary_table(means: dict[str, dict]) -> str:
     """The run's mean scores per rule (summary.json's ``mean``)."""
-    cols = [("kl_mean", "KL", "{:.4f}"), ("overconfidence", "over-conf.", "{:.1%}"),
-            ("agreement", "agree", "{:.1%}"), ("loss_mean", "loss", "{:.3f}")]
+    cols = [
+        ("kl_mean", "KL", "{:.4f}"),
+        ("overconfidence", "over-conf.", "{:.1%}"),
+        ("agreement", "agree", "{:.1%}"),
+        ("loss_mean", "loss", "{:.3f}"),
+    ]
     head = "".join(f"<th>{h}</th>" for _, h, _ in cols)
     rows = "".join(
-        f"<tr><td>{html.escape(rule)}</td>" + "".join(
+        f"<tr><td>{html.escape(rule)}</td>"
+        + "".join(
             f"<td align=right>{'–' if row.get(k) is None else f.format(row[k])}</td>"
-            for k, _, f in cols) + "</tr>" for rule, row in means.items())
-    return (f"<table style='font-size:0.8em;width:100%'><tr><th align=left>rule</th>{head}"
-            f"</tr>{rows}</table>")
+            for k, _, f in cols
+        )
+        + "</tr>"
+        for rule, row in means.items()
+    )
+    return (
+        f"<table style='font-size:0.8em;width:100%'><tr><th align=left>rule</th>{head}"
+        f"</tr>{rows}</table>"
+    )

@@ -35,11 +35,13 @@ def _gradient(cmap: str) -> str:
 
 def scale_legend(title: str, cmap: str, lo: float, hi: float, unit: str = "") -> str:
     """A colour bar with its ends and title."""
-    return (f"<div style='font-size:0.8em'><b>{html.escape(title)}</b>"
-            f"<div style='height:12px;border-radius:2px;background:linear-gradient(to right, "
-            f"{_gradient(cmap)})'></div><div style='display:flex;justify-content:space-between'>"
-            f"<span>{lo:.3g}</span><span>{hi:.3g}{(' ' + html.escape(unit)) if unit else ''}"
-            "</span></div></div>")
+    return (
+        f"<div style='font-size:0.8em'><b>{html.escape(title)}</b>"
+        f"<div style='height:12px;border-radius:2px;background:linear-gradient(to right, "
+        f"{_gradient(cmap)})'></div><div style='display:flex;justify-content:space-between'>"
+        f"<span>{lo:.3g}</span><span>{hi:.3g}{(' ' + html.escape(unit)) if unit else ''}"
+        "</span></div></div>"
+    )
 
 
 def occupancy_legend() -> str:
@@ -47,16 +49,20 @@ def occupancy_legend() -> str:
 
 
 def loss_legend(lo: float, hi: float) -> str:
-    return scale_legend("accumulated information loss (one range for every rule)", LOSS_CMAP,
-                        lo, hi, "nats")
+    return scale_legend(
+        "accumulated information loss (one range for every rule)", LOSS_CMAP, lo, hi, "nats"
+    )
 
 
 def difference_legend(counts: dict[str, int]) -> str:
     """Three swatches, what each class means and how many voxels it holds."""
     rows = []
     for (r, g, b), name in zip(DIFFERENCE_COLORS.tolist(), CLASSES):
-        rows.append(f"<div title='{html.escape(MEANINGS[name])}'><span style='display:inline-block;"
-                    f"width:10px;height:10px;background:rgb({r},{g},{b});margin-right:6px'></span>"
-                    f"{name}: {counts.get(name, 0):,}</div>")
-    return ("<div style='font-size:0.8em'><b>against the centralized map</b>" + "".join(rows)
-            + "</div>")
+        rows.append(
+            f"<div title='{html.escape(MEANINGS[name])}'><span style='display:inline-block;"
+            f"width:10px;height:10px;background:rgb({r},{g},{b});margin-right:6px'></span>"
+            f"{name}: {counts.get(name, 0):,}</div>"
+        )
+    return (
+        "<div style='font-size:0.8em'><b>against the centralized map</b>" + "".join(rows) + "</div>"
+    )

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import threading
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
@@ -30,9 +29,11 @@ class RunFolder:
         self.folder = Path(folder)
         path = self.folder / "summary.json"
         if not path.is_file():
-            raise FileNotFoundError(f"'{self.folder}' is not the output folder of a run "
-                                    "(no summary.json): give the --out folder of octofuse "
-                                    "run, demo or fuse")
+            raise FileNotFoundError(
+                f"'{self.folder}' is not the output folder of a run "
+                "(no summary.json): give the --out folder of octofuse "
+                "run, demo or fuse"
+            )
         s = json.loads(path.read_text())
         self.title = str(self.folder)
         self.agents: list[str] = list(s["agents"])
@@ -42,7 +43,7 @@ class RunFolder:
         self.events: list[dict] = list(s.get("fusion_events", []))
         self.means: dict[str, dict] = dict(s.get("mean", {}))
         rng = (s.get("exports") or {}).get("range")
-        self.loss_range: Optional[tuple[float, float]] = tuple(rng) if rng else None
+        self.loss_range: tuple[float, float] | None = tuple(rng) if rng else None
         cfg = s.get("config", {})
         self.resolution = float(cfg.get("build", {}).get("map", {}).get("resolution", 0.05))
         self.tol = float(cfg.get("fuse", {}).get("overconfidence_tol", 0.1))
@@ -84,20 +85,23 @@ class RunFolder:
         """The occupied voxels of a map (:meth:`leaves`), valued by their log-odds."""
         return occupied_voxels(self.leaves(rule, agent))
 
-    def loss(self, rule: str, agent: str) -> Optional[Voxels]:
+    def loss(self, rule: str, agent: str) -> Voxels | None:
         """The occupied voxels of an agent's fused map with their accumulated information loss
         (its heat map), None where the run wrote none (naive Bayes, ``--export fused``)."""
         for suffix in CLOUD_SUFFIXES:
             path = self.folder / rule / f"{agent}_info_loss{suffix}"
             if path.is_file():
                 c = read_cloud(path)
-                v = Voxels(np.asarray(c["positions"], dtype=np.float64),
-                           np.asarray(c["voxel_size"], dtype=np.float64),
-                           np.asarray(c["info_loss"], dtype=np.float32))
+                v = Voxels(
+                    np.asarray(c["positions"], dtype=np.float64),
+                    np.asarray(c["voxel_size"], dtype=np.float64),
+                    np.asarray(c["info_loss"], dtype=np.float32),
+                )
                 return v.moved(self.frames.get(agent))
         return None
 
     def difference(self, rule: str, agent: str) -> Voxels:
         """The agent's fused map against the centralized map (:mod:`.difference`)."""
-        return difference_voxels(self.leaves(rule, agent), self.leaves(CENTRALIZED, ""),
-                                 self.resolution, self.tol)
+        return difference_voxels(
+            self.leaves(rule, agent), self.leaves(CENTRALIZED, ""), self.resolution, self.tol
+        )

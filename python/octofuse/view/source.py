@@ -4,7 +4,7 @@ reads a finished run's folder; a live fleet can provide the same and call the pa
 
 from __future__ import annotations
 
-from typing import Optional, Protocol
+from typing import Protocol
 
 from .voxels import Voxels
 
@@ -16,7 +16,7 @@ class MapSource(Protocol):
     links: list[tuple[str, str]]  #: the graph's links, as agent names
     events: list[dict]  #: fusion events: t, rule, sender, receiver, voxels, loss
     means: dict[str, dict]  #: rule -> mean scores (kl_mean, overconfidence, agreement, ...)
-    loss_range: Optional[tuple[float, float]]  #: one colour range of loss for every rule
+    loss_range: tuple[float, float] | None  #: one colour range of loss for every rule
     resolution: float  #: the finest voxel size, metres
     #: what a live source calls when its maps changed (the page sets it: its redraw)
     on_change: object
@@ -31,7 +31,7 @@ class MapSource(Protocol):
         """The occupied voxels of a map (rule ``"centralized"``: the centralized map),
         valued by log-odds, in the common frame."""
 
-    def loss(self, rule: str, agent: str) -> Optional[Voxels]:
+    def loss(self, rule: str, agent: str) -> Voxels | None:
         """The occupied voxels of an agent's map valued by accumulated information loss
         (nats), None where there is none."""
 

@@ -5,7 +5,6 @@ of the map than far from it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -24,10 +23,10 @@ class Voxels:
     def __len__(self) -> int:
         return len(self.values)
 
-    def subset(self, keep: np.ndarray) -> "Voxels":
+    def subset(self, keep: np.ndarray) -> Voxels:
         return Voxels(self.centers[keep], self.sizes[keep], self.values[keep])
 
-    def moved(self, T) -> "Voxels":
+    def moved(self, T) -> Voxels:
         """The voxels with their centres moved by the rigid transform ``T`` (4x4; None: as
         they are)."""
         if T is None:
@@ -47,8 +46,11 @@ def occupied_voxels(leaves) -> Voxels:
     valued by their log-odds."""
     values = np.asarray(leaves.values, dtype=np.float32)
     keep = values > 0
-    return Voxels(np.asarray(leaves.centers, dtype=np.float64)[keep],
-                  np.asarray(leaves.sizes, dtype=np.float64)[keep], values[keep])
+    return Voxels(
+        np.asarray(leaves.centers, dtype=np.float64)[keep],
+        np.asarray(leaves.sizes, dtype=np.float64)[keep],
+        values[keep],
+    )
 
 
 @dataclass(frozen=True)
@@ -61,8 +63,9 @@ class Detail:
     merged: bool
 
 
-def within_budget(v: Voxels, budget: int, resolution: float, combine=np.maximum,
-                  focus: Optional[np.ndarray] = None) -> Detail:
+def within_budget(
+    v: Voxels, budget: int, resolution: float, combine=np.maximum, focus: np.ndarray | None = None
+) -> Detail:
     """``v`` with at most ``budget`` voxels where it can: finer voxels merged into the cells
     of the octree level above, level by level (at most :data:`MAX_COARSENING`), until they
     fit; then the cells nearest ``focus`` (default: the middle of ``v``) split again into
@@ -82,8 +85,9 @@ def within_budget(v: Voxels, budget: int, resolution: float, combine=np.maximum,
     return Detail(fine, cell, True)
 
 
-def refined_near(fine: Voxels, coarse: Voxels, parent: np.ndarray, budget: int,
-                 focus: np.ndarray) -> Voxels:
+def refined_near(
+    fine: Voxels, coarse: Voxels, parent: np.ndarray, budget: int, focus: np.ndarray
+) -> Voxels:
     """``coarse`` with its cells nearest ``focus`` replaced by their voxels of ``fine``
     (``parent``: the cell of each), as many as ``budget`` allows."""
     children = np.bincount(parent, minlength=len(coarse))
@@ -92,9 +96,11 @@ def refined_near(fine: Voxels, coarse: Voxels, parent: np.ndarray, budget: int,
     split = np.zeros(len(coarse), dtype=bool)
     split[order[fits]] = True
     kept, finer = coarse.subset(~split), fine.subset(split[parent])
-    return Voxels(np.concatenate([kept.centers, finer.centers]),
-                  np.concatenate([kept.sizes, finer.sizes]),
-                  np.concatenate([kept.values, finer.values]))
+    return Voxels(
+        np.concatenate([kept.centers, finer.centers]),
+        np.concatenate([kept.sizes, finer.sizes]),
+        np.concatenate([kept.values, finer.values]),
+    )
 
 
 def merged_into_cells(v: Voxels, cell: float, combine=np.maximum) -> Voxels:
@@ -103,8 +109,7 @@ def merged_into_cells(v: Voxels, cell: float, combine=np.maximum) -> Voxels:
     return merged_with_parents(v, cell, combine)[0]
 
 
-def merged_with_parents(v: Voxels, cell: float, combine=np.maximum
-                        ) -> tuple[Voxels, np.ndarray]:
+def merged_with_parents(v: Voxels, cell: float, combine=np.maximum) -> tuple[Voxels, np.ndarray]:
     """:func:`merged_into_cells`, and for each voxel of ``v`` the index of the merged voxel
     that holds it."""
     small = v.sizes < cell * (1 - 1e-9)
@@ -119,9 +124,11 @@ def merged_with_parents(v: Voxels, cell: float, combine=np.maximum
     values = v.values[small][first]  # then every voxel of the cell combined into it
     combine.at(values, index, v.values[small])
     parent[small] = len(big) + index
-    return Voxels(np.concatenate([big.centers, (cells + 0.5) * cell]),
-                  np.concatenate([big.sizes, np.full(len(cells), cell)]),
-                  np.concatenate([big.values, values])), parent
+    return Voxels(
+        np.concatenate([big.centers, (cells + 0.5) * cell]),
+        np.concatenate([big.sizes, np.full(len(cells), cell)]),
+        np.concatenate([big.values, values]),
+    ), parent
 
 
 def packed_keys(keys: np.ndarray) -> np.ndarray:

@@ -47,10 +47,9 @@ inline double kl_core(double s, double y, double d) {
     // KL = sum_k sigmoid^(k-1)(y) d^k / k!, with sigmoid' = v, sigmoid'' = v (1 - 2s), ...
     const double v = s * (1.0 - s), t = 1.0 - 2.0 * s;
     return v * d * d *
-           (0.5 + d * (t / 6.0 +
-                       d * ((1.0 - 6.0 * v) / 24.0 +
-                            d * (t * (1.0 - 12.0 * v) / 120.0 +
-                                 d * (1.0 + v * (120.0 * v - 30.0)) / 720.0))));
+           (0.5 + d * (t / 6.0 + d * ((1.0 - 6.0 * v) / 24.0 +
+                                      d * (t * (1.0 - 12.0 * v) / 120.0 +
+                                           d * (1.0 + v * (120.0 * v - 30.0)) / 720.0))));
   }
   double x;  // s * expm1(d) = (1 + e^lp) / (1 + e^lq) - 1
   if (ad < 0.5) {
@@ -158,7 +157,10 @@ inline double weighted_chernoff_weight(double la, double lb, double ca, double c
     const double ka = ca * kl_core(s, y, sg * la - y), kb = cb * kl_core(s, y, sg * lb - y);
     const double g = ka - kb;
     if (std::fabs(g) <= 1e-15 * (ka + kb)) return w;
-    if (g > 0.0) lo = w; else hi = w;
+    if (g > 0.0)
+      lo = w;
+    else
+      hi = w;
     // dKL(p_w||p_x)/dw = sigmoid'(l_w) (l_w - l_x) d;  dsqrt(k)/dw = (dk/dw) / (2 sqrt(k))
     const double ra = std::sqrt(ka), rb = std::sqrt(kb);
     const double dh = 0.5 * d * s * (1.0 - s) * (ca * (lw - la) / ra - cb * (lw - lb) / rb);
@@ -166,8 +168,8 @@ inline double weighted_chernoff_weight(double la, double lb, double ca, double c
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
     const double step = std::fabs(next - w);
     if (step < 1e-14 || hi - lo < 1e-14) return next;
-    const bool converged = step < 1e-3 * last_step &&
-                           step * step * step < 1e-18 * last_step * last_step;
+    const bool converged =
+        step < 1e-3 * last_step && step * step * step < 1e-18 * last_step * last_step;
     if (stops_early && converged) return next;
     last_step = step;
     w = next;

@@ -74,8 +74,8 @@ inline void chernoff_pack(const double* a, const double* b, double* l_out, doubl
   const V inv_d = 1.0 / D;
   const V eu = pack_exp(u);
   const V eD1 = pack_expm1(D);
-  const V ev = eu * (1.0 + eD1);  // e^v
-  const V enb = eu * ev;          // e^y
+  const V ev = eu * (1.0 + eD1);                        // e^v
+  const V enb = eu * ev;                                // e^y
   const V su = eu / (1.0 + eu), s = enb / (1.0 + enb);  // sigmoid(u), sigmoid(y)
   const V Pv = pack_log1p(su * eD1);
   const V Qv = D - Pv;
@@ -117,12 +117,11 @@ inline void chernoff_pack(const double* a, const double* b, double* l_out, doubl
                            vs * (-0.041666666666666664 + vs * 0.16666666666666666)) +
                           d2 * (2.48015873015873e-05 +
                                 vs * (-0.003125 + vs * (0.041666666666666664 - vs * 0.125)))));
-    const V odd =
-        dk * ts *
-        (0.16666666666666666 +
-         d2 * ((0.008333333333333333 - 0.1 * vs) +
-               d2 * (0.0001984126984126984 +
-                     vs * (-0.011904761904761904 + vs * 0.07142857142857142))));
+    const V odd = dk * ts *
+                  (0.16666666666666666 +
+                   d2 * ((0.008333333333333333 - 0.1 * vs) +
+                         d2 * (0.0001984126984126984 +
+                               vs * (-0.011904761904761904 + vs * 0.07142857142857142))));
     loss = P::select(near, vs * d2 * (even + odd), loss);
   }
   loss = P::select(P::lt(zero, loss), loss, zero);  // rounding can give -1e-17

@@ -36,9 +36,8 @@ inline std::uint64_t morton_step(std::uint64_t m, std::uint64_t mask, int step) 
 // loop run on past its buffer; ScanCheck refuses such rays before tracing, and here the walk
 // stops after twice the key distance in any case.
 template <class Tree, class Emit>
-bool trace_ray_codes(const Tree& tree, const octomap::point3d& origin,
-                     const octomap::point3d& end, Emit&& emit,
-                     std::uint64_t* end_code = nullptr) {
+bool trace_ray_codes(const Tree& tree, const octomap::point3d& origin, const octomap::point3d& end,
+                     Emit&& emit, std::uint64_t* end_code = nullptr) {
   octomap::OcTreeKey key_origin, key_end;
   const bool end_in_range = tree.coordToKeyChecked(end, key_end);
   const std::uint64_t code_end = end_in_range ? morton(key_end) : kNoCode;
