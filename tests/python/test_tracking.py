@@ -40,7 +40,7 @@ def test_short_run_writes_its_report(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["families"].keys() == result.summary["families"].keys()
     assert {"expoly", "gaussian"} <= summary["families"].keys()
-    for fam in summary["families"].items():
+    for fam in summary["families"].values():
         assert fam["fusions"] == 6  # nodes 1, 3 send at 0.35 and 0.7 s; nodes 2, 4 at 0.45 s
         assert fam["rms_error"] is None  # the run ends within the burn-in second
         assert (
