@@ -15,8 +15,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import assert_same_map, run_cli  # noqa: E402
-from conftest import expand, random_map  # noqa: E402
+from bagfactory import SENSORS, assert_same_map, room_map, run_cli  # noqa: E402
+from conftest import REPO, expand, random_map  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig, from_dict  # noqa: E402
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
@@ -26,9 +26,8 @@ from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.maps.compare import compare  # noqa: E402
 from octofuse.maps.frames import invert, pose_matrix  # noqa: E402
-from test_frames import SENSORS, room_map  # noqa: E402
 
-GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
+GENERATOR = REPO / "data" / "generate_lab.py"
 LAB = ["--duration", "30", "--rate", "1", "--robots", "4"]  # about 2 s per run
 RULE = "min-info-loss"
 #: robot3's reported poses: a whole-voxel shift (0.05 m voxels), or the shift and a 3 degree turn

@@ -15,6 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
+from conftest import REPO  # noqa: E402
 from octofuse.cli import cli  # noqa: E402
 from octofuse.outputs.staging import MARKER  # noqa: E402
 
@@ -565,7 +566,7 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     """A Ctrl-C whose KeyboardInterrupt is swallowed where it lands (numpy's compiled modules,
     imported on first use, do so in their initialisation) still ends the command: one line,
     exit code 130, the previous outputs as they were."""
-    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    lab8 = REPO / "data" / "lab8.bag"
     out = tmp_path / "out"
     out.mkdir()
     (out / MARKER).write_text("written by octofuse run\n")  # an earlier run's outputs

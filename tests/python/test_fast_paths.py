@@ -10,19 +10,17 @@ On random scans and maps and on scans of the generated warehouse (16-beam 3D lid
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import REPO
 from octofuse import _core
 from octofuse.maps.infoloss import InfoLossMap
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.maps.tree_fusion import exchange_maps, fuse_into, fuse_maps
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _leaves(m: OccupancyMap):
@@ -70,7 +68,7 @@ def random_scans(
 def warehouse_scans(n_scans: int = 6, az_step: float = 2.0):
     """Map-frame scans of the generated warehouse (the generator's own ray casting)."""
     spec = importlib.util.spec_from_file_location(
-        "generate_warehouse", ROOT / "data" / "generate_warehouse.py"
+        "generate_warehouse", REPO / "data" / "generate_warehouse.py"
     )
     gw = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gw)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import REPO
 from octofuse.config import FuseConfig, RobustConfig, RunConfig, from_dict
 from octofuse.maps.alignment import (
     ABSTAIN_VARIANCE,
@@ -24,7 +25,7 @@ from octofuse.maps.build import insert_scans, make_build_config
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.source import ScanSource
 
-GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
+GENERATOR = REPO / "data" / "generate_lab.py"
 BIAS = [
     "--bias-robot",
     "3",
