@@ -693,7 +693,7 @@ def sorted_leaves(m: octofuse.OccupancyMap):
 def assert_same_map(
     got: octofuse.OccupancyMap, want: octofuse.OccupancyMap, what: str = "map"
 ) -> None:
-    """Leaf by leaf: same voxels, sizes and log-odds (bit for bit)."""
+    """Leaf by leaf: same voxels, sizes and log-odds (bit for bit), and the same node count."""
     assert got.resolution == want.resolution, what
     gc, gs, gv = sorted_leaves(got)
     wc, ws, wv = sorted_leaves(want)
@@ -701,7 +701,10 @@ def assert_same_map(
     assert len(gc) > 0, f"{what}: empty"
     np.testing.assert_array_equal(gs, ws, err_msg=what)
     np.testing.assert_array_equal(gc, wc, err_msg=what)
-    np.testing.assert_array_equal(gv, wv, err_msg=what)
+    np.testing.assert_array_equal(gv.view(np.uint32), wv.view(np.uint32), err_msg=what)
+    assert got.num_nodes == want.num_nodes, (
+        f"{what}: {got.num_nodes} nodes, expected {want.num_nodes}"
+    )
 
 
 def maps_differ(a: octofuse.OccupancyMap, b: octofuse.OccupancyMap) -> bool:
