@@ -31,6 +31,8 @@ import bagfactory as bf  # noqa: E402
 from bagfactory import PC2, SCAN, T0, TF, Recording, Robot, S  # noqa: E402
 from conftest import REPO, map_with_values  # noqa: E402,F401  (also for the campaign)
 
+pytestmark = pytest.mark.slow
+
 OCTOFUSE = Path(sys.executable).parent / "octofuse"
 MEMORY_LIMIT = 3 << 30  #: address space of a child, bytes
 TIME_LIMIT = 60.0  #: seconds per child

@@ -23,6 +23,8 @@ from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.results import LOCAL, rule_time_part
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 
+pytestmark = pytest.mark.slow
+
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]
 PNG = b"\x89PNG\r\n\x1a\n"

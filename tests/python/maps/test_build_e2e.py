@@ -27,6 +27,8 @@ from octofuse.config import AgentSpec, BuildConfig, MapConfig, RunConfig, load_y
 from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.scans.tf_bags import POSE_TYPES  # noqa: E402
 
+pytestmark = pytest.mark.slow
+
 RES = "0.1"
 
 

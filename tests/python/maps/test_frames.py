@@ -316,6 +316,7 @@ ODD_MOVES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("T", ODD_MOVES)
 def test_nearest_takes_the_value_at_the_pre_image_of_each_centre(room, T):
     moved = room.transformed(T, resampling="nearest")

@@ -18,6 +18,8 @@ import pytest
 
 from conftest import REPO
 
+pytestmark = pytest.mark.slow
+
 rosbag1 = pytest.importorskip("rosbags.rosbag1")
 typesys = pytest.importorskip("rosbags.typesys")
 
