@@ -1,7 +1,7 @@
 # octofuse: set-up, build, tests and the main job on a Debian 12 machine.
 #   make demo   - install everything and run the main job on the bundled data
 #   make test   - install everything and run the whole test suite (C++ and Python)
-#   make test-fast - the C++ tests and the Python tests not marked slow (a few minutes less)
+#   make test-fast - the C++ tests and the Python tests not marked slow
 
 PYTHON ?= python3
 VENV ?= .venv
