@@ -1,6 +1,6 @@
 """A long, seeded fuzz campaign against the installed ``octofuse`` command.
 
-Draws cases from the generators of ``tests/python/test_fuzz.py`` (mutated map files, map values
+Draws cases from the generators of ``tests/python/cli/test_fuzz.py`` (mutated map files, map values
 no clamping produces, impossible loss files, mutated and hostile bags, numbers through the API
 (maps, mixtures, exponential polynomials), command lines, configs, SIGINT and SIGTERM during a
 run or an export over an earlier file, full disks), runs
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "python"))
+sys.path[:0] = [str(ROOT / "tests" / "python" / "cli"), str(ROOT / "tests" / "python")]
 import test_fuzz as tf  # noqa: E402
 from test_fuzz import Case  # noqa: E402
 

@@ -35,6 +35,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 import octofuse
+from octofuse.maps.frames import invert
 
 S = 1_000_000_000  #: one second in ns
 T0 = 100 * S  #: start of every recording
@@ -259,6 +260,24 @@ def lidar_directions(n_az: int = 40, n_el: int = 7, elevation: float = 0.6) -> n
     el = np.linspace(-elevation, elevation, n_el) + 0.0071
     a, e = np.meshgrid(az, el)
     return np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
+
+
+#: sensor positions in ROOM from which :func:`room_map` scans it
+SENSORS = [(-2.0, 0.9, 0.6), (0.0, -0.2, 0.6), (2.2, -1.0, 0.6), (-0.4, 1.3, 1.2)]
+
+
+def room_map(sensors=SENSORS, res=0.1, T=None) -> octofuse.OccupancyMap:
+    """The test room scanned from ``sensors`` (world frame), built in the frame of T^-1 (a world
+    point p is inserted at T^-1 p; None: the world frame)."""
+    m = octofuse.OccupancyMap(res)
+    dirs = lidar_directions(90, 15, 0.9).reshape(-1, 3)
+    Ti = np.eye(4) if T is None else invert(T)
+    for o in sensors:
+        r = ROOM.raycast(o, dirs)
+        pts = np.asarray(o) + dirs * r[:, None]
+        pts = pts @ Ti[:3, :3].T + Ti[:3, 3]
+        m.insert_scan(pts, Ti[:3, :3] @ np.asarray(o) + Ti[:3, 3])
+    return m
 
 
 def _encode_cloud(grid: np.ndarray, layout: Layout) -> tuple[bytes, int, int, np.ndarray]:
@@ -674,7 +693,7 @@ def sorted_leaves(m: octofuse.OccupancyMap):
 def assert_same_map(
     got: octofuse.OccupancyMap, want: octofuse.OccupancyMap, what: str = "map"
 ) -> None:
-    """Leaf by leaf: same voxels, sizes and log-odds (bit for bit)."""
+    """Leaf by leaf: same voxels, sizes and log-odds (bit for bit), and the same node count."""
     assert got.resolution == want.resolution, what
     gc, gs, gv = sorted_leaves(got)
     wc, ws, wv = sorted_leaves(want)
@@ -682,7 +701,10 @@ def assert_same_map(
     assert len(gc) > 0, f"{what}: empty"
     np.testing.assert_array_equal(gs, ws, err_msg=what)
     np.testing.assert_array_equal(gc, wc, err_msg=what)
-    np.testing.assert_array_equal(gv, wv, err_msg=what)
+    np.testing.assert_array_equal(gv.view(np.uint32), wv.view(np.uint32), err_msg=what)
+    assert got.num_nodes == want.num_nodes, (
+        f"{what}: {got.num_nodes} nodes, expected {want.num_nodes}"
+    )
 
 
 def maps_differ(a: octofuse.OccupancyMap, b: octofuse.OccupancyMap) -> bool:

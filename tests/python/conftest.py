@@ -52,6 +52,12 @@ def expand(leaves, resolution):
     return dict(zip(map(tuple, keys.tolist()), values))
 
 
+def voxels(m) -> dict:
+    """{integer key: log-odds} of every finest voxel of a map."""
+    k, v = finest_voxels(m.leaves(), m.resolution)
+    return dict(zip(map(tuple, k.tolist()), v.tolist()))
+
+
 def map_with_values(src: Path, dst: Path, values) -> Path:
     """``src`` (a .ot) with its first nodes' log-odds set to ``values`` (depth-first order)."""
     raw = bytearray(src.read_bytes())

@@ -124,6 +124,7 @@ def test_the_bodys_error_wins_and_the_child_is_waited_for():
     _no_child_left()
 
 
+@pytest.mark.slow
 def test_the_child_leaves_the_callers_exit_and_buffers_alone(tmp_path):
     """The child ends with os._exit: the parent's atexit handlers run once (in the parent) and
     text buffered before the fork is written once."""

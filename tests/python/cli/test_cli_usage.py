@@ -15,6 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import run_cli  # noqa: E402
+from conftest import REPO  # noqa: E402
 from octofuse.cli import cli  # noqa: E402
 from octofuse.outputs.staging import MARKER  # noqa: E402
 
@@ -51,6 +52,7 @@ def octofuse(*args, cwd=None) -> subprocess.CompletedProcess:
 # -- usage errors ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args, usage, needle",
     [
@@ -91,6 +93,7 @@ def test_usage_errors_exit_2_with_clicks_message(tmp_path, args, usage, needle):
     assert list(tmp_path.iterdir()) == []  # nothing written
 
 
+@pytest.mark.slow
 def test_version():
     p = octofuse("--version")
     assert p.returncode == 0, p.stderr
@@ -101,6 +104,7 @@ def test_version():
     assert "[default: (max-robust:3)]" in p.stdout
 
 
+@pytest.mark.slow
 def test_bad_input_exits_1_with_one_line(tmp_path):
     p = octofuse("build", tmp_path / "nothere.bag", "--out", tmp_path / "o")
     assert p.returncode == 1
@@ -501,6 +505,7 @@ def test_each_command_marks_its_folder(bag, tmp_path, capsys, previous):
 # -- a light import -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_import_octofuse_loads_no_heavy_module():
     heavy = ["rosbags", "open3d", "matplotlib", "click"]
     code = (
@@ -523,6 +528,7 @@ def test_import_octofuse_loads_no_heavy_module():
     assert p.stdout.strip() == "['octofuse.program']", p.stdout + p.stderr
 
 
+@pytest.mark.slow
 def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
     """An interruption while the program imports the command line (a quarter of a second)
     ends as one while the command runs: one line, exit code 130, no traceback."""
@@ -538,6 +544,7 @@ def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line():
     assert_interrupted(python_c(script))
 
 
+@pytest.mark.slow
 def test_python_m_octofuse_is_the_program():
     """``python -m octofuse`` runs the program: its usage, and a Ctrl-C while it imports the
     command line ends as the program's does."""
@@ -561,11 +568,12 @@ def test_python_m_octofuse_is_the_program():
     assert_interrupted(python_c(script))
 
 
+@pytest.mark.slow
 def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     """A Ctrl-C whose KeyboardInterrupt is swallowed where it lands (numpy's compiled modules,
     imported on first use, do so in their initialisation) still ends the command: one line,
     exit code 130, the previous outputs as they were."""
-    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    lab8 = REPO / "data" / "lab8.bag"
     out = tmp_path / "out"
     out.mkdir()
     (out / MARKER).write_text("written by octofuse run\n")  # an earlier run's outputs
@@ -589,6 +597,7 @@ def test_a_ctrl_c_swallowed_on_its_way_still_interrupts(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == sorted([MARKER, "previous.txt"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["half-built", "callback"])
 def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
     """A Ctrl-C landing in an object's construction (Matplotlib's parser grammar as the output
@@ -626,6 +635,7 @@ def test_what_a_ctrl_c_leaves_half_done_prints_nothing(where):
     assert_interrupted(python_c(script))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("code", [0, 130])
 def test_a_ctrl_c_during_the_exit_leaves_the_exit_code(code):
     """Once the command is over (done, or interrupted and reported), a Ctrl-C while the

@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bagfactory import assert_same_map
 from octofuse.config import BuildConfig
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.bags import BagSet
 from octofuse.scans.decode import pointcloud2_to_xyz
-from test_fast_paths import assert_same_map, random_scans, warehouse_scans  # noqa: E402
+from test_fast_paths import random_scans, warehouse_scans  # noqa: E402
 
 #: the bound the fast mode is held to against the exact mode
 MIN_KEPT, MAX_EXTRA = 0.95, 0.05

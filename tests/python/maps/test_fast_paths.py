@@ -2,7 +2,11 @@
 
 * ``OccupancyMap.insert_scan`` / ``insert_scans`` (depth-first batch update) against OctoMap's
   ``insertPointCloud`` scan by scan (the core's plain insertion);
-* ``fuse_into`` on several threads against ``fuse_into`` on one (and against ``fuse_maps``).
+* ``clamped_copy`` against a copy clamped and pruned.
+
+``fuse_into`` on several threads against one thread, and losses carried in the map's nodes
+against loss maps of their own, are checked node for node in tests/cpp
+(test_parallel_fusion.cpp, test_carried_loss.cpp).
 
 On random scans and maps and on scans of the generated warehouse (16-beam 3D lidar).
 """
@@ -10,35 +14,17 @@ On random scans and maps and on scans of the generated warehouse (16-beam 3D lid
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bagfactory import assert_same_map
+from conftest import REPO, random_map
 from octofuse import _core
-from octofuse.maps.infoloss import InfoLossMap
 from octofuse.maps.occupancy import OccupancyMap
-from octofuse.maps.tree_fusion import exchange_maps, fuse_into, fuse_maps
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _leaves(m: OccupancyMap):
-    lv = m.leaves()
-    order = np.lexsort((lv.depths, lv.centers[:, 2], lv.centers[:, 1], lv.centers[:, 0]))
-    return lv.centers[order], lv.depths[order], lv.values[order]
-
-
-def assert_same_map(a: OccupancyMap, b: OccupancyMap) -> None:
-    ca, da, va = _leaves(a)
-    cb, db, vb = _leaves(b)
-    assert ca.shape == cb.shape
-    np.testing.assert_array_equal(ca, cb)
-    np.testing.assert_array_equal(da, db)
-    np.testing.assert_array_equal(va.view(np.uint32), vb.view(np.uint32))  # bits, not values
-    assert a.num_nodes == b.num_nodes
+from octofuse.maps.tree_fusion import fuse_into
 
 
 def plain_insert(m: OccupancyMap, points, origin, max_range=-1.0) -> None:
@@ -70,7 +56,7 @@ def random_scans(
 def warehouse_scans(n_scans: int = 6, az_step: float = 2.0):
     """Map-frame scans of the generated warehouse (the generator's own ray casting)."""
     spec = importlib.util.spec_from_file_location(
-        "generate_warehouse", ROOT / "data" / "generate_warehouse.py"
+        "generate_warehouse", REPO / "data" / "generate_warehouse.py"
     )
     gw = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gw)
@@ -271,35 +257,6 @@ def test_insert_errors_name_the_row_and_leave_the_map():
     assert m.num_leaves == 0
 
 
-def random_map(seed: int, offset: float) -> OccupancyMap:
-    m = OccupancyMap(0.1)
-    for pts, origin in random_scans(seed, 8):
-        m.insert_scan(pts + offset, origin + offset)
-    return m
-
-
-@pytest.mark.parametrize(
-    "rule", ["naive-bayes", "min-info-loss", "chernoff", "entropy-weighted-chernoff"]
-)
-@pytest.mark.parametrize("unknown", ["copy", "prior"])
-def test_parallel_fuse_into_equals_one_thread(rule, unknown):
-    for a0, b0 in (
-        (random_map(1, 0.0), random_map(2, 0.4)),
-        (random_map(3, 40.0), random_map(4, 40.7)),
-    ):
-        one, two = OccupancyMap.from_bytes(a0.to_bytes()), OccupancyMap.from_bytes(a0.to_bytes())
-        l1, l2 = _core._ScalarTree(0.1), _core._ScalarTree(0.1)
-        f1 = _core._fuse_into(one._m, b0._m, _rule(rule), _unknown(unknown), l1, threads=1)
-        f2 = _core._fuse_into(two._m, b0._m, _rule(rule), _unknown(unknown), l2, threads=2)
-        assert f1[:2] == f2[:2] and f1[2] == pytest.approx(
-            f2[2], rel=1e-12
-        )  # sums in another order
-        assert_same_map(one, two)
-        assert_same_map(one, fuse_maps(a0, b0, rule, unknown).map)
-        np.testing.assert_array_equal(l1.leaves()["values"], l2.leaves()["values"])
-        np.testing.assert_array_equal(l1.leaves()["centers"], l2.leaves()["centers"])
-
-
 def _rule(name):
     from octofuse.rules import parse_rule
 
@@ -313,26 +270,14 @@ def _unknown(name):
 
 
 def test_fuse_into_rejects_bad_thread_counts():
-    a, b = random_map(1, 0.0), random_map(2, 0.0)
+    a, b = random_map(1, 8), random_map(2, 8)
     with pytest.raises(ValueError, match="threads"):
         _core._fuse_into(a._m, b._m, _rule("naive-bayes"), _unknown("copy"), None, threads=0)
     for bad in (0, -1, 2.5, "2", True):
         with pytest.raises(ValueError, match="threads"):
             fuse_into(a, b, "naive-bayes", threads=bad)
-    assert_same_map(a, random_map(1, 0.0))  # nothing fused by the refused calls
+    assert_same_map(a, random_map(1, 8))  # nothing fused by the refused calls
     fuse_into(a, b, "naive-bayes")  # the public call is unchanged
-
-
-@pytest.mark.parametrize("threads", [2, 3])
-def test_public_fuse_into_on_threads_equals_one_thread(threads):
-    a0, b0 = random_map(5, 0.0), random_map(6, 0.3)
-    one, many = a0.copy(), a0.copy()
-    l1, l2 = InfoLossMap(0.1), InfoLossMap(0.1)
-    fuse_into(one, b0, "min-info-loss", loss=l1)
-    fuse_into(many, b0, "min-info-loss", loss=l2, threads=threads)
-    assert_same_map(one, many)
-    assert (l1.voxels_fused, l1.voxels_copied) == (l2.voxels_fused, l2.voxels_copied)
-    assert l1.loss_sum == pytest.approx(l2.loss_sum, rel=1e-12)
 
 
 # -- clamped copies ------------------------------------------------------------------------
@@ -444,44 +389,3 @@ def test_clamped_copy_equals_copy_and_clamp_on_random_trees():
         assert_same_stream(m.clamped_copy(), _plain_clamped(m))
 
     check()
-
-
-def _loss_bits(loss: InfoLossMap):
-    values, depths = loss.values_depths()
-    return values.view(np.uint32).tolist(), depths.tolist()
-
-
-@pytest.mark.parametrize(
-    "rule", ["naive-bayes", "min-info-loss", "min-entropy", "chernoff", "kld-weighted-chernoff"]
-)
-@pytest.mark.parametrize("unknown", ["copy", "prior"])
-def test_loss_map_carried_by_its_map_equals_one_that_is_not(rule, unknown):
-    """Maps that keep their losses in their nodes (``InfoLossMap.carried_by``) against maps
-    with loss maps of their own, through exchanges, fusions on one and two threads and
-    insertions: the same maps, and the same loss maps read before and after settling."""
-
-    def run(carried: bool):
-        maps = [random_map(s, o) for s, o in ((5, 0.0), (6, 0.3), (7, -0.2))]
-        losses = [InfoLossMap.carried_by(m) if carried else InfoLossMap(m.resolution) for m in maps]
-        exchange_maps(maps[0], maps[1], rule, unknown, losses[0], losses[1])
-        maps[2].insert_scans(random_scans(8, 6))
-        fuse_into(maps[2], maps[0], rule, unknown, losses[2], threads=2)
-        exchange_maps(maps[1], maps[2], rule, unknown, losses[1], losses[2])
-        maps[0].insert_scans(random_scans(9, 6, spread=0.5))
-        fuse_into(maps[0], maps[2], rule, unknown, losses[0])
-        return maps, losses
-
-    plain_maps, plain_losses = run(False)
-    maps, losses = run(True)
-    for m, pm, loss, pl in zip(maps, plain_maps, losses, plain_losses):
-        read = _loss_bits(loss)  # read as settled, without settling
-        assert read == _loss_bits(pl)
-        assert (loss.voxels_fused, loss.voxels_copied, loss.loss_sum) == (
-            pl.voxels_fused,
-            pl.voxels_copied,
-            pl.loss_sum,
-        )
-        assert loss.num_leaves == pl.num_leaves  # settles
-        assert _loss_bits(loss) == read
-        assert_same_map(m, pm)
-        np.testing.assert_array_equal(loss.leaves().centers, pl.leaves().centers)

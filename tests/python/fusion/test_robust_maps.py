@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import REPO
 from octofuse.config import FuseConfig, RobustConfig, RunConfig, from_dict
 from octofuse.maps.alignment import (
     ABSTAIN_VARIANCE,
@@ -24,7 +25,7 @@ from octofuse.maps.build import insert_scans, make_build_config
 from octofuse.maps.occupancy import OccupancyMap
 from octofuse.scans.source import ScanSource
 
-GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
+GENERATOR = REPO / "data" / "generate_lab.py"
 BIAS = [
     "--bias-robot",
     "3",
@@ -115,6 +116,7 @@ def test_occupied_points_keep_walls_and_drop_floor_and_free_space():
     assert len(occupied_points(lv.centers, lv.sizes, lv.values, 0.1, clearance=0.6)) == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shift", [(0.0, 0.0, 0.0), (0.25, -0.15, 2.0), (-0.4, 0.3, -5.0)])
 def test_register_recovers_a_known_transform(maps, shift):
     target = map_points(maps["even"])
@@ -136,6 +138,7 @@ def test_register_gives_up_on_a_single_wall_and_on_too_few_points():
     assert register(line[:10], line) is None
 
 
+@pytest.mark.slow
 def test_shifted_copy_of_a_map_measures_the_shift(maps):
     shifted, even, odd, other = (map_points(maps[k]) for k in ("shifted", "even", "odd", "other"))
     x, cov, used = neighbour_offset(shifted, [odd, other])
@@ -156,6 +159,7 @@ def test_shifted_copy_of_a_map_measures_the_shift(maps):
     assert d @ np.linalg.solve(cov + cov0, d) > 100  # far outside each other's uncertainty
 
 
+@pytest.mark.slow
 def test_no_majority_means_abstaining(maps):
     even, odd, shifted = (map_points(maps[k]) for k in ("even", "odd", "shifted"))
     x, cov, used = neighbour_offset(even, [odd, shifted])  # one says 0, one says the shift
@@ -181,6 +185,7 @@ def test_robust_fields_are_validated():
         from_dict(RunConfig, {"fuse": {"robust": {"enabled": "yes"}}})
 
 
+@pytest.mark.slow
 def test_the_biased_robot_is_voted_out_and_not_fused(lab_bag, tmp_path):
     from octofuse.fusion.simulate import simulate
     from octofuse.outputs.report import write_outputs

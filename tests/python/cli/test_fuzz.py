@@ -29,7 +29,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import PC2, SCAN, T0, TF, Recording, Robot, S  # noqa: E402
-from conftest import map_with_values  # noqa: E402,F401  (also for the campaign)
+from conftest import REPO, map_with_values  # noqa: E402,F401  (also for the campaign)
+
+pytestmark = pytest.mark.slow
 
 OCTOFUSE = Path(sys.executable).parent / "octofuse"
 MEMORY_LIMIT = 3 << 30  #: address space of a child, bytes
@@ -813,7 +815,7 @@ def test_hostile_configs(work):
 
 def test_sigint_keeps_outputs(work, ran):
     # the bundled lab: a run of many seconds, so that the interruption lands inside it
-    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    lab8 = REPO / "data" / "lab8.bag"
     case = Case(
         "SIGINT in run",
         [
@@ -868,7 +870,7 @@ def test_loss_files_with_impossible_losses(work, tmp_path, value):
 
 
 def test_sigterm_keeps_outputs(work, ran):
-    lab8 = Path(__file__).resolve().parents[2] / "data" / "lab8.bag"
+    lab8 = REPO / "data" / "lab8.bag"
     case = Case(
         "SIGTERM in run",
         [

@@ -143,6 +143,7 @@ def test_bt_keeps_only_maximum_likelihood(pair, tmp_path):
     assert all((ea[k] > 0) == (eb[k] > 0) for k in ea)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("compare_octrees") is None, reason="octomap-tools not installed")
 def test_octomaps_own_tools_open_our_files(pair, tmp_path):
     a, _ = pair

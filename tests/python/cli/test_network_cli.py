@@ -17,14 +17,16 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import T0, S, assert_same_map, run_cli, run_keeping_result  # noqa: E402
+from conftest import REPO  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import FuseConfig  # noqa: E402
 from octofuse.fusion.results import LOCAL, rule_time_part
 from octofuse.fusion.rounds import fuse_finished  # noqa: E402
 
+pytestmark = pytest.mark.slow
+
 RES = "0.2"
 AGENTS = ["a", "b", "c", "d"]
-REPO = Path(__file__).resolve().parents[2]
 PNG = b"\x89PNG\r\n\x1a\n"
 
 

@@ -1,10 +1,10 @@
 """Live fleets: real ``octofuse agent`` processes over real Zenoh on loopback.
 
-The short test in the default run: a lockstep fleet's maps, scores and traffic are those of
-``octofuse run`` with the same options, bit for bit (the live protocol is the simulated one).
-The slow ones: a fleet in time with injected loss, duplicates, reordering and delay, and an
-agent killed and started again, end with every channel-filter agent holding exactly the sum of
-every robot's scans.
+A lockstep fleet's maps, scores and traffic are those of ``octofuse run`` with the same
+options, bit for bit (the live protocol is the simulated one); a fleet in time with injected
+loss, duplicates, reordering and delay, and an agent killed and started again, end with every
+channel-filter agent holding exactly the sum of every robot's scans. Every test of a fleet is
+marked slow; faults, checkpoints and chunks are tested without one.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ def bag(tmp_path_factory):
     return rec.write(tmp_path_factory.mktemp("team") / "team", "mcap")
 
 
+@pytest.mark.slow
 def test_a_lockstep_fleet_equals_run(bag, tmp_path, capsys):
     options = [
         *SCHEDULE,
@@ -218,6 +219,7 @@ def test_an_agent_killed_and_started_again_resumes_and_the_fleet_ends_exact(bag,
 # -- what an agent lets in ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_an_agent_fuses_only_well_formed_messages_of_its_neighbours(bag, tmp_path):
     from octofuse.fusion.agent import Agent
     from octofuse.fusion.wire import Kind, Message
@@ -304,6 +306,7 @@ def self_signed(folder: Path) -> dict:
     }
 
 
+@pytest.mark.slow
 def test_agents_meet_over_tls_and_a_peer_without_it_does_not_get_in(tmp_path):
     import shutil
 

@@ -15,9 +15,9 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 import octofuse.scans as oio
+from conftest import SHARED_REAL
 
 S = 1_000_000_000
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 TF = "tf2_msgs/msg/TFMessage"
 PC2 = "sensor_msgs/msg/PointCloud2"
@@ -453,14 +453,15 @@ def test_undecodable_message_is_wrapped(tmp_path, kind):
 # -- real recorded data (kept outside the repository) ----------------------------------------
 
 needs_real = pytest.mark.skipif(
-    not (REAL / "intel_4agents.bag").is_file() or not (REAL / "luminar_pointcloud2.bag").is_file(),
-    reason=f"real recorded data not found in {REAL}",
+    not (SHARED_REAL / "intel_4agents.bag").is_file()
+    or not (SHARED_REAL / "luminar_pointcloud2.bag").is_file(),
+    reason=f"real recorded data not found in {SHARED_REAL}",
 )
 
 
 @needs_real
 def test_real_intel_four_agents():
-    with oio.BagSet(REAL / "intel_4agents.bag") as bags:
+    with oio.BagSet(SHARED_REAL / "intel_4agents.bag") as bags:
         scans = {f"/robot{k}/scan": SCAN for k in range(1, 5)}
         info = bags.check_topics(scans)
         assert sum(i.count for i in info.values()) == 910
@@ -483,7 +484,7 @@ def test_real_intel_four_agents():
 
 @needs_real
 def test_real_luminar_pointcloud():
-    with oio.BagSet(REAL / "luminar_pointcloud2.bag") as bags:
+    with oio.BagSet(SHARED_REAL / "luminar_pointcloud2.bag") as bags:
         clouds = [m.msg for m in bags.messages({"/luminar_pointcloud": PC2})]
     assert len(clouds) == 5
     for msg in clouds:

@@ -23,6 +23,8 @@ from octofuse.fusion.swarm import simulate_swarm  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.outputs.study import load_cells, run_study  # noqa: E402
 
+pytestmark = pytest.mark.slow
+
 RULES = ["naive-bayes", "chernoff"]
 
 

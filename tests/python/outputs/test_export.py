@@ -359,6 +359,7 @@ def test_writers_on_threads_leave_stderr_as_it_was():
     assert target_of_fd2() == before
 
 
+@pytest.mark.slow
 def test_the_output_libraries_are_imported_ahead_on_a_thread_of_their_own():
     import subprocess
     import sys
@@ -399,6 +400,7 @@ def test_a_run_begins_the_imports_once_under_way_and_only_once(monkeypatch):
     assert seen == [(d, 100) for d in (0, 5, 9, 10, 11, 50, 100)]
 
 
+@pytest.mark.slow
 def test_an_interpreter_leaving_while_the_libraries_import_exits_as_asked():
     """A command that ends while the imports ahead run (an interrupted run, bad input found
     early) waits for them: an interpreter torn down in the middle of Open3D's import can end

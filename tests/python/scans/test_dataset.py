@@ -16,10 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from conftest import REPO
+
+pytestmark = pytest.mark.slow
+
 rosbag1 = pytest.importorskip("rosbags.rosbag1")
 typesys = pytest.importorskip("rosbags.typesys")
 
-GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
+GENERATOR = REPO / "data" / "generate_lab.py"
 ROBOTS = 3
 DURATION = 4.0
 RATE = 5.0

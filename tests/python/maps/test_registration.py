@@ -5,11 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from bagfactory import ROOM, Box, Scene, lidar_directions
+from bagfactory import ROOM, SENSORS, Box, Scene, lidar_directions, room_map
 from octofuse import OccupancyMap
 from octofuse.maps.frames import pose_matrix
 from octofuse.maps.registration import MAX_CONFLICT, free_space_conflict, register
-from test_frames import SENSORS, room_map
 
 RES = 0.1
 

@@ -21,13 +21,15 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import KINDS, LAYOUTS, T0, Recording, Robot, S, run_cli  # noqa: E402
+from conftest import REPO  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import AgentSpec, BuildConfig, MapConfig, RunConfig, load_yaml  # noqa: E402
 from octofuse.maps.build import build, build_maps, make_build_config  # noqa: E402
 from octofuse.scans.tf_bags import POSE_TYPES  # noqa: E402
 
+pytestmark = pytest.mark.slow
+
 RES = "0.1"
-REPO = Path(__file__).resolve().parents[2]
 
 
 def lidar_robot(**kw) -> Robot:

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from bagfactory import ROOM, lidar_directions
-from conftest import finest_voxels
+from bagfactory import ROOM, SENSORS, room_map
+from conftest import voxels
 from octofuse import OccupancyMap
 from octofuse.maps.frames import (
     check_rigid,
@@ -22,32 +22,11 @@ from octofuse.maps.frames import (
 from octofuse.maps.tree_fusion import fuse_maps
 
 RES = 0.1
-SENSORS = [(-2.0, 0.9, 0.6), (0.0, -0.2, 0.6), (2.2, -1.0, 0.6), (-0.4, 1.3, 1.2)]
-
-
-def room_map(sensors=SENSORS, res=RES, T=None) -> OccupancyMap:
-    """The test room scanned from ``sensors`` (world frame), built in the frame of T^-1 (a world
-    point p is inserted at T^-1 p; None: the world frame)."""
-    m = OccupancyMap(res)
-    dirs = lidar_directions(90, 15, 0.9).reshape(-1, 3)
-    Ti = np.eye(4) if T is None else invert(T)
-    for o in sensors:
-        r = ROOM.raycast(o, dirs)
-        pts = np.asarray(o) + dirs * r[:, None]
-        pts = pts @ Ti[:3, :3].T + Ti[:3, 3]
-        m.insert_scan(pts, Ti[:3, :3] @ np.asarray(o) + Ti[:3, 3])
-    return m
 
 
 @pytest.fixture(scope="module")
 def room():
     return room_map()
-
-
-def voxels(m: OccupancyMap) -> dict:
-    """{integer key: log-odds} of every finest voxel."""
-    k, v = finest_voxels(m.leaves(), m.resolution)
-    return dict(zip(map(tuple, k.tolist()), v.tolist()))
 
 
 def moved_keys(keys: np.ndarray, T: np.ndarray, res_from: float, res_to: float) -> np.ndarray:
@@ -337,6 +316,7 @@ ODD_MOVES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("T", ODD_MOVES)
 def test_nearest_takes_the_value_at_the_pre_image_of_each_centre(room, T):
     moved = room.transformed(T, resampling="nearest")

@@ -9,12 +9,12 @@ de-skewed points within 1e-9 m, and both within 1e-9 m of the robot's true motio
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import bagfactory as bf
+from conftest import REPO
 from octofuse.maps.build import build, make_build_config
 from octofuse.scans import source as source_module
 from octofuse.scans.decode import laserscan_to_xyz
@@ -23,8 +23,7 @@ from octofuse.scans.source import ScanSource
 from octofuse.scans.tf import ExtrapolationError, TransformBuffer
 from test_io_tf import S, chain_buffer
 
-ROOT = Path(__file__).resolve().parents[2]
-LAB8 = ROOT / "data" / "lab8.bag"
+LAB8 = REPO / "data" / "lab8.bag"
 BEAMS = 72
 TIME_INCREMENT = 0.1 / BEAMS  #: a 0.1 s sweep
 POINT_TOL = 1e-9  #: metres

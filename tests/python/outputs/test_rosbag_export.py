@@ -4,6 +4,8 @@ with rosbags and decoded with the map core's OctoMap reader."""
 import numpy as np
 import pytest
 
+from bagfactory import SENSORS, room_map
+from conftest import voxels
 from octofuse import OccupancyMap
 from octofuse.maps.registration import occupied_centers
 from octofuse.outputs.rosbag_export import (
@@ -15,7 +17,6 @@ from octofuse.outputs.rosbag_export import (
     write_map_bag,
 )
 from octofuse.scans.bags import BagSet
-from test_frames import SENSORS, room_map, voxels
 
 S = 1_000_000_000
 

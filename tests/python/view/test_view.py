@@ -304,6 +304,7 @@ def test_the_page_draws_the_run_in_a_browser_and_follows_the_rule_chosen(page, t
     assert changed > 0.005, changed  # the same voxels, coloured by another rule's losses
 
 
+@pytest.mark.slow
 def test_the_command_prints_the_pages_address(run_folder):
     import os
     import subprocess

@@ -229,6 +229,7 @@ def test_finished_maps_are_not_modified(four, ring_result):
         assert_same_map(maps[a], fresh[a], a)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_rules_a_few_at_a_time_give_the_run_with_every_rule(four, ring_result, threads):
     """fuse_finished_in_rule_groups (what `octofuse fuse` runs, a thread's worth of rules at a time)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from bagfactory import SENSORS, room_map
 from octofuse.maps.tree_fusion import fuse_maps
 from octofuse.outputs.clouds import read_cloud
 from octofuse.outputs.export import shared_color_range, write_heatmap
-from test_frames import SENSORS, room_map
 
 
 @pytest.fixture(scope="module")

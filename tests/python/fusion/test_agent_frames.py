@@ -15,8 +15,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
-from bagfactory import assert_same_map, run_cli  # noqa: E402
-from conftest import expand, random_map  # noqa: E402
+from bagfactory import SENSORS, assert_same_map, room_map, run_cli  # noqa: E402
+from conftest import REPO, expand, random_map  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig, from_dict  # noqa: E402
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
@@ -26,9 +26,8 @@ from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.maps.compare import compare  # noqa: E402
 from octofuse.maps.frames import invert, pose_matrix  # noqa: E402
-from test_frames import SENSORS, room_map  # noqa: E402
 
-GENERATOR = Path(__file__).resolve().parents[2] / "data" / "generate_lab.py"
+GENERATOR = REPO / "data" / "generate_lab.py"
 LAB = ["--duration", "30", "--rate", "1", "--robots", "4"]  # about 2 s per run
 RULE = "min-info-loss"
 #: robot3's reported poses: a whole-voxel shift (0.05 m voxels), or the shift and a 3 degree turn
@@ -130,6 +129,7 @@ def test_a_frame_pair_moves_a_message_by_whole_voxels_exactly():
     np.testing.assert_allclose(frames.reference("c", "b"), invert(pose_matrix(-res, res, 0.0)))
 
 
+@pytest.mark.slow
 def test_a_known_frame_undoes_a_biased_robot(lab, unbiased):
     """robot3's poses shifted by whole voxels: with its frame the run is the unbiased run (its
     scans reach the centralized map moved back; its messages are moved exactly)."""
@@ -151,6 +151,7 @@ def test_a_known_frame_undoes_a_biased_robot(lab, unbiased):
         )
 
 
+@pytest.mark.slow
 def test_a_known_turned_frame_moves_the_robots_own_map_into_place(lab, unbiased):
     """robot3's poses turned by 3 degrees: its own map, moved by its frame, lies on the truth,
     and the fused maps of robot3 and its neighbours with it."""
@@ -232,6 +233,7 @@ def test_a_link_that_cannot_register_fuses_nothing_and_tries_again():
     assert tr.messages == 6 and tr.sent["a"] > 0 and tr.received["b"] > 0
 
 
+@pytest.mark.slow
 def test_a_run_records_the_alignment_in_the_summary_and_report(tmp_path, capsys):
     bag = bf.team_bag(tmp_path, 2, 4)
     out = tmp_path / "o"
@@ -281,6 +283,7 @@ def test_transform_error_is_the_relative_motion():
 # -- what is refused ------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bias", ["shift", "turn"])
 def test_robust_fusion_votes_on_the_maps_in_the_common_frame(lab, bias):
     """robot3's biased poses: without its frame its map is off by the bias and voted out; with

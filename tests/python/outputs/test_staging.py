@@ -161,6 +161,7 @@ def _export(src: Path, out: Path, sig=None, after: float = 0.0):
     return p.returncode, so.decode(), se.decode()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".ply", ".ot"])
 def test_export_interrupted_at_any_moment_keeps_the_old_file(big_map, tmp_path, suffix):
     out = tmp_path / f"existing{suffix}"
@@ -189,6 +190,7 @@ def test_export_interrupted_at_any_moment_keeps_the_old_file(big_map, tmp_path, 
     assert seen - {0}, "no signal landed while the command ran"
 
 
+@pytest.mark.slow
 def test_a_killed_export_leaves_what_the_next_one_removes(big_map, tmp_path):
     out = tmp_path / "existing.ply"
     out.write_bytes(b"earlier output\n")
