@@ -2,19 +2,16 @@
 // a scan's rays are dense (see insert_fast.hpp).
 #include "octofuse/insert_fast.hpp"
 
-#include "octofuse/detail/child_runs.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/ray_codes.hpp"
-#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/scan_check.hpp"
 
-#include "prune_or_max.hpp"
+#include "fast_applier.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <functional>
-#include <iterator>
 #include <limits>
 #include <memory>
 #include <stdexcept>
@@ -27,9 +24,8 @@ using detail::kHit;
 using detail::kNoCode;
 using detail::morton;
 
-// An item that stands for a whole cell (its first voxel's code); never with kHit.
-constexpr std::uint64_t kCell = 1ULL << 62;
-constexpr std::uint64_t kCodeOnly = kCell - 1;
+using detail::kCell;
+using detail::kCodeOnly;
 constexpr long kKeyOffset = 32768;  // OctoMap's tree_max_val at depth 16
 
 // Rays crossing each cell of a scan, and the cells holding one of its end points: an
@@ -531,129 +527,22 @@ std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTre
   return out;
 }
 
-namespace {
-
-// Applies one scan's fast items (ascending codes, one per voxel or cell) to a tree in one
-// depth-first pass, as BatchApplier (insert.cpp) applies exact items: a voxel already at the
-// clamping threshold in an update's direction is skipped without touching the tree, pruned
-// leaves are expanded and missing children created as updateNodeRecurs() does, and every
-// node on the path of an applied update ends pruned if collapsible or else holding the
-// maximum of its children. A cell item gives every voxel under its node one miss: leaves
-// (and missing children: unknown space) get it as they are, without being split, and
-// occupied leaves are left as they are.
-class CellApplier {
- public:
-  CellApplier(OccupancyTree& tree, unsigned level)
-      : t_(tree),
-        hit_(tree.getProbHitLog()),
-        miss_(tree.getProbMissLog()),
-        cmin_(tree.getClampingThresMinLog()),
-        cmax_(tree.getClampingThresMaxLog()),
-        depth_(tree.getTreeDepth()),
-        cell_depth_(tree.getTreeDepth() - level),
-        shift_(3 * level) {}
-
-  void apply(const std::uint64_t* b, const std::uint64_t* e) {
-    if (b == e) return;
-    OccupancyNode* root = t_.getRoot();
-    const bool created = root == nullptr;
-    if (created) root = detail::TreeAccess<OccupancyTree>::ensure_root(t_);
-    visit(root, created, 0, b, e);
-  }
-
-  /// The cells left out because the tree holds occupied voxels in them, ascending.
-  const std::vector<std::uint64_t>& conflicts() const { return conflicts_; }
-
- private:
-  // Whether an item changes a leaf of value v; a cell over an occupied leaf is a conflict.
-  bool changes(float v, std::uint64_t item) {
-    if (item & kHit) return v < cmax_;
-    if ((item & kCell) && v > 0) {
-      conflicts_.push_back((item & kCodeOnly) >> shift_);
-      return false;
-    }
-    return v > cmin_;
-  }
-
-  bool visit(OccupancyNode* node, bool just_created, unsigned depth, const std::uint64_t* b,
-             const std::uint64_t* e) {
-    std::vector<std::uint64_t> kept;
-    if (!just_created && !t_.nodeHasChildren(node)) {
-      // an existing leaf: the items that do not change it are skipped
-      const float v = node->getLogOdds();
-      kept.reserve(static_cast<std::size_t>(e - b));
-      std::copy_if(b, e, std::back_inserter(kept), [&](std::uint64_t m) { return changes(v, m); });
-      if (kept.empty()) return false;
-      b = kept.data();
-      e = b + kept.size();
-    }
-    if (depth == depth_) {  // one voxel
-      t_.updateNodeLogOdds(node, (*b & kHit) ? hit_ : miss_);
-      return true;
-    }
-    if (depth == cell_depth_ && (*b & kCell)) {
-      if (!just_created && node->getLogOdds() > 0) {  // an inner node: its children's maximum
-        conflicts_.push_back((*b & kCodeOnly) >> shift_);
-        return false;
-      }
-      return clear(node, just_created);
-    }
-    const unsigned shift = 3 * (depth_ - 1 - depth);
-    bool any = false;
-    while (b != e) {
-      unsigned pos;
-      const std::uint64_t* g = detail::child_run_end(b, e, shift, kCodeOnly, pos);
-      bool created;
-      OccupancyNode* child = detail::child_to_update(t_, node, just_created, pos, created);
-      any |= visit(child, created, depth + 1, b, g);
-      b = g;
-    }
-    if (any) detail::prune_or_max(t_, node);
-    return any;
-  }
-
-  // One miss for every voxel under `node` (which holds no occupied voxel).
-  bool clear(OccupancyNode* node, bool just_created) {
-    if (just_created || !t_.nodeHasChildren(node)) {
-      if (!just_created && node->getLogOdds() <= cmin_) return false;
-      t_.updateNodeLogOdds(node, miss_);
-      return true;
-    }
-    bool any = false;
-    for (unsigned pos = 0; pos < 8; ++pos) {
-      const bool exists = t_.nodeChildExists(node, pos);
-      if (!exists) t_.createNodeChild(node, pos);
-      any |= clear(t_.getNodeChild(node, pos), !exists);
-    }
-    if (any) detail::prune_or_max(t_, node);
-    return any;
-  }
-
-  OccupancyTree& t_;
-  const float hit_, miss_, cmin_, cmax_;
-  const unsigned depth_, cell_depth_, shift_;
-  std::vector<std::uint64_t> conflicts_;
-};
-
-}  // namespace
-
 void apply_fast(OccupancyMap& map, const FastScan& scan) {
   if (map.tree().isChangeDetectionEnabled()) {
     throw std::invalid_argument("the fast insert mode does not track changed voxels");
   }
   // the walk merges nodes without moving carried losses aside: settled first
   OccupancyTree& tree = map.settled_tree();
-  CellApplier first(tree, scan.levels);
-  first.apply(scan.items.data(), scan.items.data() + scan.items.size());
-  std::vector<std::uint64_t> conflicts = first.conflicts();
+  const unsigned threads = threads_for(scan.ends.size() / 3, scan.threads);
+  const std::vector<std::uint64_t> conflicts = detail::apply_fast_items(
+      tree, scan.levels, scan.items.data(), scan.items.data() + scan.items.size(), threads);
   if (conflicts.empty()) return;
   // the cells where the map holds occupied voxels get the exact mode's voxels instead
-  detail::sort_unique(conflicts);
-  const std::vector<std::uint64_t> fr = free_voxels(
-      tree, scan, threads_for(scan.ends.size() / 3, scan.threads), [&conflicts](std::uint64_t c) {
+  const std::vector<std::uint64_t> fr =
+      free_voxels(tree, scan, threads, [&conflicts](std::uint64_t c) {
         return !std::binary_search(conflicts.begin(), conflicts.end(), c);
       });
-  CellApplier(tree, scan.levels).apply(fr.data(), fr.data() + fr.size());
+  detail::apply_fast_items(tree, scan.levels, fr.data(), fr.data() + fr.size(), threads);
 }
 
 template <class Real>

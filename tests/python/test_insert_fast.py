@@ -136,6 +136,12 @@ def test_bound_on_real_luminar_clouds(shared_real: Path):
     kept, extra, q = agreement(fast, exact)
     assert kept >= MIN_KEPT and extra <= MAX_EXTRA, (kept, extra)
     assert fast.memory_bytes < exact.memory_bytes
+    # a real cloud's update is applied on both threads (its subtrees split between them):
+    # the same map, node for node
+    two = OccupancyMap(0.1)
+    for pts, origin in scans:
+        two.insert_scan(pts, origin, 40.0, mode="fast", threads=2)
+    assert_same_map(two, fast)
 
 
 def test_mode_is_checked():
