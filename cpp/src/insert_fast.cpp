@@ -232,9 +232,10 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
   const long top = (1L << (16 - level)) - 1;
   const unsigned shift = 3 * level;
   std::uint64_t code = morton(key_origin);
+  bool new_cell = true;  // whether the walk is in a cell not yet asked about
   while (--steps_left > 0) {
     std::uint64_t cell_code = code >> shift;
-    if (cleared(cell_code)) {
+    if (new_cell && cleared(cell_code)) {
       // on to the next cell not cleared, then into its voxel at the entry point
       unsigned a;
       do {
@@ -259,6 +260,7 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
       }
       code = code_of(key);
     }
+    new_cell = false;
     if (code == code_end) return;
     on_voxel(code);
     unsigned a;
@@ -273,6 +275,7 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
     if ((key[a] >> level) != cell[a]) {  // into the next cell
       cell[a] = key[a] >> level;
       ct[a] = ct_leave(a);
+      new_cell = true;
     }
     // past the ray's length: rounding made the walk miss the end's voxel
     if (code != code_end && std::min(std::min(t[0], t[1]), t[2]) > length) return;
