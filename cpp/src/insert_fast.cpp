@@ -15,6 +15,7 @@
 #include <limits>
 #include <memory>
 #include <stdexcept>
+#include <utility>
 
 namespace octofuse {
 
@@ -371,6 +372,42 @@ void occupied_cells(const OccupancyTree& t, const OccupancyNode* node, unsigned 
   }
 }
 
+// The rays of a scan to trace (x y z ends; `cut`: whether a ray was cut at the maximum
+// range): every ray to an end point, and of the cut rays one per end voxel (the returns of a
+// beam past the range end there together, and neighbouring beams may), the one to the least
+// end (by x, then y, then z), so that neither the order nor repeats of the points change the
+// map. In the order of the end voxels' codes (which go to `codes`), so that neighbouring
+// rays follow each other.
+std::vector<float> rays_to_trace(const OccupancyTree& grid, const std::vector<float>& ends,
+                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes) {
+  const std::size_t n = ends.size() / 3;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* e = &ends[3 * i];
+    keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
+                static_cast<std::uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end(), [&ends](const auto& a, const auto& b) {
+    if (a.first != b.first) return a.first < b.first;
+    const float* p = &ends[3 * a.second];
+    const float* q = &ends[3 * b.second];
+    return std::lexicographical_compare(p, p + 3, q, q + 3);
+  });
+  std::vector<float> out;
+  out.reserve(ends.size());
+  codes.clear();
+  std::uint64_t last_cut = kNoCode;  // the end voxel of the last cut ray taken
+  for (const auto& [code, i] : keyed) {
+    if (cut[i]) {
+      if (code == last_cut) continue;
+      last_cut = code;
+    }
+    out.insert(out.end(), &ends[3 * i], &ends[3 * i + 3]);
+    codes.push_back(code);
+  }
+  return out;
+}
+
 // Threads for a scan of n rays: at most `threads`, one per 1024 rays.
 unsigned threads_for(std::size_t n, unsigned threads) {
   return static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(n / 1024, 1)));
@@ -393,38 +430,31 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   scan.ends.resize(3 * n);
   std::vector<std::uint64_t> occ;
   occ.reserve(n);
+  std::vector<char> cut(n);
   for (std::size_t i = 0; i < n; ++i) {
     const octomap::point3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
     check.check(i, p);
     const bool hit = max_range < 0.0 || (p - o).norm() <= max_range;
     const octomap::point3d e = hit ? p : o + (p - o).normalized() * static_cast<float>(max_range);
     for (unsigned a = 0; a < 3; ++a) scan.ends[3 * i + a] = e(a);
+    cut[i] = !hit;
     if (hit) occ.push_back(morton(grid.coordToKey(p)));
   }
   detail::sort_unique(occ);
+  std::vector<std::uint64_t> end_codes;
+  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes);
+  const std::size_t rays = scan.ends.size() / 3;
 
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
   // on each thread's share of the rays, then summed; and the cells of the end points
-  std::vector<std::uint32_t> distinct;
-  distinct.reserve(n);
-  {
-    CellTally seen(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const float* e = &scan.ends[3 * i];
-      const std::uint64_t c = morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2])));
-      if (seen.get(c) == 0) {
-        seen.add(c, 1);
-        distinct.push_back(static_cast<std::uint32_t>(i));
-      }
-    }
-  }
-  const unsigned nt = threads_for(n, opt.threads);
-  const std::size_t share = (distinct.size() + nt - 1) / nt;
+  const unsigned nt = threads_for(rays, opt.threads);
+  const std::size_t share = (rays + nt - 1) / nt;
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
   detail::parallel_for(nt, nt, [&](std::size_t k) {
-    const std::size_t hi = std::min(distinct.size(), (k + 1) * share);
+    const std::size_t hi = std::min(rays, (k + 1) * share);
     for (std::size_t j = k * share; j < hi; ++j) {
-      const float* e = &scan.ends[3 * distinct[j]];
+      if (j > 0 && end_codes[j] == end_codes[j - 1]) continue;  // the first of its end voxel
+      const float* e = &scan.ends[3 * j];
       walk_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }
