@@ -10,6 +10,7 @@
 #include "fast_applier.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -314,6 +315,19 @@ void FastInsert::validate() const {
 
 namespace {
 
+// Calls f(worker, b, e) for runs b..e of the rays [0, n) on `threads` workers (0 to
+// threads - 1, the caller's thread among them), each taking the next run when done with one:
+// the rays of a scan differ in length, and neighbouring rays (runs) share their voxels.
+template <class F>
+void ray_runs(std::size_t n, unsigned threads, F&& f) {
+  constexpr std::size_t kRun = 256;
+  std::atomic<std::size_t> next{0};
+  detail::parallel_for(threads, threads, [&](std::size_t worker) {
+    for (std::size_t b = next.fetch_add(kRun); b < n; b = next.fetch_add(kRun))
+      f(worker, b, std::min(n, b + kRun));
+  });
+}
+
 // The free voxels of a scan's rays outside the cells that `jump(cell code)` says the walk
 // crosses a cell at a time (ascending, each once), traced on `threads` threads, each with a
 // direct-mapped cache of jump()'s recent answers.
@@ -322,25 +336,32 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
                                        unsigned threads, const Jump& jump) {
   const std::size_t n = scan.ends.size() / 3;
   const octomap::point3d o(scan.origin[0], scan.origin[1], scan.origin[2]);
-  const std::size_t share = (n + threads - 1) / threads;
-  std::vector<std::vector<std::uint64_t>> parts(threads);
-  detail::parallel_for(threads, threads, [&](std::size_t k) {
-    constexpr std::size_t kCache = 4096;
-    std::vector<std::uint64_t> cache(kCache, kNoCode);  // the cell, its top bit: jumped
+  constexpr std::size_t kCache = 4096;
+  struct Worker {
+    std::vector<std::uint64_t> cache;  // the cell, its top bit: jumped
+    detail::CodeSet voxels;
+  };
+  std::vector<Worker> workers;
+  workers.reserve(threads);
+  for (unsigned k = 0; k < threads; ++k)  // a ray crosses some voxels no other ray does
+    workers.push_back(
+        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(8 * n / threads)});
+  ray_runs(n, threads, [&](std::size_t k, std::size_t b, std::size_t e) {
+    Worker& w = workers[k];
     const auto jumped = [&](std::uint64_t cell) {
-      std::uint64_t& e = cache[(cell ^ (cell >> 9)) & (kCache - 1)];
-      if ((e & ~kHit) != cell) e = cell | (jump(cell) ? kHit : 0);
-      return (e & kHit) != 0;
+      std::uint64_t& c = w.cache[(cell ^ (cell >> 9)) & (kCache - 1)];
+      if ((c & ~kHit) != cell) c = cell | (jump(cell) ? kHit : 0);
+      return (c & kHit) != 0;
     };
-    detail::CodeSet voxels(share * 2);
-    const std::size_t hi = std::min(n, (k + 1) * share);
-    for (std::size_t i = k * share; i < hi; ++i) {
-      const float* e = &scan.ends[3 * i];
-      trace_ray_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), scan.levels, jumped,
-                      [&voxels](std::uint64_t c) { voxels.insert(c); });
+    for (std::size_t i = b; i < e; ++i) {
+      const float* p = &scan.ends[3 * i];
+      trace_ray_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), scan.levels, jumped,
+                      [&w](std::uint64_t c) { w.voxels.insert(c); });
     }
-    parts[k] = voxels.sorted();
   });
+  std::vector<std::vector<std::uint64_t>> parts(threads);
+  detail::parallel_for(threads, threads,
+                       [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
   std::vector<std::uint64_t> fr = std::move(parts[0]);
   for (std::size_t k = 1; k < threads; ++k) {
     fr = merged(fr, parts[k]);
@@ -448,18 +469,16 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
   // on each thread's share of the rays, then summed; and the cells of the end points
   const unsigned nt = threads_for(rays, opt.threads);
-  const std::size_t share = (rays + nt - 1) / nt;
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
-  detail::parallel_for(nt, nt, [&](std::size_t k) {
-    const std::size_t hi = std::min(rays, (k + 1) * share);
-    for (std::size_t j = k * share; j < hi; ++j) {
+  ray_runs(rays, nt, [&](std::size_t k, std::size_t b, std::size_t e) {
+    for (std::size_t j = b; j < e; ++j) {
       if (j > 0 && end_codes[j] == end_codes[j - 1]) continue;  // the first of its end voxel
-      const float* e = &scan.ends[3 * j];
-      walk_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), level,
+      const float* p = &scan.ends[3 * j];
+      walk_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }
-    tallies[k].flush();
   });
+  for (CellTally& t : tallies) t.flush();
   CellTally& tally = tallies[0];
   for (std::size_t k = 1; k < nt; ++k) tally.absorb(tallies[k]);
   for (std::uint64_t c : occ) tally.add(c >> (3 * level), CellTally::kHasEnd);
