@@ -197,7 +197,7 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         lines.append(
             f"| {r['set']} | {r['method']} | {r['ms_per_scan']:.0f} | {r['cpu_ms_per_scan']:.0f} | "
-            f"{r['points_per_s'] / 1e6:.2f} | {r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
+            f"{r['points_per_s'] / 1e6:.3f} | {r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
             f"{base[r['set']] / r['cpu_ms_per_scan']:.1f}x | {r['memory_mb']:.1f} MB | "
             f"{100 * r['occupied_kept']:.1f}% | {100 * r['extra_occupied']:.1f}% | "
             f"{100 * r['free_voxels']:.0f}% | {r['kl_sum']:.0f} |"
