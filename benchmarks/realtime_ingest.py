@@ -188,16 +188,16 @@ def table(rows: list[dict]) -> str:
     wall times grow with the other load; ``real time (CPU)`` is 0.1 s over the CPU time per
     scan, the rate of a core of its own)."""
     head = (
-        "| scans | method | ms/scan | CPU ms/scan | real time | real time (CPU) | "
+        "| scans | method | ms/scan | CPU ms/scan | M points/s | real time | real time (CPU) | "
         "vs insertPointCloud (CPU) | memory | occupied kept | extra occupied | "
         "free voxels | KL |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 13]
     base = {r["set"]: r["cpu_ms_per_scan"] for r in rows if r["method"] == METHODS[0][0]}
     for r in rows:
         lines.append(
             f"| {r['set']} | {r['method']} | {r['ms_per_scan']:.0f} | {r['cpu_ms_per_scan']:.0f} | "
-            f"{r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
+            f"{r['points_per_s'] / 1e6:.3f} | {r['realtime_factor']:.2f}x | {100.0 / r['cpu_ms_per_scan']:.2f}x | "
             f"{base[r['set']] / r['cpu_ms_per_scan']:.1f}x | {r['memory_mb']:.1f} MB | "
             f"{100 * r['occupied_kept']:.1f}% | {100 * r['extra_occupied']:.1f}% | "
             f"{100 * r['free_voxels']:.0f}% | {r['kl_sum']:.0f} |"

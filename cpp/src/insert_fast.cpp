@@ -2,22 +2,21 @@
 // a scan's rays are dense (see insert_fast.hpp).
 #include "octofuse/insert_fast.hpp"
 
-#include "octofuse/detail/child_runs.hpp"
 #include "octofuse/detail/key_codes.hpp"
 #include "octofuse/detail/parallel_for.hpp"
 #include "octofuse/detail/ray_codes.hpp"
-#include "octofuse/detail/tree_access.hpp"
 #include "octofuse/scan_check.hpp"
 
-#include "prune_or_max.hpp"
+#include "fast_applier.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <functional>
-#include <iterator>
 #include <limits>
 #include <memory>
 #include <stdexcept>
+#include <utility>
 
 namespace octofuse {
 
@@ -27,9 +26,8 @@ using detail::kHit;
 using detail::kNoCode;
 using detail::morton;
 
-// An item that stands for a whole cell (its first voxel's code); never with kHit.
-constexpr std::uint64_t kCell = 1ULL << 62;
-constexpr std::uint64_t kCodeOnly = kCell - 1;
+using detail::kCell;
+using detail::kCodeOnly;
 constexpr long kKeyOffset = 32768;  // OctoMap's tree_max_val at depth 16
 
 // Rays crossing each cell of a scan, and the cells holding one of its end points: an
@@ -236,9 +234,10 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
   const long top = (1L << (16 - level)) - 1;
   const unsigned shift = 3 * level;
   std::uint64_t code = morton(key_origin);
+  bool new_cell = true;  // whether the walk is in a cell not yet asked about
   while (--steps_left > 0) {
     std::uint64_t cell_code = code >> shift;
-    if (cleared(cell_code)) {
+    if (new_cell && cleared(cell_code)) {
       // on to the next cell not cleared, then into its voxel at the entry point
       unsigned a;
       do {
@@ -263,6 +262,7 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
       }
       code = code_of(key);
     }
+    new_cell = false;
     if (code == code_end) return;
     on_voxel(code);
     unsigned a;
@@ -277,6 +277,7 @@ void trace_ray_cells(const OccupancyTree& tree, const octomap::point3d& origin,
     if ((key[a] >> level) != cell[a]) {  // into the next cell
       cell[a] = key[a] >> level;
       ct[a] = ct_leave(a);
+      new_cell = true;
     }
     // past the ray's length: rounding made the walk miss the end's voxel
     if (code != code_end && std::min(std::min(t[0], t[1]), t[2]) > length) return;
@@ -314,6 +315,19 @@ void FastInsert::validate() const {
 
 namespace {
 
+// Calls f(worker, b, e) for runs b..e of the rays [0, n) on `threads` workers (0 to
+// threads - 1, the caller's thread among them), each taking the next run when done with one:
+// the rays of a scan differ in length, and neighbouring rays (runs) share their voxels.
+template <class F>
+void ray_runs(std::size_t n, unsigned threads, F&& f) {
+  constexpr std::size_t kRun = 256;
+  std::atomic<std::size_t> next{0};
+  detail::parallel_for(threads, threads, [&](std::size_t worker) {
+    for (std::size_t b = next.fetch_add(kRun); b < n; b = next.fetch_add(kRun))
+      f(worker, b, std::min(n, b + kRun));
+  });
+}
+
 // The free voxels of a scan's rays outside the cells that `jump(cell code)` says the walk
 // crosses a cell at a time (ascending, each once), traced on `threads` threads, each with a
 // direct-mapped cache of jump()'s recent answers.
@@ -322,25 +336,32 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
                                        unsigned threads, const Jump& jump) {
   const std::size_t n = scan.ends.size() / 3;
   const octomap::point3d o(scan.origin[0], scan.origin[1], scan.origin[2]);
-  const std::size_t share = (n + threads - 1) / threads;
-  std::vector<std::vector<std::uint64_t>> parts(threads);
-  detail::parallel_for(threads, threads, [&](std::size_t k) {
-    constexpr std::size_t kCache = 4096;
-    std::vector<std::uint64_t> cache(kCache, kNoCode);  // the cell, its top bit: jumped
+  constexpr std::size_t kCache = 4096;
+  struct Worker {
+    std::vector<std::uint64_t> cache;  // the cell, its top bit: jumped
+    detail::CodeSet voxels;
+  };
+  std::vector<Worker> workers;
+  workers.reserve(threads);
+  for (unsigned k = 0; k < threads; ++k)  // a ray crosses some voxels no other ray does
+    workers.push_back(
+        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(8 * n / threads)});
+  ray_runs(n, threads, [&](std::size_t k, std::size_t b, std::size_t e) {
+    Worker& w = workers[k];
     const auto jumped = [&](std::uint64_t cell) {
-      std::uint64_t& e = cache[(cell ^ (cell >> 9)) & (kCache - 1)];
-      if ((e & ~kHit) != cell) e = cell | (jump(cell) ? kHit : 0);
-      return (e & kHit) != 0;
+      std::uint64_t& c = w.cache[(cell ^ (cell >> 9)) & (kCache - 1)];
+      if ((c & ~kHit) != cell) c = cell | (jump(cell) ? kHit : 0);
+      return (c & kHit) != 0;
     };
-    detail::CodeSet voxels(share * 2);
-    const std::size_t hi = std::min(n, (k + 1) * share);
-    for (std::size_t i = k * share; i < hi; ++i) {
-      const float* e = &scan.ends[3 * i];
-      trace_ray_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), scan.levels, jumped,
-                      [&voxels](std::uint64_t c) { voxels.insert(c); });
+    for (std::size_t i = b; i < e; ++i) {
+      const float* p = &scan.ends[3 * i];
+      trace_ray_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), scan.levels, jumped,
+                      [&w](std::uint64_t c) { w.voxels.insert(c); });
     }
-    parts[k] = voxels.sorted();
   });
+  std::vector<std::vector<std::uint64_t>> parts(threads);
+  detail::parallel_for(threads, threads,
+                       [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
   std::vector<std::uint64_t> fr = std::move(parts[0]);
   for (std::size_t k = 1; k < threads; ++k) {
     fr = merged(fr, parts[k]);
@@ -372,6 +393,42 @@ void occupied_cells(const OccupancyTree& t, const OccupancyNode* node, unsigned 
   }
 }
 
+// The rays of a scan to trace (x y z ends; `cut`: whether a ray was cut at the maximum
+// range): every ray to an end point, and of the cut rays one per end voxel (the returns of a
+// beam past the range end there together, and neighbouring beams may), the one to the least
+// end (by x, then y, then z), so that neither the order nor repeats of the points change the
+// map. In the order of the end voxels' codes (which go to `codes`), so that neighbouring
+// rays follow each other.
+std::vector<float> rays_to_trace(const OccupancyTree& grid, const std::vector<float>& ends,
+                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes) {
+  const std::size_t n = ends.size() / 3;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* e = &ends[3 * i];
+    keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
+                static_cast<std::uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end(), [&ends](const auto& a, const auto& b) {
+    if (a.first != b.first) return a.first < b.first;
+    const float* p = &ends[3 * a.second];
+    const float* q = &ends[3 * b.second];
+    return std::lexicographical_compare(p, p + 3, q, q + 3);
+  });
+  std::vector<float> out;
+  out.reserve(ends.size());
+  codes.clear();
+  std::uint64_t last_cut = kNoCode;  // the end voxel of the last cut ray taken
+  for (const auto& [code, i] : keyed) {
+    if (cut[i]) {
+      if (code == last_cut) continue;
+      last_cut = code;
+    }
+    out.insert(out.end(), &ends[3 * i], &ends[3 * i + 3]);
+    codes.push_back(code);
+  }
+  return out;
+}
+
 // Threads for a scan of n rays: at most `threads`, one per 1024 rays.
 unsigned threads_for(std::size_t n, unsigned threads) {
   return static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(n / 1024, 1)));
@@ -394,43 +451,34 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   scan.ends.resize(3 * n);
   std::vector<std::uint64_t> occ;
   occ.reserve(n);
+  std::vector<char> cut(n);
   for (std::size_t i = 0; i < n; ++i) {
     const octomap::point3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
     check.check(i, p);
     const bool hit = max_range < 0.0 || (p - o).norm() <= max_range;
     const octomap::point3d e = hit ? p : o + (p - o).normalized() * static_cast<float>(max_range);
     for (unsigned a = 0; a < 3; ++a) scan.ends[3 * i + a] = e(a);
+    cut[i] = !hit;
     if (hit) occ.push_back(morton(grid.coordToKey(p)));
   }
   detail::sort_unique(occ);
+  std::vector<std::uint64_t> end_codes;
+  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes);
+  const std::size_t rays = scan.ends.size() / 3;
 
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
   // on each thread's share of the rays, then summed; and the cells of the end points
-  std::vector<std::uint32_t> distinct;
-  distinct.reserve(n);
-  {
-    CellTally seen(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const float* e = &scan.ends[3 * i];
-      const std::uint64_t c = morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2])));
-      if (seen.get(c) == 0) {
-        seen.add(c, 1);
-        distinct.push_back(static_cast<std::uint32_t>(i));
-      }
-    }
-  }
-  const unsigned nt = threads_for(n, opt.threads);
-  const std::size_t share = (distinct.size() + nt - 1) / nt;
+  const unsigned nt = threads_for(rays, opt.threads);
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
-  detail::parallel_for(nt, nt, [&](std::size_t k) {
-    const std::size_t hi = std::min(distinct.size(), (k + 1) * share);
-    for (std::size_t j = k * share; j < hi; ++j) {
-      const float* e = &scan.ends[3 * distinct[j]];
-      walk_cells(grid, o, octomap::point3d(e[0], e[1], e[2]), level,
+  ray_runs(rays, nt, [&](std::size_t k, std::size_t b, std::size_t e) {
+    for (std::size_t j = b; j < e; ++j) {
+      if (j > 0 && end_codes[j] == end_codes[j - 1]) continue;  // the first of its end voxel
+      const float* p = &scan.ends[3 * j];
+      walk_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }
-    tallies[k].flush();
   });
+  for (CellTally& t : tallies) t.flush();
   CellTally& tally = tallies[0];
   for (std::size_t k = 1; k < nt; ++k) tally.absorb(tallies[k]);
   for (std::uint64_t c : occ) tally.add(c >> (3 * level), CellTally::kHasEnd);
@@ -531,129 +579,22 @@ std::vector<std::shared_ptr<const FastScan>> trace_fast_batch(const OccupancyTre
   return out;
 }
 
-namespace {
-
-// Applies one scan's fast items (ascending codes, one per voxel or cell) to a tree in one
-// depth-first pass, as BatchApplier (insert.cpp) applies exact items: a voxel already at the
-// clamping threshold in an update's direction is skipped without touching the tree, pruned
-// leaves are expanded and missing children created as updateNodeRecurs() does, and every
-// node on the path of an applied update ends pruned if collapsible or else holding the
-// maximum of its children. A cell item gives every voxel under its node one miss: leaves
-// (and missing children: unknown space) get it as they are, without being split, and
-// occupied leaves are left as they are.
-class CellApplier {
- public:
-  CellApplier(OccupancyTree& tree, unsigned level)
-      : t_(tree),
-        hit_(tree.getProbHitLog()),
-        miss_(tree.getProbMissLog()),
-        cmin_(tree.getClampingThresMinLog()),
-        cmax_(tree.getClampingThresMaxLog()),
-        depth_(tree.getTreeDepth()),
-        cell_depth_(tree.getTreeDepth() - level),
-        shift_(3 * level) {}
-
-  void apply(const std::uint64_t* b, const std::uint64_t* e) {
-    if (b == e) return;
-    OccupancyNode* root = t_.getRoot();
-    const bool created = root == nullptr;
-    if (created) root = detail::TreeAccess<OccupancyTree>::ensure_root(t_);
-    visit(root, created, 0, b, e);
-  }
-
-  /// The cells left out because the tree holds occupied voxels in them, ascending.
-  const std::vector<std::uint64_t>& conflicts() const { return conflicts_; }
-
- private:
-  // Whether an item changes a leaf of value v; a cell over an occupied leaf is a conflict.
-  bool changes(float v, std::uint64_t item) {
-    if (item & kHit) return v < cmax_;
-    if ((item & kCell) && v > 0) {
-      conflicts_.push_back((item & kCodeOnly) >> shift_);
-      return false;
-    }
-    return v > cmin_;
-  }
-
-  bool visit(OccupancyNode* node, bool just_created, unsigned depth, const std::uint64_t* b,
-             const std::uint64_t* e) {
-    std::vector<std::uint64_t> kept;
-    if (!just_created && !t_.nodeHasChildren(node)) {
-      // an existing leaf: the items that do not change it are skipped
-      const float v = node->getLogOdds();
-      kept.reserve(static_cast<std::size_t>(e - b));
-      std::copy_if(b, e, std::back_inserter(kept), [&](std::uint64_t m) { return changes(v, m); });
-      if (kept.empty()) return false;
-      b = kept.data();
-      e = b + kept.size();
-    }
-    if (depth == depth_) {  // one voxel
-      t_.updateNodeLogOdds(node, (*b & kHit) ? hit_ : miss_);
-      return true;
-    }
-    if (depth == cell_depth_ && (*b & kCell)) {
-      if (!just_created && node->getLogOdds() > 0) {  // an inner node: its children's maximum
-        conflicts_.push_back((*b & kCodeOnly) >> shift_);
-        return false;
-      }
-      return clear(node, just_created);
-    }
-    const unsigned shift = 3 * (depth_ - 1 - depth);
-    bool any = false;
-    while (b != e) {
-      unsigned pos;
-      const std::uint64_t* g = detail::child_run_end(b, e, shift, kCodeOnly, pos);
-      bool created;
-      OccupancyNode* child = detail::child_to_update(t_, node, just_created, pos, created);
-      any |= visit(child, created, depth + 1, b, g);
-      b = g;
-    }
-    if (any) detail::prune_or_max(t_, node);
-    return any;
-  }
-
-  // One miss for every voxel under `node` (which holds no occupied voxel).
-  bool clear(OccupancyNode* node, bool just_created) {
-    if (just_created || !t_.nodeHasChildren(node)) {
-      if (!just_created && node->getLogOdds() <= cmin_) return false;
-      t_.updateNodeLogOdds(node, miss_);
-      return true;
-    }
-    bool any = false;
-    for (unsigned pos = 0; pos < 8; ++pos) {
-      const bool exists = t_.nodeChildExists(node, pos);
-      if (!exists) t_.createNodeChild(node, pos);
-      any |= clear(t_.getNodeChild(node, pos), !exists);
-    }
-    if (any) detail::prune_or_max(t_, node);
-    return any;
-  }
-
-  OccupancyTree& t_;
-  const float hit_, miss_, cmin_, cmax_;
-  const unsigned depth_, cell_depth_, shift_;
-  std::vector<std::uint64_t> conflicts_;
-};
-
-}  // namespace
-
 void apply_fast(OccupancyMap& map, const FastScan& scan) {
   if (map.tree().isChangeDetectionEnabled()) {
     throw std::invalid_argument("the fast insert mode does not track changed voxels");
   }
   // the walk merges nodes without moving carried losses aside: settled first
   OccupancyTree& tree = map.settled_tree();
-  CellApplier first(tree, scan.levels);
-  first.apply(scan.items.data(), scan.items.data() + scan.items.size());
-  std::vector<std::uint64_t> conflicts = first.conflicts();
+  const unsigned threads = threads_for(scan.ends.size() / 3, scan.threads);
+  const std::vector<std::uint64_t> conflicts = detail::apply_fast_items(
+      tree, scan.levels, scan.items.data(), scan.items.data() + scan.items.size(), threads);
   if (conflicts.empty()) return;
   // the cells where the map holds occupied voxels get the exact mode's voxels instead
-  detail::sort_unique(conflicts);
-  const std::vector<std::uint64_t> fr = free_voxels(
-      tree, scan, threads_for(scan.ends.size() / 3, scan.threads), [&conflicts](std::uint64_t c) {
+  const std::vector<std::uint64_t> fr =
+      free_voxels(tree, scan, threads, [&conflicts](std::uint64_t c) {
         return !std::binary_search(conflicts.begin(), conflicts.end(), c);
       });
-  CellApplier(tree, scan.levels).apply(fr.data(), fr.data() + fr.size());
+  detail::apply_fast_items(tree, scan.levels, fr.data(), fr.data() + fr.size(), threads);
 }
 
 template <class Real>

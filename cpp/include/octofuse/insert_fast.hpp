@@ -5,8 +5,12 @@
 // The fast mode keeps OctoMap's update rules (a hit +log(p_hit / (1 - p_hit)) on every end
 // point's voxel, a miss on the free voxels of the rays, each voxel updated once per scan,
 // end points winning over free, clamping) but clears free space a coarse cell at a time
-// where the scan's rays are dense:
+// where the scan's rays are dense, and traces one ray per voxel where rays cut at the
+// maximum range end:
 //
+//  * rays cut at the maximum range that end in one voxel (the returns of one beam past the
+//    range, neighbouring beams) are one ray, the one to the least end there (by x, then y,
+//    then z);
 //  * the space is cut into cells of 2^L voxels per edge (L = coarse_levels, an octree level);
 //  * a cell is cleared whole (every voxel under it gets one miss, as one node of the tree) if
 //    at least `min_rays` rays of the scan cross it and none of the scan's end points lies in
@@ -15,11 +19,13 @@
 //  * a cell where the map already holds an occupied voxel is not cleared whole but gets the
 //    exact mode's voxels (found when the scan is applied: its rays are traced again there).
 //
-// So the fast map differs from the exact one only in cleared cells, which held no occupied
-// voxel: voxels there between the rays become free (the exact mode leaves them unknown), and
-// a voxel hit later starts from that miss. A scan whose every cell is crossed by fewer than
-// min_rays rays (a single ray) gives the exact map. tests/python/test_insert_fast.py states
-// the bound on real lidar clouds.
+// So the fast map differs from the exact one in cleared cells, which held no occupied voxel:
+// voxels there between the rays become free (the exact mode leaves them unknown), and a
+// voxel hit later starts from that miss; and elsewhere by the voxels that only the other
+// cut rays to an end voxel cross (left unknown). A scan whose every cell is crossed by fewer
+// than min_rays rays and whose cut rays end in voxels of their own (a single ray) gives the
+// exact map.
+// tests/python/test_insert_fast.py states the bound on real lidar clouds.
 #pragma once
 
 #include "octofuse/insert.hpp"
@@ -52,7 +58,8 @@ struct FastInsert {
 
 /// One map-frame scan traced for the fast mode, to apply to any maps of its grid.
 struct FastScan {
-  std::vector<float> ends;           ///< each ray's end (cut to the maximum range), x y z
+  std::vector<float> ends;  ///< the ends of the rays to trace (cut to the maximum range), x y z
+                            ///< (one per end voxel of the cut ones), in the order of their codes
   float origin[3] = {0, 0, 0};       ///< the sensor
   unsigned levels = 0;               ///< FastInsert::coarse_levels
   unsigned threads = 1;              ///< FastInsert::threads

@@ -231,9 +231,7 @@ def agent(name, fleet_file, rule, out, replay, speed, fresh, scan_type, duration
             )
         rule = cfg.fuse.rules[0]
     try:
-        live = LiveAgent(cfg, name, rule, out, log=say)
-        if insert_mode or scan_type == "pointcloud2":  # a 3D lidar in real time: fast
-            live.insert_mode = insert_mode or "fast"
+        live = LiveAgent(cfg, name, rule, out, log=say, insert_mode=insert_mode)
         counts = live.run_bridged(scan_type, duration) if scan_type else live.run(resume=not fresh)
     except TimeoutError as e:
         raise CliError(str(e)) from None

@@ -62,12 +62,15 @@ class AgentCounts:
     bytes_received: int = 0
     sent_32b: int = 0
     behind: int = 0  #: scans inserted later than their time plus a second
+    queued_max: int = 0  #: most scans waiting at once to be inserted (a live feed)
     restarts: int = 0
 
 
 class LiveAgent:
     """Agent ``name`` of the fleet ``cfg`` under ``rule`` (one of ``cfg.fuse.rules``; each
-    rule's agents are a fleet of their own, on ports of their own)."""
+    rule's agents are a fleet of their own, on ports of their own). ``insert_mode``: how
+    its scans go into its maps; by default the fleet's, but the fast mode for the 3D clouds
+    of a live robot (:meth:`run_bridged`), which must keep up with its sensor."""
 
     def __init__(
         self,
@@ -76,6 +79,7 @@ class LiveAgent:
         rule: str,
         out: Path,
         log: Callable[[str], None] = lambda _m: None,
+        insert_mode: str | None = None,
     ):
         if rule not in cfg.fuse.rules:
             raise ValueError(
@@ -106,7 +110,8 @@ class LiveAgent:
         self.local = mk()
         self.frames = AgentFrames.from_config(names, cfg.fuse)
         self.counts = AgentCounts()
-        self.insert_mode = cfg.build.insert_mode
+        self._insert_mode = insert_mode  #: as given (None: the default)
+        self.insert_mode = insert_mode or cfg.build.insert_mode
         self.queued = 0  #: scans arrived and not inserted yet (the agent falls behind)
         self._published = 0.0  #: when the fused map was last published (monotonic)
         self.faults: dict = {}  #: what the fault layer did to this agent's chunks
@@ -193,6 +198,8 @@ class LiveAgent:
         from .bridged import BridgedScans
 
         cfg, live = self.cfg, self.live
+        if self._insert_mode is None and scan_type == "pointcloud2":
+            self.insert_mode = "fast"  # a 3D lidar in real time
         timed = self._exchange_times(0, int(duration * 1e9))
         progress = {"t": -1.0, "scans": 0}
         transport = self._open(announce=False)
@@ -213,6 +220,7 @@ class LiveAgent:
                         feed.take(min(0.05, max(0.0, t0 + t - time.monotonic()))), progress
                     )
                     self.queued = feed.backlog()
+                    self.counts.queued_max = max(self.counts.queued_max, self.queued)
                     self._drain(transport, until=time.monotonic())
                 self._exchange(group, _through(transport, links), transport, t, progress)
             links.flush()
@@ -426,8 +434,10 @@ class LiveAgent:
                 "sent": self.counts.sent,
                 "applied": self.counts.applied,
                 "refused": sum(self.counts.refused.values()),
+                "insert_mode": self.insert_mode,
                 "behind": self.counts.behind,
                 "queued": self.queued,
+                "queued_max": self.counts.queued_max,
                 "links": {
                     n: {"seq": l.seq & 0xFFFFFFFF, "applied": l.applied & 0xFFFFFFFF}
                     for n, l in self.agent.links.items()
@@ -457,7 +467,9 @@ class LiveAgent:
                         "bytes_sent": c.bytes_sent,
                         "bytes_received": c.bytes_received,
                         "sent_32b": c.sent_32b,
+                        "insert_mode": self.insert_mode,
                         "behind": c.behind,
+                        "queued_max": c.queued_max,
                         "restarts": c.restarts,
                         "chunks_over_bound": transport.dropped,
                         "chunks_refused": transport.chunks_refused,

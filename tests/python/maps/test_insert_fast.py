@@ -19,6 +19,7 @@ import pytest
 from bagfactory import assert_same_map
 from octofuse.config import BuildConfig
 from octofuse.maps.occupancy import OccupancyMap
+from octofuse.maps.tree_fusion import fuse_maps
 from octofuse.scans.bags import BagSet
 from octofuse.scans.decode import pointcloud2_to_xyz
 from test_fast_paths import random_scans, warehouse_scans  # noqa: E402
@@ -119,6 +120,23 @@ def test_threads_give_the_same_map_and_batches_agree_with_scan_by_scan():
     assert np.trace(q) >= 0.9999 * q.sum()
 
 
+def test_threads_give_the_same_map_in_a_fused_map():
+    # a large fused map keeps its nodes in an arena of its own, which the threads' walks
+    # prune and expand the arena's way
+    scans = warehouse_scans(8, az_step=0.4)
+    base = OccupancyMap(0.1)
+    for pts, origin in scans[:6]:
+        base.insert_scan(pts, origin, 40.0, mode="fast")
+    assert 2 * base.num_nodes >= 2**18  # fuse_maps gives such results an arena
+    maps = []
+    for threads in (1, 2):
+        fused = fuse_maps(base, base).map
+        for pts, origin in scans[6:]:
+            fused.insert_scan(pts, origin, 40.0, mode="fast", threads=threads)
+        maps.append(fused)
+    assert_same_map(maps[0], maps[1])
+
+
 def test_bound_on_warehouse_scans():
     exact, fast = both_modes(warehouse_scans(8, az_step=0.4), 40.0)
     kept, extra, _ = agreement(fast, exact)
@@ -137,6 +155,12 @@ def test_bound_on_real_luminar_clouds(shared_real: Path):
     kept, extra, q = agreement(fast, exact)
     assert kept >= MIN_KEPT and extra <= MAX_EXTRA, (kept, extra)
     assert fast.memory_bytes < exact.memory_bytes
+    # a real cloud's update is applied on both threads (its subtrees split between them):
+    # the same map, node for node
+    two = OccupancyMap(0.1)
+    for pts, origin in scans:
+        two.insert_scan(pts, origin, 40.0, mode="fast", threads=2)
+    assert_same_map(two, fast)
 
 
 def test_mode_is_checked():

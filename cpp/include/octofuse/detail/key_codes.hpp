@@ -16,7 +16,7 @@ namespace octofuse::detail {
 // Morton code of a key: bit i of key[0] (x) goes to bit 3i, of key[1] (y) to 3i+1, of key[2]
 // (z) to 3i+2. At every level the three bits are OctoMap's child index (computeChildIdx), so
 // ascending codes are the tree's depth-first order and the keys under one node are contiguous.
-inline std::uint64_t spread3(std::uint64_t v) {
+constexpr std::uint64_t spread3(std::uint64_t v) {
   v &= 0xffff;
   v = (v | (v << 32)) & 0x001f00000000ffffULL;
   v = (v | (v << 16)) & 0x001f0000ff0000ffULL;

@@ -13,8 +13,10 @@
 
 namespace octofuse::detail {
 
-// The bits of one axis in a Morton code (x: bits 0, 3, 6, ...).
-inline std::uint64_t axis_mask(unsigned axis) { return spread3(0xffff) << axis; }
+// The bits of one axis in a Morton code (x: bits 0, 3, 6, ...); a constant, not worked out
+// again at every step of a walk.
+inline constexpr std::uint64_t kAxisBits = spread3(0xffff);
+inline std::uint64_t axis_mask(unsigned axis) { return kAxisBits << axis; }
 
 // The Morton code with one axis's key moved by `step` (+1, -1 or 0; the other axes' bits kept).
 inline std::uint64_t morton_step(std::uint64_t m, std::uint64_t mask, int step) {
