@@ -525,7 +525,7 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(
     groups = simulate_in_rule_groups(run_config(team_bag), robust, samples=0)
     assert next(groups).rules == SOME_RULES  # robust fusion votes once, on the own maps
     with pytest.raises(ValueError, match="rules_per_pass = -1"):
-        FuseConfig(rules_per_pass=-1).validate("fuse")
+        FuseConfig(rules_per_pass=-1)
 
 
 def test_deltas_send_fewer_bytes_and_reach_the_same_voxels(whole_and_delta):

@@ -12,10 +12,12 @@ import click
 from ..config import RunConfig
 from .options import (
     _DEFAULT,
+    THREADS,
     CliError,
     ListOption,
     NameList,
     Progress,
+    RuleList,
     _options,
     bag_arguments,
     build_options,
@@ -26,7 +28,6 @@ from .options import (
     exchange_options,
     export_options,
     frame_options,
-    map_rule_names,
     need_bags,
     need_out,
     out_option,
@@ -318,12 +319,12 @@ def bundled_dataset() -> Path:
     "rule",
     multiple=True,
     cls=ListOption,
-    type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
+    type=RuleList(),
     help="rules, comma separated",
     show_default="all,channel-filter,source-layers",
 )
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
-@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@click.option("--threads", type=THREADS, help="0: one per core", show_default="0")
 @export_options
 @export_bag_option
 @passes_option(DEMO_RULES_PER_PASS)
@@ -383,7 +384,7 @@ def demo(export_bag, **p):
 @click.option(
     "--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON"
 )
-@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@click.option("--threads", type=THREADS, help="0: one per core", show_default="0")
 @frame_options
 @export_options
 @export_bag_option

@@ -11,6 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 from ..config import CHANNEL_FILTER, EXACT_MODES, FuseConfig
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
+from ..rules import parse_unknown
 from ..threads import thread_map
 from .agent import Agent
 from .agent_frames import AgentFrames
@@ -38,6 +39,7 @@ class Network:
         frames: AgentFrames | None = None,
     ):
         self.agents, self.rules, self.cfg = agents, rules, fcfg
+        self.unknown = parse_unknown(fcfg.unknown)  # the core's policy, parsed once
         self.frames = frames or AgentFrames(agents)
         if CHANNEL_FILTER in rules and tree is None:
             raise ValueError("the channel filter needs the links of a tree")
@@ -212,7 +214,7 @@ class Network:
             d = nodes[msg.receiver]
             moved = self.frames.to_receiver(msg.sender, d.name, msg.payload, d.map.resolution)
             before = None if exact else _loss_totals(d.loss)
-            d.deliver(msg, unknown=cfg.unknown, threads=self.fuse_threads, moved=moved)
+            d.deliver(msg, unknown=self.unknown, threads=self.fuse_threads, moved=moved)
             self.add_time("fusion", t1)
             self._record(r, e, d, before)
 
@@ -225,7 +227,7 @@ class Network:
         if r in EXACT_MODES or self.cfg.delta:
             self._exchange_composed(r, group)
             return
-        nodes, maps, cfg = self.nodes[r], self.fused[r], self.cfg
+        nodes, maps = self.nodes[r], self.fused[r]
         ev_names = [(self.agents[e.sender], self.agents[e.receiver]) for e in group]
         sends_left: dict[str, int] = defaultdict(int)
         for s, _ in ev_names:
@@ -260,7 +262,7 @@ class Network:
                 t1 = time.perf_counter()
                 before = _loss_totals(nodes[d].loss), _loss_totals(nodes[s].loss)
                 # the walk counts the leaves each map had: the two messages' voxels
-                n_d, n_s = nodes[d].exchange_with(nodes[s], unknown=cfg.unknown)
+                n_d, n_s = nodes[d].exchange_with(nodes[s], unknown=self.unknown)
                 self.add_time("fusion", t1)
                 self._count_sizes(r, s, d, sizes[0], n_s)
                 self._count_sizes(r, d, s, sizes[1], n_d)
@@ -299,7 +301,7 @@ class Network:
             self.add_time("exchange", t0)
             t1 = time.perf_counter()
             before = _loss_totals(nodes[d].loss)
-            nodes[d].deliver(msg, unknown=cfg.unknown, threads=self.fuse_threads, moved=moved)
+            nodes[d].deliver(msg, unknown=self.unknown, threads=self.fuse_threads, moved=moved)
             self.add_time("fusion", t1)
             self._record(r, group[k], nodes[d], before)
             modified.add(d)

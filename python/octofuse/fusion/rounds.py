@@ -39,8 +39,7 @@ def fuse_finished(
     score the agents' own maps too (the floor). ``observer(t, round, network, {})``, if
     given, is called after every round, ``t`` its index (the rounds' ``time_s``), as
     :func:`~octofuse.fusion.simulate.simulate` calls it after a group of exchanges."""
-    fuse_cfg.validate("fuse")
-    rules = fuse_cfg.rules
+    rules = list(fuse_cfg.rules)
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind != "rounds":
         raise ValueError(

@@ -72,9 +72,8 @@ def simulate(
     as the final scores read them (:meth:`SimResult.loss_leaves_of`, for a loss histogram; 5
     bytes a leaf), instead of letting them go once scored.
     """
-    fuse_cfg.validate("fuse")
     check_samples(samples)
-    rules = fuse_cfg.rules
+    rules = list(fuse_cfg.rules)
     spec = parse_schedule(fuse_cfg.schedule)
     if fuse_cfg.robust.enabled and not local:
         raise ValueError("robust fusion votes on the agents' own maps: simulate them (local=True)")
@@ -376,7 +375,6 @@ def simulate_in_rule_groups(
     (:class:`~octofuse.scans.replay.ScanReplay`), their rays
     (:class:`~octofuse.maps.ray_replay.RayReplay`) and the centralized map with its snapshots
     (:class:`~.central_replay.CentralReplay`)."""
-    fuse_cfg.validate("fuse")
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
     with _opened(source, build_cfg) as src:
         scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
