@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import math
-import os
 import types
 import typing
 from dataclasses import dataclass, field
@@ -168,8 +167,8 @@ class BuildConfig(Checked):
 
     @property
     def workers(self) -> int:
-        """The number of threads to use."""
-        return self.threads or os.cpu_count() or 1
+        """The number of threads to use (0: the core's count of the machine's threads)."""
+        return self.threads or _core.default_threads()
 
 
 @dataclass

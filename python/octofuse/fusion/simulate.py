@@ -17,6 +17,7 @@ from ..maps.ray_replay import RayReplay
 from ..memory import return_freed_memory
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
+from ..threads import ThreadBudget, budget_scope
 from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
 from .network import Network
@@ -46,14 +47,15 @@ def simulate(
     rays: RayReplay | None = None,
     central_replay: CentralReplay | None = None,
     keep_loss_leaves: bool = False,
+    budget: ThreadBudget | None = None,
 ) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
     in one pass over the scans: each scan's rays are cast once and applied to every map.
-    Each rule's maps are a lane of their own on ``build_cfg.workers`` threads
-    (:mod:`octofuse.lanes`), so that no rule waits for the others at every exchange; the
-    result is that of one thread.
+    Each rule's maps are a lane of their own (:mod:`octofuse.lanes`), so that no rule waits
+    for the others at every exchange; lanes, ray tracing and fusion share ``budget`` (by
+    default one of ``build_cfg.threads``); the result is that of one thread.
 
     ``fuse_cfg.schedule`` is ``aperiodic:MEAN_S`` or ``periodic:PERIOD_S`` over the bags'
     duration. The result holds the final maps, accumulated losses, traffic, a timeline of
@@ -84,7 +86,11 @@ def simulate(
         )
     t_all = time.perf_counter()
     trace = rays.next_pass() if rays is not None else trace_scans
-    with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
+    with (
+        _opened(source, build_cfg) as src,
+        budget_scope(budget or build_cfg.threads) as budget,
+        Lanes(budget) as lanes,
+    ):
         done = [0]
         agents = [a.name for a in src.agents]
         start = src.bags.start_ns
@@ -100,7 +106,7 @@ def simulate(
 
             exact = open_map(mk())  # the centralized map without clamping
         frames = AgentFrames.from_config(agents, fuse_cfg)
-        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
+        net = Network(agents, rules, fuse_cfg, mk, budget, tree=tree, frames=frames)
         own = {a: mk() for a in agents} if local else {}
         replayed = central_replay is not None and central_replay.replaying
         central = central_replay.map if replayed else mk()
@@ -226,7 +232,8 @@ def simulate(
             ]
             scans, per_scan = frames.scan_targets(batch, targets, common)
             # its grid only, not its nodes
-            traced = trace(scans, central, build_cfg.workers, build_cfg.insert_mode)
+            with budget.core() as threads:
+                traced = trace(scans, central, threads, build_cfg.insert_mode)
             net.add_time("insertion", t0)
             applied = []
             for lane, ids in lane_maps.items():
@@ -312,7 +319,6 @@ def simulate(
         }
         lanes.wait()
         net.add_time("mapping + fusion (wall)", t_run)
-        net.close()
         if central_replay is not None:
             central_replay.end_pass(central)
         src.check_placed()
@@ -364,6 +370,7 @@ def simulate_in_rule_groups(
     progress: Callable[[int, int], None] | None = None,
     source: ScanSource | None = None,
     keep_loss_leaves: bool = False,
+    budget: ThreadBudget | None = None,
 ) -> Iterator[SimResult]:
     """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
     replaying the bags once per group, so that a caller can write a group's maps and free them
@@ -376,7 +383,7 @@ def simulate_in_rule_groups(
     (:class:`~octofuse.maps.ray_replay.RayReplay`) and the centralized map with its snapshots
     (:class:`~.central_replay.CentralReplay`)."""
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
-    with _opened(source, build_cfg) as src:
+    with _opened(source, build_cfg) as src, budget_scope(budget or build_cfg.threads) as budget:
         scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
         rays = RayReplay(len(groups))  # and traced once
         central = CentralReplay(len(groups))  # and the centralized map mapped once
@@ -397,6 +404,7 @@ def simulate_in_rule_groups(
                 rays=rays,
                 central_replay=central,
                 keep_loss_leaves=keep_loss_leaves,
+                budget=budget,
             )
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from ..config import EXACT_MODES, RunConfig
 from ..fusion.results import SimResult
 from ..rule_names import FusionRule
-from ..threads import thread_map
+from ..threads import ThreadBudget, thread_map
 
 #: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
 TOPVIEW_RULES = (
@@ -44,10 +44,10 @@ class MapExports:
         rules: Sequence[str],
         agents: Sequence[str],
         heatmaps: bool = True,
-        threads: int = 1,
+        threads: int | ThreadBudget = 1,
     ):
         self.out, self.cfg, self.agents = Path(out), cfg, list(agents)
-        self.threads = max(1, threads)  #: files written side by side
+        self.threads = threads  #: files written side by side: a budget, or a thread count
         self.views = topview_rules(rules)
         self.heatmaps = heatmaps and cfg.export == "all"
         #: (rule, agent) -> the occupied voxels with their loss, and the map's resolution
