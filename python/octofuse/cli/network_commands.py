@@ -149,29 +149,34 @@ def _say_alignment(res) -> None:
         say(line)
 
 
-def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents, budget):
+def write_rule_groups(
+    results, stage: Path, cfg: RunConfig, export_agents, budget: ThreadBudget | None = None
+):
     """The results of a run's groups of rules merged into one, each group's maps written into
     ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
     histogram values); the merged result and the :class:`MapExports` that wrote them.
     ``export_agents(agents)``: the agents whose maps are written; ``budget``: the run's
-    :class:`~octofuse.threads.ThreadBudget`."""
+    :class:`~octofuse.threads.ThreadBudget` (default: the configuration's threads)."""
     from ..fusion.results import merge_rule_results, without_maps
     from ..memory import return_freed_memory
     from ..outputs.map_exports import MapExports
+    from ..threads import thread_map
+
+    threads = budget or cfg.build.threads
 
     written, parts = None, []
     for part in results:
         if written is None:
             written = MapExports(
-                stage, cfg, cfg.fuse.rules, export_agents(part.agents), threads=budget
+                stage, cfg, cfg.fuse.rules, export_agents(part.agents), threads=threads
             )
         written.add(part)
         # the rules' maps freed on every thread: the next rules' maps reuse their memory; the
         # losses a map carries go with it, its loss map is freed next
         rule_maps = [m for per in (*part.fused.values(), part.unclamped) for m in per.values()]
-        budget.map(lambda m: m.clear(keep_loss=False), rule_maps)
+        thread_map(lambda m: m.clear(keep_loss=False), rule_maps, threads)
         loss_maps = [m for per in part.loss.values() for m in per.values()]
-        budget.map(lambda m: m.clear(), loss_maps)
+        thread_map(lambda m: m.clear(), loss_maps, threads)
         parts.append(without_maps(part))
         del part, rule_maps, loss_maps
         return_freed_memory()

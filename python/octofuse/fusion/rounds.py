@@ -10,6 +10,7 @@ from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
 from ..threads import ThreadBudget, budget_scope
 from .agent_frames import AgentFrames
+from .clock import RoundsClock
 from .graph import make_graph
 from .network import Network
 from .results import SimResult, rule_groups, score_result
@@ -82,10 +83,10 @@ def _fuse_rounds(maps, central, fuse_cfg, spec, truth, budget, score_local, obse
     )
     net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
-    for k, rnd in enumerate(rounds):
-        net.exchange(rnd)  # double-buffered: contents taken before fusing
-        if observer is not None and rnd:
-            observer(float(k), rnd, net, {})
+    for t, _, group in RoundsClock(rounds).steps():
+        net.exchange(group)  # double-buffered: contents taken before fusing
+        if observer is not None and group:
+            observer(t, group, net, {})
     fused, unclamped = net.result_maps()
     res = SimResult(
         agents,

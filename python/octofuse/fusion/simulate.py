@@ -20,6 +20,7 @@ from ..scans.source import ScanSource, prefetch
 from ..threads import ThreadBudget, budget_scope
 from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
+from .clock import SCANS, BagClock
 from .network import Network
 from .results import LOCAL, SimResult, rule_groups, score_agent, timeline_point, with_traffic
 from .robust import admitted, vote_for_run
@@ -215,12 +216,9 @@ def simulate(
             samples,
             vote_time=min(fuse_cfg.robust.time, duration) if fuse_cfg.robust.enabled else None,
         )
-        next_i = 0
         trimmed: list = []  # the replayed rays' memory given back, once
 
-        def flush(batch):
-            if not batch:
-                return
+        def scans_in(batch):
             t0 = time.perf_counter()
             # every map a scan goes into, its rays traced once (the exact modes' with open
             # clamping); the centralized maps in the common frame: scans of agents with a
@@ -255,55 +253,39 @@ def simulate(
             if progress:
                 progress(done[0], src.total_scans)
 
-        def advance(until: float) -> None:
-            """Exchanges and samples before ``until`` (a scan stamped exactly at an exchange
-            time is inserted before it)."""
-            nonlocal next_i
-            while next_i < len(timed) and timed[next_i][0] < until:
-                t, kind, group = timed[next_i]
-                if kind == VOTE:
-                    # on the agents' own maps in the common frame
-                    vote.append(
-                        submit(
-                            COMMON,
-                            lambda t=t: vote_for_run(
-                                {a: frames.to_common(a, m) for a, m in own.items()},
-                                graph,
-                                fuse_cfg,
-                                t,
-                            ),
-                        ).result()
-                    )
-                elif kind == EXCHANGE:
-                    group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
-                    if group:
-                        if frames.align != "off":  # on the maps as they are at this time
-                            lanes.wait()
-                            net.align(group)
-                        for r in rules:
-                            sampled.pop(r, None)
-                            submit(r, lambda r=r, group=group: net.exchange_rule(r, group))
-                        if observer is not None:
-                            lanes.wait()
-                            observer(t, group, net, dict(inserted))
-                else:
-                    sample(t)
-                next_i += 1
+        def exchanges_out(t, group):
+            group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
+            if not group:
+                return
+            if frames.align != "off":  # on the maps as they are at this time
+                lanes.wait()
+                net.align(group)
+            for r in rules:
+                sampled.pop(r, None)
+                submit(r, lambda r=r, group=group: net.exchange_rule(r, group))
+            if observer is not None:
+                lanes.wait()
+                observer(t, group, net, dict(inserted))
 
+        def vote_now(t):
+            def on_own_maps():  # in the common frame, once the common lane inserted its scans
+                own_maps = {a: frames.to_common(a, m) for a, m in own.items()}
+                return vote_for_run(own_maps, graph, fuse_cfg, t)
+
+            vote.append(submit(COMMON, on_own_maps).result())
+
+        # the mission: scans in, exchanges out, samples and the vote at their times
         t_run = time.perf_counter()
-        batch: list = []
-        for scan in prefetch(src.scans()):
-            t = (scan.stamp_ns - start) / 1e9
-            if next_i < len(timed) and timed[next_i][0] < t:
-                flush(batch)
-                batch = []
-                advance(t)
-            batch.append(scan)
-            if len(batch) >= build_cfg.batch_size:
-                flush(batch)
-                batch = []
-        flush(batch)
-        advance(float("inf"))
+        clock = BagClock(timed, start, build_cfg.batch_size)
+        for t, kind, what in clock.steps(prefetch(src.scans())):
+            if kind == SCANS:
+                scans_in(what)
+            elif kind == EXCHANGE:
+                exchanges_out(t, what)
+            elif kind == VOTE:
+                vote_now(t)
+            else:
+                sample(t)
         # each lane scores its final maps as soon as it is done (a lane that ends first
         # scores while the others still fuse), against the final centralized map
         ref = snapshot("final scores")
