@@ -95,10 +95,10 @@ class MapConfig(Checked):
 
     SECTION = "map"
 
-    resolution: float = 0.05
-    prob_hit: float = 0.7
-    prob_miss: float = 0.4
-    clamping: tuple[float, float] = (0.1192, 0.971)
+    resolution: float = _core.DEFAULT_MAP["resolution"]  # the core's defaults: one source
+    prob_hit: float = _core.DEFAULT_MAP["prob_hit"]
+    prob_miss: float = _core.DEFAULT_MAP["prob_miss"]
+    clamping: tuple[float, float] = (_core.DEFAULT_MAP["clamp_min"], _core.DEFAULT_MAP["clamp_max"])
 
     def validate(self, where: str) -> None:
         if not _core.MIN_RESOLUTION <= self.resolution <= _core.MAX_RESOLUTION:

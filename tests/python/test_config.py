@@ -353,6 +353,21 @@ def test_a_bad_rule_is_refused_naming_it_and_the_choices(tmp_path, capsys, route
         assert name in text, (name, text)
 
 
+def test_a_maps_defaults_are_the_cores():
+    from octofuse import OccupancyMap, _core
+    from octofuse.config import MapConfig
+
+    d, cfg = _core.DEFAULT_MAP, MapConfig()
+    assert (cfg.resolution, cfg.prob_hit, cfg.prob_miss) == (
+        d["resolution"],
+        d["prob_hit"],
+        d["prob_miss"],
+    )
+    assert cfg.clamping == (d["clamp_min"], d["clamp_max"])
+    m = OccupancyMap(cfg.resolution)
+    assert (m.prob_hit, m.prob_miss, m.clamping) == (cfg.prob_hit, cfg.prob_miss, cfg.clamping)
+
+
 def test_the_voxel_sizes_a_config_takes_are_the_cores():
     from octofuse import OccupancyMap, _core
     from octofuse.config import MapConfig, from_dict
