@@ -267,12 +267,11 @@ class FuseConfig(Checked):
     layers_max_bytes: int = 0
 
     def validate(self, where: str) -> None:
-        from .rules import UNKNOWN_POLICIES
-
         self.rules = parse_rules(self.rules, f"{where}.rules")
-        if self.unknown not in UNKNOWN_POLICIES:
+        policies = _core.UNKNOWN_POLICY_NAMES
+        if self.unknown not in policies:
             raise ValueError(
-                f"{where}.unknown = {self.unknown!r}: expected one of {', '.join(UNKNOWN_POLICIES)}"
+                f"{where}.unknown = {self.unknown!r}: expected one of {', '.join(policies)}"
             )
         if self.directions not in ("both", "one"):
             raise ValueError(f"{where}.directions = {self.directions!r}: expected both or one")
