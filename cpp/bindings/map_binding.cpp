@@ -71,6 +71,11 @@ py::dict values_depths_dict(std::vector<float> values, std::vector<std::uint8_t>
 void define_maps(py::module_& m) {
   m.attr("MIN_RESOLUTION") = kMinResolution;  // the voxel sizes a map takes: one source
   m.attr("MAX_RESOLUTION") = kMaxResolution;
+  const MapParams defaults;  // a map's default sensor model: one source
+  m.attr("DEFAULT_MAP") =
+      py::dict(py::arg("resolution") = defaults.resolution, py::arg("prob_hit") = defaults.prob_hit,
+               py::arg("prob_miss") = defaults.prob_miss, py::arg("clamp_min") = defaults.clamp_min,
+               py::arg("clamp_max") = defaults.clamp_max);
   py::register_exception<MapFileError>(m, "MapFileError", PyExc_OSError);
 
   m.def(

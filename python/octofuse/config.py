@@ -8,9 +8,9 @@ merged result; feeding it back (``--config``, or :func:`load_yaml` to the API) g
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import math
-import os
 import types
 import typing
 from dataclasses import dataclass, field
@@ -19,17 +19,39 @@ from typing import Any
 
 import yaml
 
-#: the most threads a config may ask for (the machine's cores are the useful number)
-MAX_THREADS = 256
+from . import _core
+from .rule_names import EXACT_RULES, FusionRule, parse_rules
+
+#: the most threads a config may ask for (the core's limit; the machine's cores are the
+#: useful number)
+MAX_THREADS = _core.MAX_THREADS
 
 #: exact fusion by channel filters on a tree of the graph (:mod:`octofuse.fusion.channel_filter`):
 #: a fusion mode accepted in ``FuseConfig.rules`` beside the per-voxel rules (not part of "all")
-CHANNEL_FILTER = "channel-filter"
+CHANNEL_FILTER = FusionRule.CHANNEL_FILTER
 #: exact fusion on any graph by per-source map layers (:mod:`octofuse.fusion.source_layers`):
 #: a fusion mode beside the channel filter (not part of "all")
-SOURCE_LAYERS = "source-layers"
+SOURCE_LAYERS = FusionRule.SOURCE_LAYERS
 #: the fusion modes that keep unclamped maps, lose no information and need one frame
-EXACT_MODES = (CHANNEL_FILTER, SOURCE_LAYERS)
+EXACT_MODES = EXACT_RULES
+
+#: where the section being built sits in its file (set by :func:`from_dict` while it builds)
+_WHERE: contextvars.ContextVar[str | None] = contextvars.ContextVar("where", default=None)
+
+
+class Checked:
+    """A section of the configuration, checked once when it is made: from a file or flags
+    (:func:`from_dict`, errors naming the file and key) or in Python (errors naming the
+    section). The layers that take a configuration trust it. Each section's ``validate``
+    checks its own values; its subsections were checked when they were made."""
+
+    #: the section's name in an error of a section made in Python
+    SECTION = "config"
+
+    def __post_init__(self) -> None:
+        self.validate(_WHERE.get() or self.SECTION)
+
+
 #: how the channel filter's tree is chosen on a graph with loops: a breadth-first tree from a
 #: centre of the graph, or the topology itself (which must then be a tree); or a graph file
 SPANNING_TREES = ("bfs", "given")
@@ -41,8 +63,10 @@ INSERT_MODES = ("exact", "fast")
 
 
 @dataclass
-class AgentSpec:
+class AgentSpec(Checked):
     """One robot: its scan topic and, optionally, a pose topic instead of tf."""
+
+    SECTION = "agent"
 
     name: str
     topic: str
@@ -66,17 +90,17 @@ class AgentSpec:
 
 
 @dataclass
-class MapConfig:
+class MapConfig(Checked):
     """Map parameters (OctoMap's sensor model)."""
 
-    resolution: float = 0.05
-    prob_hit: float = 0.7
-    prob_miss: float = 0.4
-    clamping: tuple[float, float] = (0.1192, 0.971)
+    SECTION = "map"
+
+    resolution: float = _core.DEFAULT_MAP["resolution"]  # the core's defaults: one source
+    prob_hit: float = _core.DEFAULT_MAP["prob_hit"]
+    prob_miss: float = _core.DEFAULT_MAP["prob_miss"]
+    clamping: tuple[float, float] = (_core.DEFAULT_MAP["clamp_min"], _core.DEFAULT_MAP["clamp_max"])
 
     def validate(self, where: str) -> None:
-        from . import _core  # the core's range of voxel sizes
-
         if not _core.MIN_RESOLUTION <= self.resolution <= _core.MAX_RESOLUTION:
             raise ValueError(
                 f"{where}.resolution = {self.resolution}: expected a voxel size "
@@ -95,8 +119,10 @@ class MapConfig:
 
 
 @dataclass
-class BuildConfig:
+class BuildConfig(Checked):
     """How scans are read from bags and turned into maps (``octofuse build``)."""
+
+    SECTION = "build"
 
     bags: list[str] = field(default_factory=list)
     #: empty: one agent per scan topic (LaserScan or PointCloud2), named after the topic
@@ -120,9 +146,6 @@ class BuildConfig:
     insert_mode: str = "exact"
 
     def validate(self, where: str) -> None:
-        self.map.validate(f"{where}.map")
-        for i, a in enumerate(self.agents):
-            a.validate(f"{where}.agents[{i}]")
         if self.no_return not in ("skip", "free"):
             raise ValueError(f"{where}.no_return = {self.no_return!r}: expected 'skip' or 'free'")
         if not self.fixed_frame.strip("/"):
@@ -144,14 +167,16 @@ class BuildConfig:
 
     @property
     def workers(self) -> int:
-        """The number of threads to use."""
-        return self.threads or os.cpu_count() or 1
+        """The number of threads to use (0: the core's count of the machine's threads)."""
+        return self.threads or _core.default_threads()
 
 
 @dataclass
-class RobustConfig:
+class RobustConfig(Checked):
     """Robust fusion: the robots measure their maps' offsets to their neighbours' maps and
     vote out a robot whose map is wrong (:mod:`octofuse.fusion.robust`)."""
+
+    SECTION = "robust"
 
     enabled: bool = False
     #: when the vote takes place, seconds after the start of the bags
@@ -179,9 +204,11 @@ class RobustConfig:
 
 
 @dataclass
-class AgentFrame:
+class AgentFrame(Checked):
     """An agent's map frame: the rigid transform taking a point of agent ``name``'s map frame
     into the common frame, as ``x, y, z`` (metres) and ``roll, pitch, yaw`` (radians)."""
+
+    SECTION = "agent_frame"
 
     name: str
     pose: list[float]
@@ -201,11 +228,14 @@ ALIGN_MODES = ("off", "planar", "full")
 
 
 @dataclass
-class FuseConfig:
+class FuseConfig(Checked):
     """How maps are exchanged and fused (``octofuse fuse`` / ``run``)."""
 
-    #: fusion rules run side by side (each on its own copy of every agent's map); "all": every rule
-    rules: list[str] = field(default_factory=lambda: ["min-info-loss"])
+    SECTION = "fuse"
+
+    #: fusion rules run side by side (each on its own copy of every agent's map); made from
+    #: names (a comma-separated text or a list; "all": every per-voxel rule)
+    rules: tuple[FusionRule, ...] = (FusionRule.MIN_INFO_LOSS,)
     topology: str = "max-robust:3"
     #: "aperiodic:MEAN_S", "periodic:PERIOD_S" (``run``) or "rounds:N" (``fuse``)
     schedule: str = "aperiodic:10"
@@ -237,27 +267,11 @@ class FuseConfig:
     layers_max_bytes: int = 0
 
     def validate(self, where: str) -> None:
-        from .rules import RULES, UNKNOWN_POLICIES
-
-        if isinstance(self.rules, str):
-            self.rules = [self.rules]
-        names: list[str] = []
-        for r in self.rules:
-            for x in str(r).split(","):
-                x = x.strip()
-                names.extend(RULES if x == "all" else [x] if x else [])
-        bad = [r for r in names if r not in RULES and r not in EXACT_MODES]
-        if bad:
+        self.rules = parse_rules(self.rules, f"{where}.rules")
+        policies = _core.UNKNOWN_POLICY_NAMES
+        if self.unknown not in policies:
             raise ValueError(
-                f"{where}.rules: unknown fusion rule {bad[0]!r}; valid rules are: "
-                f"{', '.join(RULES)} (or all), and {' and '.join(EXACT_MODES)}"
-            )
-        if not names:
-            raise ValueError(f"{where}.rules: give at least one fusion rule")
-        self.rules = list(dict.fromkeys(names))
-        if self.unknown not in UNKNOWN_POLICIES:
-            raise ValueError(
-                f"{where}.unknown = {self.unknown!r}: expected one of {', '.join(UNKNOWN_POLICIES)}"
+                f"{where}.unknown = {self.unknown!r}: expected one of {', '.join(policies)}"
             )
         if self.directions not in ("both", "one"):
             raise ValueError(f"{where}.directions = {self.directions!r}: expected both or one")
@@ -265,7 +279,6 @@ class FuseConfig:
             raise ValueError(
                 f"{where}.overconfidence_tol = {self.overconfidence_tol}: expected a number >= 0"
             )
-        self.robust.validate(f"{where}.robust")
         if self.rules_per_pass < 0:
             raise ValueError(
                 f"{where}.rules_per_pass = {self.rules_per_pass}: expected 0 or more "
@@ -296,8 +309,7 @@ class FuseConfig:
 
     def _validate_frames(self, where: str) -> None:
         seen: set[str] = set()
-        for i, f in enumerate(self.agent_frames):
-            f.validate(f"{where}.agent_frames[{i}]")
+        for f in self.agent_frames:
             if f.name in seen:
                 raise ValueError(f"{where}.agent_frames: agent '{f.name}' is given twice")
             seen.add(f.name)
@@ -324,7 +336,7 @@ class FuseConfig:
 
 
 @dataclass
-class RunConfig:
+class RunConfig(Checked):
     """The whole job: build, exchange, fuse, score, export."""
 
     build: BuildConfig = field(default_factory=BuildConfig)
@@ -343,8 +355,6 @@ class RunConfig:
     truth: str | None = None
 
     def validate(self, where: str) -> None:
-        self.build.validate(f"{where}.build")
-        self.fuse.validate(f"{where}.fuse")
         if not 0 <= self.samples <= 10_000:
             raise ValueError(f"{where}.samples = {self.samples}: expected 0 to 10000")
         if self.export not in EXPORTS:
@@ -362,9 +372,11 @@ class RunConfig:
 
 
 @dataclass
-class PartitionConfig:
+class PartitionConfig(Checked):
     """A partition of a live fleet: from ``start`` to ``end`` (seconds of mission time) the
     agents ``agents`` hear nothing from the others and the others nothing from them."""
+
+    SECTION = "partition"
 
     start: float
     end: float
@@ -381,10 +393,12 @@ class PartitionConfig:
 
 
 @dataclass
-class FaultConfig:
+class FaultConfig(Checked):
     """Faults a live fleet's links inject where messages leave an agent (seeded per agent):
     each message is lost, duplicated or held back (reordered behind the next) with these
     probabilities, and delayed by a uniform 0 to ``delay`` seconds."""
+
+    SECTION = "faults"
 
     loss: float = 0.0
     duplicate: float = 0.0
@@ -402,8 +416,6 @@ class FaultConfig:
                 )
         if not 0.0 <= self.delay <= 60.0:
             raise ValueError(f"{where}.delay = {self.delay}: expected 0 to 60 seconds")
-        for i, part in enumerate(self.partitions):
-            part.validate(f"{where}.partitions[{i}]")
 
     @property
     def any(self) -> bool:
@@ -411,9 +423,11 @@ class FaultConfig:
 
 
 @dataclass
-class LiveConfig:
+class LiveConfig(Checked):
     """A live fleet: one ``octofuse agent`` process per robot and rule, exchanging over Zenoh
     (:mod:`octofuse.live`)."""
+
+    SECTION = "live"
 
     #: the fleet's name: its Zenoh keys are under ``octofuse/<fleet>/``
     fleet: str = "octofuse"
@@ -481,7 +495,6 @@ class LiveConfig:
             )
         if not 0 <= self.settle_rounds <= 1000:
             raise ValueError(f"{where}.settle_rounds = {self.settle_rounds}: expected 0 to 1000")
-        self.faults.validate(f"{where}.faults")
         if self.lockstep and self.faults.any:
             raise ValueError(
                 f"{where}: lockstep waits for every message of the schedule, which "
@@ -512,7 +525,6 @@ class FleetConfig(RunConfig):
 
     def validate(self, where: str) -> None:
         super().validate(where)
-        self.live.validate(f"{where}.live")
         if self.fuse.robust.enabled:
             raise ValueError(
                 f"{where}.fuse.robust: a live fleet has no place where every "
@@ -538,20 +550,18 @@ def _plain(x):
         return {k: _plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [_plain(v) for v in x]
-    if isinstance(x, Path):
+    if isinstance(x, (Path, str)):  # a rule's name as plain text
         return str(x)
     return x
 
 
 def from_dict(cls, data: Any, where: str = "config"):
-    """Build and validate a config dataclass from plain data.
+    """Build a config dataclass from plain data, each section checked as it is made.
 
     Unknown keys, values of the wrong type and values out of range raise ``ValueError``
     naming ``where`` and the key.
     """
-    obj = _build(cls, data, where)
-    obj.validate(where)
-    return obj
+    return _build(cls, data, where)
 
 
 def _build(cls, data: Any, where: str):
@@ -575,9 +585,12 @@ def _build(cls, data: Any, where: str):
     if missing:
         raise ValueError(f"{where}: missing key(s) {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
-    return cls(
-        **{name: _convert(hints[name], value, f"{where}.{name}") for name, value in data.items()}
-    )
+    values = {name: _convert(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    token = _WHERE.set(where)
+    try:
+        return cls(**values)
+    finally:
+        _WHERE.reset(token)
 
 
 def _convert(tp, value: Any, where: str):
@@ -589,6 +602,8 @@ def _convert(tp, value: Any, where: str):
         return _convert(next(a for a in args if a is not type(None)), value, where)
     if dataclasses.is_dataclass(tp):
         return _build(tp, value, where)
+    if tp == tuple[FusionRule, ...]:
+        return parse_rules(value, where)
     if origin is list:
         if tp == list[str] and isinstance(value, str):  # one item
             value = [value]

@@ -10,11 +10,15 @@ from collections import deque
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import Future
 
+from .threads import ThreadBudget, budget_of
+
 
 class Lanes:
     """Tasks per lane, in order; the ready task given first is run first (a lane that fell
-    behind catches up). A task may also wait for tasks of other lanes (``after``). With one
-    thread every task runs at once, on the caller's thread.
+    behind catches up). A task may also wait for tasks of other lanes (``after``). A task
+    runs holding a slot of the budget ``threads`` (:class:`~octofuse.threads.ThreadBudget`,
+    or a budget of that many threads): as many lanes run at once as the budget has free. With
+    one thread every task runs at once, on the caller's thread.
 
     ``backlog`` bounds the tasks a lane holds: :meth:`submit` waits while its lane has that
     many. The first task to fail stops the others (queued tasks are dropped) and its error is
@@ -22,7 +26,8 @@ class Lanes:
     the running tasks end and the threads stop (the queued ones are dropped if leaving on an
     error)."""
 
-    def __init__(self, threads: int, backlog: int = 8):
+    def __init__(self, threads: int | ThreadBudget, backlog: int = 8):
+        self.budget = budget_of(threads)
         self.backlog = max(1, backlog)
         self._cond = threading.Condition()
         self._queues: dict[Hashable, deque] = {}
@@ -33,7 +38,7 @@ class Lanes:
         self._closing = False
         self._threads = [
             threading.Thread(target=self._work, name=f"octofuse-lane-{k}", daemon=True)
-            for k in range(threads if threads > 1 else 0)
+            for k in range(self.budget.threads if self.budget.threads > 1 else 0)
         ]
         for t in self._threads:
             t.start()
@@ -46,7 +51,8 @@ class Lanes:
         if not self._threads:
             self._raise()
             try:
-                fut.set_result(fn())
+                with self.budget.working():
+                    fut.set_result(fn())
             except BaseException as e:
                 self._error = e
                 raise
@@ -117,7 +123,9 @@ class Lanes:
                 self._busy.add(lane)
                 self._cond.notify_all()  # room in the lane for a caller held back
             try:
-                fut.set_result(fn())
+                with self.budget.working():
+                    result = fn()
+                fut.set_result(result)
                 failed = None
             except BaseException as e:  # handed to the caller, never lost on this thread
                 fut.set_exception(e)

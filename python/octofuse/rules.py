@@ -7,12 +7,13 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _core
+from .rule_names import CORE_RULES, FusionRule
 
-#: Names of the fusion rules, in the order of the C++ core's ``Rule`` enum (the one source).
-RULES: tuple[str, ...] = tuple(_core.RULE_NAMES)
+#: The per-voxel fusion rules, in the order of the C++ core's ``Rule`` enum (the one source).
+RULES: tuple[FusionRule, ...] = CORE_RULES
 
 #: The weighted exponential product (WEP) rules, i.e. every rule but naive Bayes.
-WEP_RULES: tuple[str, ...] = tuple(r for r in RULES if r != "naive-bayes")
+WEP_RULES: tuple[FusionRule, ...] = tuple(r for r in RULES if r != FusionRule.NAIVE_BAYES)
 
 
 class BernoulliFusion(NamedTuple):
@@ -38,9 +39,13 @@ Rule = _core.Rule
 UnknownPolicy = _core.UnknownPolicy
 
 
-def parse_rule(rule: str | Rule) -> Rule:
-    """The core's :class:`Rule` for a rule name; ``ValueError`` listing the valid names."""
-    return rule if isinstance(rule, Rule) else _core.rule_from_name(str(rule))
+def parse_rule(rule: str | FusionRule | Rule) -> Rule:
+    """The core's :class:`Rule` for a rule name (a per-voxel :class:`FusionRule` hands its
+    own); ``ValueError`` listing the valid names."""
+    if isinstance(rule, Rule):
+        return rule
+    core = rule.core if isinstance(rule, FusionRule) else None
+    return core if core is not None else _core.rule_from_name(str(rule))
 
 
 def parse_unknown(policy: str | UnknownPolicy) -> UnknownPolicy:

@@ -58,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
+from ..rule_names import FusionRule
 from .base import check_weight
 from .mixture_algebra import (
     M,
@@ -72,7 +73,7 @@ from .mixture_algebra import (
 from .mixture_omega import OMEGA_RULES, WepCosts, choose_omega
 from .mixture_reduction import runnalls_reduce, weighted_em
 
-MIXTURE_RULES = ("naive-bayes",) + OMEGA_RULES
+MIXTURE_RULES = (FusionRule.NAIVE_BAYES, *OMEGA_RULES)
 MIXTURE_METHODS = ("moment-match", "em", "foci")
 DEFENSIVE_SHARE = 0.1  # weight of each side's own mixture in the omega-search density
 PROPOSAL_INFLATION = 2.0  # moment matching samples each pair from its FOCI term, covariance x 2

@@ -22,8 +22,16 @@ import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 from scipy.special import logsumexp, softmax
 
+from ..rule_names import FusionRule
+
 #: Rules that choose a weight; ``naive-bayes`` is the un-weighted product and has none.
-OMEGA_RULES = ("bhattacharyya", "chernoff", "kld-weighted-chernoff", "min-info-loss", "min-entropy")
+OMEGA_RULES = (
+    FusionRule.BHATTACHARYYA,
+    FusionRule.CHERNOFF,
+    FusionRule.KLD_WEIGHTED_CHERNOFF,
+    FusionRule.MIN_INFO_LOSS,
+    FusionRule.MIN_ENTROPY,
+)
 
 _FLAT = 1e-10  # |D| spread below which both densities are equal and every w gives the same p_w
 

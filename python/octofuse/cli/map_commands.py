@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
+from ..config import FuseConfig
 from ..maps.registration import MAX_CONFLICT, MIN_FITNESS
+from ..rule_names import CORE_RULES, FusionRule
 from .options import (
     Progress,
     bag_arguments,
@@ -21,6 +23,9 @@ from .options import (
     run_config,
     say,
 )
+
+#: what ``fuse-maps --rule`` takes: a per-voxel rule of the core
+RULE_NAMES = tuple(str(r) for r in CORE_RULES)
 
 
 @cli.command()
@@ -85,7 +90,13 @@ def info(maps):
 
 @cli.command("fuse-maps")
 @click.argument("maps", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--rule", default="min-info-loss", help="fusion rule")
+@click.option(
+    "--rule",
+    type=click.Choice(RULE_NAMES),
+    default=str(FuseConfig.rules[0]),
+    metavar="RULE",
+    help=f"per-voxel fusion rule: {', '.join(RULE_NAMES)}",
+)
 @click.option(
     "--unknown",
     type=click.Choice(["copy", "prior"]),
@@ -123,9 +134,7 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
     """Fuse map files (A.ot B.ot ... -> OUT.ot), each in its own frame and resolution."""
     from ..maps.frames import fuse_map_files, parse_frame
     from ..outputs.staging import staged_file
-    from ..rules import parse_rule
 
-    parse_rule(rule)
     if out.suffix not in (".ot", ".bt"):
         raise click.BadParameter(f"'{out}': expected a .ot or .bt file name", param_hint="--out")
     if len(maps) < 2:
@@ -139,7 +148,7 @@ def fuse_maps_cmd(maps, rule, unknown, frame, resolution, strict, export_bag, ou
     try:
         fused, _, stats = fuse_map_files(
             list(maps),
-            rule=rule,
+            rule=FusionRule(rule),
             unknown=unknown,
             frames=frames or None,
             resolution=resolution,

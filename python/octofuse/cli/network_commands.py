@@ -10,12 +10,15 @@ from pathlib import Path
 import click
 
 from ..config import RunConfig
+from ..threads import ThreadBudget
 from .options import (
     _DEFAULT,
+    THREADS,
     CliError,
     ListOption,
     NameList,
     Progress,
+    RuleList,
     _options,
     bag_arguments,
     build_options,
@@ -26,7 +29,6 @@ from .options import (
     exchange_options,
     export_options,
     frame_options,
-    map_rule_names,
     need_bags,
     need_out,
     out_option,
@@ -89,7 +91,7 @@ def _run_and_report(
             lambda agents: _export_agents(cfg.export_agents, agents),
             **(bag_options or {}),
         )
-    with _staged_with_bag(out, command, bag) as stage:
+    with ThreadBudget(cfg.build.threads) as budget, _staged_with_bag(out, command, bag) as stage:
         with contextlib.ExitStack() as stack:
             bar = stack.enter_context(Progress(f"mapping + fusing ({len(cfg.fuse.rules)} rule(s))"))
             bar = import_once_under_way(bar)  # the inputs checked: an exit waits for imports
@@ -110,6 +112,7 @@ def _run_and_report(
                         source=src,
                         observer=bag,
                         keep_loss_leaves=True,
+                        budget=budget,
                     )
                 )
             else:
@@ -120,9 +123,14 @@ def _run_and_report(
                     truth=truth,
                     progress=bar,
                     keep_loss_leaves=True,
+                    budget=budget,
                 )
             res, written = write_rule_groups(
-                passes, stage, cfg, lambda agents: _export_agents(cfg.export_agents, agents)
+                passes,
+                stage,
+                cfg,
+                lambda agents: _export_agents(cfg.export_agents, agents),
+                budget,
             )
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     screen = console()
@@ -141,29 +149,34 @@ def _say_alignment(res) -> None:
         say(line)
 
 
-def write_rule_groups(results, stage: Path, cfg: RunConfig, export_agents):
+def write_rule_groups(
+    results, stage: Path, cfg: RunConfig, export_agents, budget: ThreadBudget | None = None
+):
     """The results of a run's groups of rules merged into one, each group's maps written into
     ``stage`` as it arrives and then freed (only what comes after is kept: heat maps' voxels,
     histogram values); the merged result and the :class:`MapExports` that wrote them.
-    ``export_agents(agents)``: the agents whose maps are written."""
+    ``export_agents(agents)``: the agents whose maps are written; ``budget``: the run's
+    :class:`~octofuse.threads.ThreadBudget` (default: the configuration's threads)."""
     from ..fusion.results import merge_rule_results, without_maps
     from ..memory import return_freed_memory
     from ..outputs.map_exports import MapExports
     from ..threads import thread_map
 
+    threads = budget or cfg.build.threads
+
     written, parts = None, []
     for part in results:
         if written is None:
             written = MapExports(
-                stage, cfg, cfg.fuse.rules, export_agents(part.agents), threads=cfg.build.workers
+                stage, cfg, cfg.fuse.rules, export_agents(part.agents), threads=threads
             )
         written.add(part)
         # the rules' maps freed on every thread: the next rules' maps reuse their memory; the
         # losses a map carries go with it, its loss map is freed next
         rule_maps = [m for per in (*part.fused.values(), part.unclamped) for m in per.values()]
-        thread_map(lambda m: m.clear(keep_loss=False), rule_maps, cfg.build.workers)
+        thread_map(lambda m: m.clear(keep_loss=False), rule_maps, threads)
         loss_maps = [m for per in part.loss.values() for m in per.values()]
-        thread_map(lambda m: m.clear(), loss_maps, cfg.build.workers)
+        thread_map(lambda m: m.clear(), loss_maps, threads)
         parts.append(without_maps(part))
         del part, rule_maps, loss_maps
         return_freed_memory()
@@ -318,12 +331,12 @@ def bundled_dataset() -> Path:
     "rule",
     multiple=True,
     cls=ListOption,
-    type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
+    type=RuleList(),
     help="rules, comma separated",
     show_default="all,channel-filter,source-layers",
 )
 @click.option("--every", type=click.IntRange(min=1), help="use every N-th scan", show_default="1")
-@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@click.option("--threads", type=THREADS, help="0: one per core", show_default="0")
 @export_options
 @export_bag_option
 @passes_option(DEMO_RULES_PER_PASS)
@@ -383,7 +396,7 @@ def demo(export_bag, **p):
 @click.option(
     "--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON"
 )
-@click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@click.option("--threads", type=THREADS, help="0: one per core", show_default="0")
 @frame_options
 @export_options
 @export_bag_option
@@ -424,18 +437,18 @@ def fuse_cmd(maps_dir, rounds, export_bag, **p):
         if export_bag is not None
         else None
     )
-    with _staged_with_bag(out, "fuse", bag) as stage:
+    with ThreadBudget(cfg.build.threads) as budget, _staged_with_bag(out, "fuse", bag) as stage:
         if bag is not None:  # every rule in one group, the bag written round by round
             groups = _one_group(
                 lambda: fuse_finished(
-                    maps, central, cfg.fuse, truth=truth, threads=cfg.build.workers, observer=bag
+                    maps, central, cfg.fuse, truth=truth, threads=budget, observer=bag
                 )
             )
         else:  # a few rules at a time: their maps written, then freed before the next
             groups = fuse_finished_in_rule_groups(
-                maps, central, cfg.fuse, truth=truth, threads=cfg.build.workers
+                maps, central, cfg.fuse, truth=truth, threads=budget
             )
-        res, written = write_rule_groups(groups, stage, cfg, every)
+        res, written = write_rule_groups(groups, stage, cfg, every, budget)
         write_outputs(res, stage, cfg, title=title, event_bag=bag, maps=written)
     _say_alignment(res)
     say(

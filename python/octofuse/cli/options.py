@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from ..config import INSERT_MODES, RunConfig
+from ..config import INSERT_MODES, MAX_THREADS, RunConfig
 from ..interrupts import raise_if_interrupted
 
 _DEFAULT = RunConfig()
@@ -97,12 +97,23 @@ class ListOption(click.Option):
         return first, f"{text}  [one or more of: {', '.join(self.type.choices())}]"
 
 
-def map_rule_names() -> tuple[str, ...]:
-    """What ``--rule`` of the map commands takes: every rule, 'all', the exact modes."""
-    from ..config import EXACT_MODES
-    from ..rules import RULES
+class RuleList(NameList):
+    """``--rule`` of the map commands: fusion rules parsed into
+    :class:`~octofuse.rule_names.FusionRule` members (every rule, 'all', the exact modes)."""
 
-    return (*RULES, "all", *EXACT_MODES)
+    def __init__(self):
+        from ..rule_names import rule_choices
+
+        super().__init__(rule_choices, what="RULE", metavar="R[,...]")
+
+    def convert(self, value, param, ctx):
+        from ..rule_names import parse_rules
+
+        return parse_rules(super().convert(value, param, ctx))
+
+
+#: ``--threads``: the core's range, 0 for one per core
+THREADS = click.IntRange(0, MAX_THREADS)
 
 
 def flat(lists) -> list:
@@ -167,7 +178,7 @@ build_options = _options(
     ),
     click.option(
         "--threads",
-        type=click.IntRange(0, 256),
+        type=THREADS,
         help="threads for ray casting, fusion and scoring; 0: one per core",
         show_default="0",
     ),
@@ -185,7 +196,7 @@ rule_option = click.option(
     "rule",
     multiple=True,
     cls=ListOption,
-    type=NameList(map_rule_names, what="RULE", metavar="R[,...]"),
+    type=RuleList(),
     help="fusion rule(s), comma separated, or 'all'",
     show_default=",".join(_DEFAULT.fuse.rules),
 )

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..config import CHANNEL_FILTER, EXACT_MODES, SOURCE_LAYERS
+from ..config import CHANNEL_FILTER, SOURCE_LAYERS
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import exchange_maps, fuse_into, subtract_into
+from ..rule_names import FusionRule
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .link import Link
 from .source_layers import Change, LayeredPayload, Layers
@@ -87,14 +88,18 @@ class Agent:
     """Agent ``name``'s map under ``rule``, fused in place, and its links by neighbour.
     ``layers_max_bytes``: source layers' memory budget (0: unlimited)."""
 
-    def __init__(self, name: str, rule: str, map: OccupancyMap, layers_max_bytes: int = 0):
-        self.name, self.rule, self.map = name, rule, map
-        self.exact = rule in EXACT_MODES
+    def __init__(
+        self, name: str, rule: FusionRule | str, map: OccupancyMap, layers_max_bytes: int = 0
+    ):
+        self.name, self.rule, self.map = name, FusionRule(rule), map
+        #: the core's per-voxel rule the agent fuses with (None for the exact modes)
+        self.core_rule = self.rule.core
+        self.exact = self.rule.exact
         if self.exact:
             open_map(map)  # clamping breaks the additivity exact fusion needs
         #: source layers: the layers (the own one: the map given), ``map`` their sum
         self.layers: Layers | None = None
-        if rule == SOURCE_LAYERS:
+        if self.rule == SOURCE_LAYERS:
             self.map = unclamped_copy(map)
             self.layers = Layers(name, map, self.map, layers_max_bytes)
         self.links: dict[str, Link] = {}
@@ -203,7 +208,12 @@ class Agent:
             self.apply_contribution(msg.sender, payload, msg.delta)
         else:
             fuse_into(
-                self.map, payload, rule=self.rule, unknown=unknown, loss=self.loss, threads=threads
+                self.map,
+                payload,
+                rule=self.core_rule,
+                unknown=unknown,
+                loss=self.loss,
+                threads=threads,
             )
         return True
 
@@ -273,7 +283,7 @@ class Agent:
         return exchange_maps(
             self.map,
             other.map,
-            rule=self.rule,
+            rule=self.core_rule,
             unknown=unknown,
             loss_a=self.loss,
             loss_b=other.loss,

@@ -57,6 +57,7 @@ from collections import deque
 from ..config import CHANNEL_FILTER
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import fuse_into, subtract_into
+from ..rules import Rule, UnknownPolicy
 from .graph import Graph, make_graph
 
 __all__ = [
@@ -102,7 +103,7 @@ def negated(m: OccupancyMap) -> OccupancyMap:
 def add_into(dst: OccupancyMap, src: OccupancyMap) -> None:
     """``dst += src`` voxel by voxel (naive-Bayes fusion: l_dst + l_src - l_0 with l_0 = 0;
     a voxel ``dst`` does not know gets ``src``'s value). ``dst`` must have open clamping."""
-    fuse_into(dst, src, rule="naive-bayes", unknown="copy")
+    fuse_into(dst, src, rule=Rule.NAIVE_BAYES, unknown=UnknownPolicy.COPY)
 
 
 # -- the tree -------------------------------------------------------------------------------

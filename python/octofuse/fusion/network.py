@@ -6,12 +6,12 @@ import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 from ..config import CHANNEL_FILTER, EXACT_MODES, FuseConfig
 from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
-from ..threads import thread_map
+from ..rules import parse_unknown
+from ..threads import ThreadBudget, budget_of
 from .agent import Agent
 from .agent_frames import AgentFrames
 from .results import FusionEvent, Traffic, rule_time_part
@@ -25,7 +25,8 @@ def message_bytes(m: OccupancyMap) -> int:
 
 class Network:
     """Per rule, every robot's :class:`~.agent.Agent`, driven through groups of simultaneous
-    messages on one process's threads, with their traffic and timings."""
+    messages on the threads of a :class:`~octofuse.threads.ThreadBudget` (or a budget of
+    ``threads``), with their traffic and timings."""
 
     def __init__(
         self,
@@ -33,11 +34,12 @@ class Network:
         rules,
         fcfg: FuseConfig,
         make_map: Callable[[], OccupancyMap],
-        threads: int,
+        threads: int | ThreadBudget,
         tree: Sequence[tuple[int, int]] | None = None,
         frames: AgentFrames | None = None,
     ):
         self.agents, self.rules, self.cfg = agents, rules, fcfg
+        self.unknown = parse_unknown(fcfg.unknown)  # the core's policy, parsed once
         self.frames = frames or AgentFrames(agents)
         if CHANNEL_FILTER in rules and tree is None:
             raise ValueError("the channel filter needs the links of a tree")
@@ -50,9 +52,10 @@ class Network:
         #: parts), added to through :meth:`add_time` while the run goes
         self.timings: dict[str, float] = defaultdict(float)
         self._clock = threading.Lock()
-        self.threads = threads
-        self.pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
-        self.fuse_threads = max(1, threads // max(1, len(rules)))  # threads of one fuse_into
+        self.budget = budget_of(threads)
+        self._owns_budget = self.budget is not threads
+        # the threads of one fusion: a share of the budget, so that the rules run side by side
+        self.fuse_threads = max(1, self.budget.threads // max(1, len(rules)))
         self._rule_seconds: dict[str, float] = defaultdict(float)  # each rule's last exchange
 
     def _start(self, maps: dict[str, dict[str, OccupancyMap]]) -> None:
@@ -71,21 +74,21 @@ class Network:
     def result_maps(self) -> tuple[dict[str, dict[str, OccupancyMap]], dict[str, OccupancyMap]]:
         """The agents' maps per rule as scored and written (:meth:`scored_maps`), and the
         channel filter's unclamped maps."""
-        return {r: self.scored_maps(r, self.threads) for r in self.rules}, self.unclamped_maps()
+        return {r: self.scored_maps(r) for r in self.rules}, self.unclamped_maps()
 
     def unclamped_maps(self) -> dict[str, OccupancyMap]:
         """The channel filter's maps as fused (unclamped), or none without it."""
         return dict(self.fused.get(CHANNEL_FILTER, {}))
 
-    def scored_maps(self, rule: str, threads: int = 1) -> dict[str, OccupancyMap]:
+    def scored_maps(self, rule: str) -> dict[str, OccupancyMap]:
         """The agents' maps of ``rule`` as scored and written: the maps themselves, or the
-        exact modes' clamped copies (made on ``threads`` threads)."""
+        exact modes' clamped copies (made on the budget's threads)."""
         if rule not in EXACT_MODES:
             return self.fused[rule]
         from .channel_filter import clamped
 
         exact = self.fused[rule]
-        return dict(zip(exact, thread_map(clamped, exact.values(), threads)))
+        return dict(zip(exact, self.budget.map(clamped, exact.values())))
 
     def memory(self) -> dict[str, dict[str, dict[str, int]]]:
         """Per rule and agent: bytes of the map and of the per-link state (each map measured
@@ -95,7 +98,7 @@ class Network:
             (r, a): (n.map, n.held_maps()) for r, per in self.nodes.items() for a, n in per.items()
         }
         maps = list({id(m): m for own, links in held.values() for m in (own, *links)}.values())
-        size = dict(zip(map(id, maps), thread_map(lambda m: m.memory_bytes, maps, self.threads)))
+        size = dict(zip(map(id, maps), self.budget.map(lambda m: m.memory_bytes, maps)))
         out = {
             r: {
                 a: {
@@ -116,14 +119,10 @@ class Network:
         """Deliver simultaneous messages, first in, first out; the rules run in parallel."""
         t0 = time.perf_counter()
         self.align(group)
-        if self.pool is None or len(self.rules) == 1:
-            for r in self.rules:
-                self.exchange_rule(r, group)
-        else:
-            # the slowest rules first (as they were in the last group): the threads finish
-            # the group together
-            order = sorted(self.rules, key=lambda r: -self._rule_seconds[r])
-            list(self.pool.map(lambda r: self.exchange_rule(r, group), order))
+        # the slowest rules first (as they were in the last group): the threads finish the
+        # group together
+        order = sorted(self.rules, key=lambda r: -self._rule_seconds[r])
+        self.budget.map(lambda r: self.exchange_rule(r, group), order)
         self.add_time("exchange + fusion (wall)", t0)
 
     def align(self, group: Sequence[Exchange]) -> None:
@@ -150,9 +149,8 @@ class Network:
         return seconds
 
     def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown()
-            self.pool = None
+        if self._owns_budget:
+            self.budget.close()
 
     def _count(
         self,
@@ -212,7 +210,8 @@ class Network:
             d = nodes[msg.receiver]
             moved = self.frames.to_receiver(msg.sender, d.name, msg.payload, d.map.resolution)
             before = None if exact else _loss_totals(d.loss)
-            d.deliver(msg, unknown=cfg.unknown, threads=self.fuse_threads, moved=moved)
+            with self.budget.core(self.fuse_threads) as threads:
+                d.deliver(msg, unknown=self.unknown, threads=threads, moved=moved)
             self.add_time("fusion", t1)
             self._record(r, e, d, before)
 
@@ -225,7 +224,7 @@ class Network:
         if r in EXACT_MODES or self.cfg.delta:
             self._exchange_composed(r, group)
             return
-        nodes, maps, cfg = self.nodes[r], self.fused[r], self.cfg
+        nodes, maps = self.nodes[r], self.fused[r]
         ev_names = [(self.agents[e.sender], self.agents[e.receiver]) for e in group]
         sends_left: dict[str, int] = defaultdict(int)
         for s, _ in ev_names:
@@ -260,7 +259,7 @@ class Network:
                 t1 = time.perf_counter()
                 before = _loss_totals(nodes[d].loss), _loss_totals(nodes[s].loss)
                 # the walk counts the leaves each map had: the two messages' voxels
-                n_d, n_s = nodes[d].exchange_with(nodes[s], unknown=cfg.unknown)
+                n_d, n_s = nodes[d].exchange_with(nodes[s], unknown=self.unknown)
                 self.add_time("fusion", t1)
                 self._count_sizes(r, s, d, sizes[0], n_s)
                 self._count_sizes(r, d, s, sizes[1], n_d)
@@ -299,7 +298,8 @@ class Network:
             self.add_time("exchange", t0)
             t1 = time.perf_counter()
             before = _loss_totals(nodes[d].loss)
-            nodes[d].deliver(msg, unknown=cfg.unknown, threads=self.fuse_threads, moved=moved)
+            with self.budget.core(self.fuse_threads) as threads:
+                nodes[d].deliver(msg, unknown=self.unknown, threads=threads, moved=moved)
             self.add_time("fusion", t1)
             self._record(r, group[k], nodes[d], before)
             modified.add(d)

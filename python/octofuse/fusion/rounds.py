@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Callable, Iterator
 
 from ..config import CHANNEL_FILTER, FuseConfig
 from ..maps.occupancy import OccupancyMap
+from ..threads import ThreadBudget, budget_scope
 from .agent_frames import AgentFrames
+from .clock import RoundsClock
 from .graph import make_graph
 from .network import Network
 from .results import SimResult, rule_groups, score_result
@@ -23,13 +24,14 @@ def fuse_finished(
     fuse_cfg: FuseConfig,
     *,
     truth=None,
-    threads: int = 0,
+    threads: int | ThreadBudget = 0,
     score_local: bool = True,
     observer: Callable[[float, list, Network, dict], None] | None = None,
 ) -> SimResult:
     """Fuse finished maps over the graph for the rounds of ``fuse_cfg.schedule``
     (``rounds:N``): in a round every agent receives each neighbour's map as it was at the
-    start of the round. ``threads``: 0 for one per core. ``fuse_cfg.loss`` drops messages
+    start of the round. ``threads``: a :class:`~octofuse.threads.ThreadBudget`, or its
+    number of threads (0: one per core). ``fuse_cfg.loss`` drops messages
     (the same for every rule); the ``channel-filter`` runs on the links of
     ``fuse_cfg.spanning_tree`` and treats each finished map as its agent's own information.
 
@@ -39,15 +41,19 @@ def fuse_finished(
     score the agents' own maps too (the floor). ``observer(t, round, network, {})``, if
     given, is called after every round, ``t`` its index (the rounds' ``time_s``), as
     :func:`~octofuse.fusion.simulate.simulate` calls it after a group of exchanges."""
-    fuse_cfg.validate("fuse")
-    rules = fuse_cfg.rules
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind != "rounds":
         raise ValueError(
             f"schedule {fuse_cfg.schedule!r}: finished maps are fused in rounds "
             "(rounds:N); aperiodic and periodic schedules need the bags (`run`)"
         )
-    threads = threads or os.cpu_count() or 1
+    with budget_scope(threads) as budget:
+        return _fuse_rounds(maps, central, fuse_cfg, spec, truth, budget, score_local, observer)
+
+
+def _fuse_rounds(maps, central, fuse_cfg, spec, truth, budget, score_local, observer):
+    """:func:`fuse_finished` on ``budget``, its schedule ``spec`` parsed."""
+    rules = list(fuse_cfg.rules)
     agents = list(maps)
     if len(agents) < 2:
         raise ValueError(f"fusion needs at least 2 agent maps, got {len(agents)}")
@@ -71,17 +77,16 @@ def fuse_finished(
         rules,
         fuse_cfg,
         lambda: OccupancyMap(first.resolution),
-        threads,
+        budget,
         tree=tree,
         frames=frames,
     )
     net.start_from(maps)  # fused in place
     t_all = time.perf_counter()
-    for k, rnd in enumerate(rounds):
-        net.exchange(rnd)  # double-buffered: contents taken before fusing
-        if observer is not None and rnd:
-            observer(float(k), rnd, net, {})
-    net.close()
+    for t, _, group in RoundsClock(rounds).steps():
+        net.exchange(group)  # double-buffered: contents taken before fusing
+        if observer is not None and group:
+            observer(t, group, net, {})
     fused, unclamped = net.result_maps()
     res = SimResult(
         agents,
@@ -104,7 +109,7 @@ def fuse_finished(
     if central is not None:
         t0 = time.perf_counter()
         res.scores = score_result(
-            res, fuse_cfg.overconfidence_tol, truth, threads, local=score_local
+            res, fuse_cfg.overconfidence_tol, truth, budget, local=score_local
         )
         res.timings["scoring (wall)"] = time.perf_counter() - t0
     res.timings["total"] = time.perf_counter() - t_all
@@ -117,20 +122,20 @@ def fuse_finished_in_rule_groups(
     fuse_cfg: FuseConfig,
     *,
     truth=None,
-    threads: int = 0,
+    threads: int | ThreadBudget = 0,
 ) -> Iterator[SimResult]:
     """:func:`fuse_finished` a few rules at a time (one per thread, side by side), so that a
     caller can write those rules' maps and free them before the next ones run: the rules' maps
     never meet, so every rule's result is the one of the run with all rules. The agents' own
     maps are scored with the first rules. With alignment on first contact (``fuse_cfg.align``)
     every rule runs in one group (:func:`~octofuse.fusion.results.rule_groups`)."""
-    threads = threads or os.cpu_count() or 1
-    for k, group in enumerate(rule_groups(fuse_cfg, threads)):
-        yield fuse_finished(
-            maps,
-            central,
-            dataclasses.replace(fuse_cfg, rules=group),
-            truth=truth,
-            threads=threads,
-            score_local=k == 0,
-        )
+    with budget_scope(threads) as budget:
+        for k, group in enumerate(rule_groups(fuse_cfg, budget.threads)):
+            yield fuse_finished(
+                maps,
+                central,
+                dataclasses.replace(fuse_cfg, rules=group),
+                truth=truth,
+                threads=budget,
+                score_local=k == 0,
+            )

@@ -17,8 +17,10 @@ from ..maps.ray_replay import RayReplay
 from ..memory import return_freed_memory
 from ..scans.replay import ScanReplay
 from ..scans.source import ScanSource, prefetch
+from ..threads import ThreadBudget, budget_scope
 from .agent_frames import AgentFrames
 from .central_replay import CentralReplay
+from .clock import SCANS, BagClock
 from .network import Network
 from .results import LOCAL, SimResult, rule_groups, score_agent, timeline_point, with_traffic
 from .robust import admitted, vote_for_run
@@ -46,14 +48,15 @@ def simulate(
     rays: RayReplay | None = None,
     central_replay: CentralReplay | None = None,
     keep_loss_leaves: bool = False,
+    budget: ThreadBudget | None = None,
 ) -> SimResult:
     """Run the network in time: every agent maps its own scans in time order and, at each
     communication event, fuses the received map into its own (first in, first out), then
     keeps mapping on the fused map. All rules (and the local-only and centralized maps) run
     in one pass over the scans: each scan's rays are cast once and applied to every map.
-    Each rule's maps are a lane of their own on ``build_cfg.workers`` threads
-    (:mod:`octofuse.lanes`), so that no rule waits for the others at every exchange; the
-    result is that of one thread.
+    Each rule's maps are a lane of their own (:mod:`octofuse.lanes`), so that no rule waits
+    for the others at every exchange; lanes, ray tracing and fusion share ``budget`` (by
+    default one of ``build_cfg.threads``); the result is that of one thread.
 
     ``fuse_cfg.schedule`` is ``aperiodic:MEAN_S`` or ``periodic:PERIOD_S`` over the bags'
     duration. The result holds the final maps, accumulated losses, traffic, a timeline of
@@ -72,9 +75,8 @@ def simulate(
     as the final scores read them (:meth:`SimResult.loss_leaves_of`, for a loss histogram; 5
     bytes a leaf), instead of letting them go once scored.
     """
-    fuse_cfg.validate("fuse")
     check_samples(samples)
-    rules = fuse_cfg.rules
+    rules = list(fuse_cfg.rules)
     spec = parse_schedule(fuse_cfg.schedule)
     if fuse_cfg.robust.enabled and not local:
         raise ValueError("robust fusion votes on the agents' own maps: simulate them (local=True)")
@@ -85,7 +87,11 @@ def simulate(
         )
     t_all = time.perf_counter()
     trace = rays.next_pass() if rays is not None else trace_scans
-    with _opened(source, build_cfg) as src, Lanes(build_cfg.workers) as lanes:
+    with (
+        _opened(source, build_cfg) as src,
+        budget_scope(budget or build_cfg.threads) as budget,
+        Lanes(budget) as lanes,
+    ):
         done = [0]
         agents = [a.name for a in src.agents]
         start = src.bags.start_ns
@@ -101,7 +107,7 @@ def simulate(
 
             exact = open_map(mk())  # the centralized map without clamping
         frames = AgentFrames.from_config(agents, fuse_cfg)
-        net = Network(agents, rules, fuse_cfg, mk, build_cfg.workers, tree=tree, frames=frames)
+        net = Network(agents, rules, fuse_cfg, mk, budget, tree=tree, frames=frames)
         own = {a: mk() for a in agents} if local else {}
         replayed = central_replay is not None and central_replay.replaying
         central = central_replay.map if replayed else mk()
@@ -210,12 +216,9 @@ def simulate(
             samples,
             vote_time=min(fuse_cfg.robust.time, duration) if fuse_cfg.robust.enabled else None,
         )
-        next_i = 0
         trimmed: list = []  # the replayed rays' memory given back, once
 
-        def flush(batch):
-            if not batch:
-                return
+        def scans_in(batch):
             t0 = time.perf_counter()
             # every map a scan goes into, its rays traced once (the exact modes' with open
             # clamping); the centralized maps in the common frame: scans of agents with a
@@ -227,7 +230,8 @@ def simulate(
             ]
             scans, per_scan = frames.scan_targets(batch, targets, common)
             # its grid only, not its nodes
-            traced = trace(scans, central, build_cfg.workers, build_cfg.insert_mode)
+            with budget.core() as threads:
+                traced = trace(scans, central, threads, build_cfg.insert_mode)
             net.add_time("insertion", t0)
             applied = []
             for lane, ids in lane_maps.items():
@@ -249,55 +253,39 @@ def simulate(
             if progress:
                 progress(done[0], src.total_scans)
 
-        def advance(until: float) -> None:
-            """Exchanges and samples before ``until`` (a scan stamped exactly at an exchange
-            time is inserted before it)."""
-            nonlocal next_i
-            while next_i < len(timed) and timed[next_i][0] < until:
-                t, kind, group = timed[next_i]
-                if kind == VOTE:
-                    # on the agents' own maps in the common frame
-                    vote.append(
-                        submit(
-                            COMMON,
-                            lambda t=t: vote_for_run(
-                                {a: frames.to_common(a, m) for a, m in own.items()},
-                                graph,
-                                fuse_cfg,
-                                t,
-                            ),
-                        ).result()
-                    )
-                elif kind == EXCHANGE:
-                    group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
-                    if group:
-                        if frames.align != "off":  # on the maps as they are at this time
-                            lanes.wait()
-                            net.align(group)
-                        for r in rules:
-                            sampled.pop(r, None)
-                            submit(r, lambda r=r, group=group: net.exchange_rule(r, group))
-                        if observer is not None:
-                            lanes.wait()
-                            observer(t, group, net, dict(inserted))
-                else:
-                    sample(t)
-                next_i += 1
+        def exchanges_out(t, group):
+            group = admitted(group, vote[0] if vote else None, fuse_cfg, agents)
+            if not group:
+                return
+            if frames.align != "off":  # on the maps as they are at this time
+                lanes.wait()
+                net.align(group)
+            for r in rules:
+                sampled.pop(r, None)
+                submit(r, lambda r=r, group=group: net.exchange_rule(r, group))
+            if observer is not None:
+                lanes.wait()
+                observer(t, group, net, dict(inserted))
 
+        def vote_now(t):
+            def on_own_maps():  # in the common frame, once the common lane inserted its scans
+                own_maps = {a: frames.to_common(a, m) for a, m in own.items()}
+                return vote_for_run(own_maps, graph, fuse_cfg, t)
+
+            vote.append(submit(COMMON, on_own_maps).result())
+
+        # the mission: scans in, exchanges out, samples and the vote at their times
         t_run = time.perf_counter()
-        batch: list = []
-        for scan in prefetch(src.scans()):
-            t = (scan.stamp_ns - start) / 1e9
-            if next_i < len(timed) and timed[next_i][0] < t:
-                flush(batch)
-                batch = []
-                advance(t)
-            batch.append(scan)
-            if len(batch) >= build_cfg.batch_size:
-                flush(batch)
-                batch = []
-        flush(batch)
-        advance(float("inf"))
+        clock = BagClock(timed, start, build_cfg.batch_size)
+        for t, kind, what in clock.steps(prefetch(src.scans())):
+            if kind == SCANS:
+                scans_in(what)
+            elif kind == EXCHANGE:
+                exchanges_out(t, what)
+            elif kind == VOTE:
+                vote_now(t)
+            else:
+                sample(t)
         # each lane scores its final maps as soon as it is done (a lane that ends first
         # scores while the others still fuse), against the final centralized map
         ref = snapshot("final scores")
@@ -313,7 +301,6 @@ def simulate(
         }
         lanes.wait()
         net.add_time("mapping + fusion (wall)", t_run)
-        net.close()
         if central_replay is not None:
             central_replay.end_pass(central)
         src.check_placed()
@@ -365,6 +352,7 @@ def simulate_in_rule_groups(
     progress: Callable[[int, int], None] | None = None,
     source: ScanSource | None = None,
     keep_loss_leaves: bool = False,
+    budget: ThreadBudget | None = None,
 ) -> Iterator[SimResult]:
     """:func:`simulate` with at most ``fuse_cfg.rules_per_pass`` rules at a time (0: all),
     replaying the bags once per group, so that a caller can write a group's maps and free them
@@ -376,9 +364,8 @@ def simulate_in_rule_groups(
     (:class:`~octofuse.scans.replay.ScanReplay`), their rays
     (:class:`~octofuse.maps.ray_replay.RayReplay`) and the centralized map with its snapshots
     (:class:`~.central_replay.CentralReplay`)."""
-    fuse_cfg.validate("fuse")
     groups = rule_groups(fuse_cfg, fuse_cfg.rules_per_pass)
-    with _opened(source, build_cfg) as src:
+    with _opened(source, build_cfg) as src, budget_scope(budget or build_cfg.threads) as budget:
         scans = ScanReplay(src, len(groups))  # decoded and placed once for every pass
         rays = RayReplay(len(groups))  # and traced once
         central = CentralReplay(len(groups))  # and the centralized map mapped once
@@ -399,6 +386,7 @@ def simulate_in_rule_groups(
                 rays=rays,
                 central_replay=central,
                 keep_loss_leaves=keep_loss_leaves,
+                budget=budget,
             )
 
 

@@ -60,11 +60,12 @@ from dataclasses import dataclass, field
 
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import fuse_into, subtract_into
+from ..rules import Rule, UnknownPolicy
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .wire import LayerBlob, decode_layers, encode_layers
 
 #: the WEP rule that folds layers into the remainder (see the module's docstring)
-FOLD_RULE = "chernoff"
+FOLD_RULE = Rule.CHERNOFF
 
 
 @dataclass
@@ -297,7 +298,7 @@ class Layers:
         new = unclamped_copy(m)
         if old is not None:
             new = unclamped_copy(old)
-            fuse_into(new, m, rule=FOLD_RULE, unknown="copy")
+            fuse_into(new, m, rule=FOLD_RULE, unknown=UnknownPolicy.COPY)
         add_into(self.fused, new)
         if old is not None:
             subtract_into(self.fused, old)

@@ -119,7 +119,6 @@ def simulate_swarm(
     """
     from ..scans.source import ScanSource, prefetch
 
-    fuse_cfg.validate("fuse")
     spec = parse_schedule(fuse_cfg.schedule)
     if spec.kind == "rounds":
         raise ValueError(

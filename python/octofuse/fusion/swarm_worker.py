@@ -52,11 +52,12 @@ class SwarmWorker:
         layers_max_bytes: int = 0,
     ):
         from ..maps.occupancy import OccupancyMap
+        from ..rules import parse_unknown
 
         self.index, self.names, self.rules = index, list(names), list(rules)
         self.frames = frames or AgentFrames(self.names)
         self.unknown, self.delta, self.threads, self.cap = (
-            unknown,
+            parse_unknown(unknown),
             delta,
             max(1, threads),
             memory_cap,

@@ -80,9 +80,9 @@ class OccupancyMap:
     def __init__(
         self,
         resolution: float,
-        prob_hit: float = 0.7,
-        prob_miss: float = 0.4,
-        clamping: tuple[float, float] = (0.1192, 0.971),
+        prob_hit: float = MapConfig.prob_hit,
+        prob_miss: float = MapConfig.prob_miss,
+        clamping: tuple[float, float] = MapConfig.clamping,
     ):
         cmin, cmax = clamping
         self._m = _core._OccupancyMap(
@@ -235,9 +235,9 @@ class OccupancyMap:
         cls,
         data: bytes | bytearray | memoryview,
         resolution: float,
-        prob_hit: float = 0.7,
-        prob_miss: float = 0.4,
-        clamping: tuple[float, float] = (0.1192, 0.971),
+        prob_hit: float = MapConfig.prob_hit,
+        prob_miss: float = MapConfig.prob_miss,
+        clamping: tuple[float, float] = MapConfig.clamping,
     ) -> OccupancyMap:
         """A map from the node data of :meth:`tree_data` (an ``octomap_msgs/Octomap``
         message's ``data``) and its resolution; checked like :meth:`load`."""

@@ -12,16 +12,17 @@ import numpy as np
 
 from ..config import EXACT_MODES, RunConfig
 from ..fusion.results import SimResult
-from ..threads import thread_map
+from ..rule_names import FusionRule
+from ..threads import ThreadBudget, thread_map
 
 #: rules drawn in the report's top views, in this order of preference (naive Bayes loses nothing)
 TOPVIEW_RULES = (
-    "chernoff",
-    "kld-weighted-chernoff",
-    "min-info-loss",
-    "entropy-weighted-chernoff",
-    "bhattacharyya",
-    "min-entropy",
+    FusionRule.CHERNOFF,
+    FusionRule.KLD_WEIGHTED_CHERNOFF,
+    FusionRule.MIN_INFO_LOSS,
+    FusionRule.ENTROPY_WEIGHTED_CHERNOFF,
+    FusionRule.BHATTACHARYYA,
+    FusionRule.MIN_ENTROPY,
 )
 COLORBAR = "info_loss_colorbar.png"
 
@@ -43,10 +44,10 @@ class MapExports:
         rules: Sequence[str],
         agents: Sequence[str],
         heatmaps: bool = True,
-        threads: int = 1,
+        threads: int | ThreadBudget = 1,
     ):
         self.out, self.cfg, self.agents = Path(out), cfg, list(agents)
-        self.threads = max(1, threads)  #: files written side by side
+        self.threads = threads  #: files written side by side: a budget, or a thread count
         self.views = topview_rules(rules)
         self.heatmaps = heatmaps and cfg.export == "all"
         #: (rule, agent) -> the occupied voxels with their loss, and the map's resolution
@@ -86,7 +87,7 @@ class MapExports:
                 self.voxels[(r, a)] = v
                 self.resolution[(r, a)] = res.fused[r][a].resolution
         for r in res.rules:
-            if r not in ("naive-bayes", *EXACT_MODES):
+            if r not in (FusionRule.NAIVE_BAYES, *EXACT_MODES):
                 self.histogram[r] = thread_map(
                     lambda a: res.loss_leaves_of(r, a), res.agents, self.threads
                 )

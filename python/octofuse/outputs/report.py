@@ -347,7 +347,7 @@ def write_outputs(
         agents = list(export_agents) if export_agents is not None else res.agents
         maps = MapExports(out, cfg, res.rules, agents, heatmaps)
         maps.add(res)
-    hist = count_loss_histograms(maps.histogram, cfg.build.workers)
+    hist = count_loss_histograms(maps.histogram, maps.threads)
     plots = {}  # by their name in the report: the plots with data to draw, and how
     if res.timeline:
         plots["timeline"] = (out / "kl_over_time.png", partial(plot_timeline, res))

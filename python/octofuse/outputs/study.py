@@ -207,7 +207,6 @@ def run_study(
     the failed cells if no cell succeeded; otherwise failed cells are listed in ``bench.md``
     (and ``cells/``) and left out of the tables.
     """
-    cfg.validate("config")
     out = Path(out)
     cells = study_cells(cfg, topologies, schedules, seeds, bag_sets)
     for cell in cells:  # fail early on a bad schedule or topology, before hours of work

@@ -94,7 +94,6 @@ class ScanSource:
     """
 
     def __init__(self, cfg: BuildConfig, *, per_scan_transforms: bool = False):
-        cfg.validate("build")
         self.cfg = cfg
         #: look poses and beam poses up scan by scan (the reference the batched look-ups of
         #: :data:`PLACE_CHUNK` scans are checked and timed against)

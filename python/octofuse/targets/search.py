@@ -31,19 +31,15 @@ from pathlib import Path
 import numpy as np
 
 from ..beliefs.mixture import GaussianMixture
-from ..beliefs.mixture_fusion import check_rule, fuse_mixtures
+from ..beliefs.mixture_fusion import MIXTURE_RULES, check_rule, fuse_mixtures
 from ..beliefs.mixture_grid import grid_kl
+from ..rule_names import FusionRule
 from .detector import CameraDetector
 from .particle_filter import gaussian_sum_update
 
 SETTINGS = ("3-robots", "8-robots")
-DEFAULT_RULES = (
-    "naive-bayes",
-    "bhattacharyya",
-    "chernoff",
-    "kld-weighted-chernoff",
-    "min-info-loss",
-)
+#: the mixture rules compared by default (all but min-entropy)
+DEFAULT_RULES = tuple(r for r in MIXTURE_RULES if r != FusionRule.MIN_ENTROPY)
 BASELINES = ("no-sharing", "centralized")
 LAB = (15.0, 8.0)
 SPEED = 0.3  # m/s

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import MapConfig
 from ..maps.frames import pose_matrix
 from ..maps.occupancy import OccupancyMap
 from ..outputs.clouds import CLOUD_SUFFIXES, read_cloud
@@ -45,7 +46,9 @@ class RunFolder:
         rng = (s.get("exports") or {}).get("range")
         self.loss_range: tuple[float, float] | None = tuple(rng) if rng else None
         cfg = s.get("config", {})
-        self.resolution = float(cfg.get("build", {}).get("map", {}).get("resolution", 0.05))
+        self.resolution = float(
+            cfg.get("build", {}).get("map", {}).get("resolution", MapConfig.resolution)
+        )
         self.tol = float(cfg.get("fuse", {}).get("overconfidence_tol", 0.1))
         self.frames = {a: pose_matrix(**p) for a, p in (s.get("agent_frames") or {}).items()}
         self.on_change = lambda: None  # a finished run's maps do not change

@@ -208,7 +208,7 @@ def test_the_api_runs_a_dumped_config_to_the_cli_scores(bag, tmp_path, capsys):
     cfg = load_yaml(conf)
     assert isinstance(cfg, RunConfig)
     assert isinstance(cfg.build, BuildConfig) and isinstance(cfg.fuse, FuseConfig)
-    assert cfg.fuse.rules == ["chernoff", "naive-bayes"] and cfg.build.scan_stride == 2
+    assert cfg.fuse.rules == ("chernoff", "naive-bayes") and cfg.build.scan_stride == 2
     res = simulate(cfg.build, cfg.fuse, samples=cfg.samples)
     assert res.rules == summary["rules"] == ["chernoff", "naive-bayes"]
     assert res.agents == summary["agents"] == ["a", "b"]
@@ -301,17 +301,71 @@ def test_build_maps_validates_through_the_config(bag):
         build_maps([bag], threads=-1)
 
 
-def test_rules_are_normalised_once():
-    f = FuseConfig(rules=["chernoff, naive-bayes", "chernoff"])
-    f.validate("fuse")
-    assert f.rules == ["chernoff", "naive-bayes"]
-    f = FuseConfig(rules="all")
-    f.validate("fuse")
+def test_rules_are_parsed_once_into_typed_members():
     import octofuse
+    from octofuse.config import from_dict
+    from octofuse.rule_names import FusionRule
 
-    assert f.rules == list(octofuse.RULES)
+    f = FuseConfig(rules=["chernoff, naive-bayes", "chernoff"])
+    assert f.rules == (FusionRule.CHERNOFF, FusionRule.NAIVE_BAYES)
+    assert all(type(r) is FusionRule for r in f.rules)
+    assert FuseConfig(rules="all").rules == octofuse.RULES
+    # the members print, join and serialise as their names
+    assert ",".join(f.rules) == "chernoff,naive-bayes" and f"{f.rules[0]}" == "chernoff"
+    assert json.dumps(f.rules) == '["chernoff", "naive-bayes"]'
+    assert yaml.safe_load(dump_yaml(f))["rules"] == ["chernoff", "naive-bayes"]
+    # the core's rule where there is one, none for the exact modes
+    assert f.rules[0].core == octofuse._core.Rule.CHERNOFF
+    assert FusionRule.CHANNEL_FILTER.core is None and FusionRule.SOURCE_LAYERS.exact
     with pytest.raises(ValueError, match="at least one fusion rule"):
-        FuseConfig(rules=[" , "]).validate("fuse")
+        FuseConfig(rules=[" , "])
+    # the flags of a command and a config file's data give the same typed tuple
+    from octofuse.cli import cli
+    from octofuse.cli.options import run_config
+
+    flags = ["--rule", "min-info-loss,all", "--rule", "source-layers"]
+    ctx = cli.commands["run"].make_context("run", flags)
+    by_flags = run_config(ctx.params).fuse.rules
+    by_data = from_dict(FuseConfig, {"rules": ["min-info-loss,all", "source-layers"]}).rules
+    assert by_flags == by_data and all(type(r) is FusionRule for r in by_flags)
+    assert by_flags[0] == FusionRule.MIN_INFO_LOSS and by_flags[-1] == FusionRule.SOURCE_LAYERS
+    assert len(by_flags) == len(octofuse.RULES) + 1
+
+
+@pytest.mark.parametrize("route", ["flag", "file", "api"])
+def test_a_bad_rule_is_refused_naming_it_and_the_choices(tmp_path, capsys, route):
+    from octofuse.rule_names import rule_choices
+
+    if route == "api":
+        with pytest.raises(ValueError) as e:
+            FuseConfig(rules=["chernoff", "chernof"])
+        text = str(e.value)
+    else:
+        args = ["--rule", "chernoff,chernof"]
+        if route == "file":
+            conf = tmp_path / "bad.yaml"
+            conf.write_text("fuse:\n  rules: [chernoff, chernof]\n")
+            args = ["--config", str(conf)]
+        code, _, text = run_cli(capsys, "run", *args, "--out", tmp_path / "o")
+        assert code != 0 and "Traceback" not in text
+    assert "'chernof'" in text
+    for name in rule_choices():
+        assert name in text, (name, text)
+
+
+def test_a_maps_defaults_are_the_cores():
+    from octofuse import OccupancyMap, _core
+    from octofuse.config import MapConfig
+
+    d, cfg = _core.DEFAULT_MAP, MapConfig()
+    assert (cfg.resolution, cfg.prob_hit, cfg.prob_miss) == (
+        d["resolution"],
+        d["prob_hit"],
+        d["prob_miss"],
+    )
+    assert cfg.clamping == (d["clamp_min"], d["clamp_max"])
+    m = OccupancyMap(cfg.resolution)
+    assert (m.prob_hit, m.prob_miss, m.clamping) == (cfg.prob_hit, cfg.prob_miss, cfg.clamping)
 
 
 def test_the_voxel_sizes_a_config_takes_are_the_cores():

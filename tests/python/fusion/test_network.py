@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import sys
 from collections import defaultdict
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ from octofuse.fusion.schedule import Exchange, parse_schedule, periodic, rounds 
 from octofuse.fusion.simulate import simulate  # noqa: E402
 from octofuse.maps.build import make_build_config  # noqa: E402
 from octofuse.scans.source import ScanSource  # noqa: E402
+from octofuse.threads import ThreadBudget  # noqa: E402
 
 RES = 0.2
 WEP = [r for r in octofuse.RULES if r != "naive-bayes"]
@@ -430,6 +432,27 @@ def whole_and_delta(team_bag):
     return out
 
 
+class WatchedBudget(ThreadBudget):
+    """A thread budget that keeps the most slots ever held at once."""
+
+    most = 0
+
+    def take(self, n: int) -> int:
+        k = super().take(n)
+        self._seen()
+        return k
+
+    @contextmanager
+    def working(self):
+        with super().working():
+            self._seen()
+            yield
+
+    def _seen(self) -> None:
+        with self._cond:
+            self.most = max(self.most, self.threads - self._free)
+
+
 def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
     """simulate on 2 and 3 threads (each rule's maps a lane of their own, the common frame's
     maps another, meeting where a score needs the centralized map of its time) gives the
@@ -448,7 +471,11 @@ def test_a_run_on_threads_gives_the_run_on_one_thread(team_bag):
         r: {a: s.to_dict() for a, s in per.items()} for r, per in one.scores.items()
     }
     for threads in (2, 3):
-        got = simulate(replace(run_config(team_bag), threads=threads), cfg, samples=4)
+        budget = WatchedBudget(threads)
+        with budget:
+            got = simulate(run_config(team_bag), cfg, samples=4, budget=budget)
+        # the run used its whole budget, and never more
+        assert budget.most == threads
         assert_same_map(got.central, one.central, "central")
         for a in one.agents:
             assert_same_map(got.local[a], one.local[a], a)
@@ -526,7 +553,7 @@ def test_a_run_in_passes_of_a_few_rules_gives_the_run_with_every_rule(
     groups = simulate_in_rule_groups(run_config(team_bag), robust, samples=0)
     assert next(groups).rules == SOME_RULES  # robust fusion votes once, on the own maps
     with pytest.raises(ValueError, match="rules_per_pass = -1"):
-        FuseConfig(rules_per_pass=-1).validate("fuse")
+        FuseConfig(rules_per_pass=-1)
 
 
 def test_deltas_send_fewer_bytes_and_reach_the_same_voxels(whole_and_delta):

@@ -109,7 +109,7 @@ def test_a_cell_in_passes_has_the_rows_of_one_pass(bag, seeded, tmp_path, monkey
     cfg = config(bag)
     cfg.fuse.seed, cfg.fuse.rules_per_pass = 1, 1
     run_study(cfg, ["ring"], out, executor=SerialExecutor())
-    assert passes == [[r] for r in RULES]
+    assert passes == [(r,) for r in RULES]
     one = next(iter(load_cells([out]).values()))
     want = next(
         c

@@ -168,4 +168,4 @@ def test_mode_is_checked():
     with pytest.raises(ValueError, match="insert mode"):
         m.insert_scan(np.ones((3, 3)), np.zeros(3), mode="quick")
     with pytest.raises(ValueError, match="insert_mode"):
-        BuildConfig(insert_mode="quick").validate("build")
+        BuildConfig(insert_mode="quick")
