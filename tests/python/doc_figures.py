@@ -3,6 +3,7 @@ what it measures with what the docs say, to the digits they print, and the two c
 
 from __future__ import annotations
 
+import importlib.util
 import re
 from functools import cache
 from pathlib import Path
@@ -51,3 +52,11 @@ def table_rows(name: str, header_start: str) -> dict[str, list[str]]:
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         rows[cells[0]] = cells[1:]
     return rows
+
+
+def benchmark(name: str):
+    """The module ``benchmarks/NAME.py``, whose functions print the figures the docs quote."""
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
