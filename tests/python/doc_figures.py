@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -56,6 +57,9 @@ def table_rows(name: str, header_start: str) -> dict[str, list[str]]:
 
 def benchmark(name: str):
     """The module ``benchmarks/NAME.py``, whose functions print the figures the docs quote."""
+    folder = str(REPO / "benchmarks")
+    if folder not in sys.path:  # the scripts import their shared helpers (bench_common)
+        sys.path.insert(0, folder)
     spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

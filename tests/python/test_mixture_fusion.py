@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from scipy.special import logsumexp
 from scipy.stats import multivariate_normal
 
+from doc_figures import assert_as_printed, benchmark, quoted
 from octofuse.beliefs.base import Belief
 from octofuse.beliefs.gaussian import Gaussian
 from octofuse.beliefs.mixture import GaussianMixture
@@ -451,3 +452,20 @@ def test_range_likelihood_refuses_ranges_whose_coefficients_overflow():
     for z, a in ((1e-200, 1.0), (1e200, 1.0), (1e-160, 1e300)):
         with pytest.raises(ValueError, match="measured_range"):
             ExPoly2D.range_likelihood([0.0, 0.0], z, a=a)
+
+
+@pytest.mark.slow
+def test_benchmark_accuracy_is_what_the_docs_quote():
+    """`benchmarks/mixture_fusion.py`: each method's largest KL from the grid density over the
+    rules, as docs/beliefs.md prints it (the times it prints are measured, not tested)."""
+    rows = benchmark("mixture_fusion").measure(repeats=5, grid_n=400)
+    worst = {
+        m: max(r["kl_from_grid"] for r in rows if r["method"] == m)
+        for m in ("moment-match", "em", "foci")
+    }
+    page = "docs/beliefs.md"
+    figures = dict(zip(["moment-match"], quoted(page, r"\(400 x 400\), within # nats of it")))
+    figures |= dict(
+        zip(["em", "foci"], quoted(page, r"EM [\d-]+ ms, within #; FOCI [\d-]+ ms, within #\)"))
+    )
+    assert_as_printed(worst, figures, page)
