@@ -1,6 +1,7 @@
 """The README tells the truth: its Python code blocks (and those of the pages in docs/) run as
 written on the bundled data, and its layout section names the folders the package has."""
 
+import json
 import os
 import re
 import subprocess
@@ -8,6 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from doc_figures import assert_as_printed, quoted
 
 REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
@@ -54,3 +57,26 @@ def test_the_layout_section_matches_the_package():
         assert f"{name}/" in layout, f"the README's layout does not mention {name}/"
     for name in re.findall(r"python/octofuse/(\w+)/", layout):
         assert (package / name).is_dir(), f"the README names python/octofuse/{name}/, which is gone"
+
+
+@pytest.mark.slow
+def test_the_quicker_demo_gives_the_figures_the_docs_quote(tmp_path):
+    """docs/demo.md's quicker demo (every 4th scan, three rules), run as the page writes it."""
+    from octofuse.cli import main
+
+    page = "docs/demo.md"
+    (command,) = quoted(page, r"`octofuse demo (--every 4 --rules [a-z,-]+ --export none)`")
+    assert main(["demo", *command.split(), "--out", str(tmp_path / "demo")]) == 0
+    mean = json.loads((tmp_path / "demo" / "summary.json").read_text())["mean"]
+    names = ["chernoff", "min-info-loss", "channel-filter", "local-only"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"KL\(central ‖ agent\) # for Chernoff, # for min-info-loss and # for the channel "
+                r"filter, against # for the local-only maps",
+            ),
+        )
+    )
+    assert_as_printed({n: mean[n]["kl_mean"] for n in names}, figures, page)
