@@ -31,12 +31,53 @@ def test_the_readme_has_python_examples():
     assert len(python_blocks()) >= 2
 
 
+#: prepended to an example: each print call's output ends with a separator line, so that the
+#: output of the N-th print statement can be found
+SEPARATED_PRINTS = (
+    "import builtins\n"
+    "def print(*args, **kwargs):\n"
+    "    builtins.print(*args, **kwargs)\n"
+    "    builtins.print('\\x1e')\n"
+)
+
+
+def promised_prints(block: str) -> list[tuple[int, str]]:
+    """(index among the block's top-level print statements, its comment) of each commented one;
+    comment lines below it continue the comment."""
+    lines, found, index = block.splitlines(), [], -1
+    for n, line in enumerate(lines):
+        if not line.startswith("print("):
+            continue
+        index += 1
+        if "#" in line:
+            comment = [line.split("#", 1)[1].strip()]
+            for more in lines[n + 1 :]:
+                if not more.strip().startswith("#"):
+                    break
+                comment.append(more.strip()[1:].strip())
+            found.append((index, " ".join(comment)))
+    return found
+
+
+def check_promise(printed: str, comment: str) -> None:
+    """A comment "about 2.6" promises the printed number to its digits; a comment listing names
+    ("a, b, c") promises those names, in that order."""
+    about = re.fullmatch(r"about (\d+(?:\.\d+)?)\b.*", comment)
+    if about:
+        decimals = len(about[1].partition(".")[2])
+        assert f"{float(printed):.{decimals}f}" == about[1], (printed, comment)
+    elif re.fullmatch(r"[a-z-]+(, [a-z-]+)+", comment):
+        assert re.findall(r"[a-z][a-z-]*", printed) == comment.split(", "), (printed, comment)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(every_python_block())))
 def test_each_python_block_runs_as_written(tmp_path, index):
+    """Each example exits 0 in a folder of its own and prints what its comments say."""
     (tmp_path / "data").symlink_to(REPO / "data")
     script = tmp_path / "example.py"
-    script.write_text(every_python_block()[index])
+    block = every_python_block()[index]
+    script.write_text(SEPARATED_PRINTS + block)
     env = {**os.environ, "MPLBACKEND": "Agg"}
     done = subprocess.run(
         [sys.executable, str(script)],
@@ -47,6 +88,27 @@ def test_each_python_block_runs_as_written(tmp_path, index):
         timeout=300,
     )
     assert done.returncode == 0, done.stderr[-3000:]
+    outputs = done.stdout.split("\x1e\n")
+    for n, comment in promised_prints(block):
+        check_promise(outputs[n].strip(), comment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "example.py"]  # nothing left
+
+
+def test_promises_are_read_from_the_examples():
+    promises = [p for b in every_python_block() for p in promised_prints(b)]
+    assert (1, RULES_COMMENT) in promises
+    assert any(comment.startswith("about 2.6") for _, comment in promises)
+    check_promise("2.5686", "about 2.6: smaller than either source")
+    with pytest.raises(AssertionError):
+        check_promise("2.66", "about 2.6")
+    with pytest.raises(AssertionError):
+        check_promise("('chernoff', 'naive-bayes')", "naive-bayes, chernoff")
+
+
+RULES_COMMENT = (
+    "naive-bayes, bhattacharyya, min-entropy, chernoff, entropy-weighted-chernoff, "
+    "kld-weighted-chernoff, min-info-loss"
+)
 
 
 def test_the_layout_section_matches_the_package():
