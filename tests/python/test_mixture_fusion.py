@@ -374,8 +374,18 @@ def _closed_form(rule):
     return w, _wep_1d(w)[1]
 
 
-@pytest.mark.parametrize("rule,seeds", [("chernoff", 40), ("min-info-loss", 8)])
-def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_percent(rule, seeds):
+def reliability_figures() -> dict[str, tuple[str, int]]:
+    """docs/reliability.md's variance errors (percent, as printed) and seed counts, per rule."""
+    chernoff, mil, n_chernoff, n_mil = quoted(
+        "docs/reliability.md",
+        r"fused variance within #% for Chernoff, #% for min-info-loss, 1 sd over # and # seeds",
+    )
+    return {"chernoff": (chernoff, int(n_chernoff)), "min-info-loss": (mil, int(n_mil))}
+
+
+@pytest.mark.parametrize("rule", ["chernoff", "min-info-loss"])
+def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_percent(rule):
+    percent, seeds = reliability_figures()[rule]
     w_true, var_true = _closed_form(rule)
     if rule == "chernoff":
         assert w_true == pytest.approx(0.3522, abs=1e-4) and var_true == pytest.approx(
@@ -386,7 +396,9 @@ def test_default_samples_fuse_single_gaussians_to_the_closed_form_within_one_per
     omega = np.array([r.omega for r in res])
     var = np.array([r.mixture.moments()[1][0, 0] for r in res])
     err = np.array([r.std_error for r in res])
-    assert np.sqrt(np.mean((var / var_true - 1) ** 2)) < 0.01  # 1 % (1 sd), bias included
+    rel_sd = np.sqrt(np.mean((var / var_true - 1) ** 2))  # 1 sd, bias included
+    assert rel_sd < 0.01
+    assert_as_printed({"variance": 100 * rel_sd}, {"variance": percent}, "docs/reliability.md")
     assert np.sqrt(np.mean((omega - w_true) ** 2)) < 0.008
     assert np.all(
         (err > 0) & (err <= 0.005 + 1e-12) | (np.array([r.n_samples for r in res]) >= 1 << 15)
