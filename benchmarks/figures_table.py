@@ -118,7 +118,7 @@ def rows_from(summary: dict) -> dict[tuple[str, str], list[str]]:
     return rows
 
 
-def _parse(block: str) -> dict[tuple[str, str], list[str]]:
+def parse_rows(block: str) -> dict[tuple[str, str], list[str]]:
     rows = {}
     for line in block.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
@@ -137,7 +137,7 @@ def update(readme: Path, summary: dict, machine: str, today: str | None = None) 
     text = readme.read_text()
     head, rest = text.split(BEGIN, 1)
     block, tail = rest.split(END, 1)
-    rows = _parse(block)
+    rows = parse_rows(block)
     today = today or datetime.date.today().isoformat()
     fresh = rows_from(summary)
     for key, cells in fresh.items():

@@ -42,19 +42,6 @@ def assert_as_printed(measured: dict[str, float], figures: dict[str, str], where
     assert got == figures, f"{where}: the docs say {figures}, measured {got}"
 
 
-def table_rows(name: str, header_start: str) -> dict[str, list[str]]:
-    """The rows of the markdown table whose header begins with ``header_start``, by first cell."""
-    lines = (REPO / name).read_text().splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
-    rows = {}
-    for line in lines[start + 2 :]:
-        if not line.startswith("|"):
-            break
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        rows[cells[0]] = cells[1:]
-    return rows
-
-
 def benchmark(name: str):
     """The module ``benchmarks/NAME.py``, whose functions print the figures the docs quote."""
     folder = str(REPO / "benchmarks")
