@@ -142,3 +142,61 @@ def test_the_quicker_demo_gives_the_figures_the_docs_quote(tmp_path):
         )
     )
     assert_as_printed({n: mean[n]["kl_mean"] for n in names}, figures, page)
+
+
+#: the README's demo table: its columns and the summary's keys of the same scores
+DEMO_COLUMNS = {
+    "KL(central ‖ agent)": ("kl_mean", 1),
+    "over-confident": ("overconfidence", 100),
+    "class agreement": ("agreement", 100),
+    "coverage": ("coverage", 100),
+    "info loss mean": ("loss_mean", 1),
+    "info loss p95": ("loss_p95", 1),
+    "occupied on a true surface": ("occupied_accuracy", 100),
+}
+
+
+def readme_demo_table() -> dict[str, dict[str, str]]:
+    """The README's demo table: cells by rule (the first word of the first cell) and column."""
+    section = README.split("## What the demo shows")[1].splitlines()
+    first = next(n for n, line in enumerate(section) if line.startswith("|"))
+    lines = []
+    for line in section[first:]:
+        if not line.startswith("|"):
+            break
+        lines.append(line)
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    rows = {}
+    for line in lines[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[cells[0].split()[0]] = dict(zip(header[1:], cells[1:]))
+    return rows
+
+
+@pytest.mark.slow
+def test_the_demo_gives_the_readme_table(tmp_path):
+    """Three rows of the README's demo table, from a demo of two rules alone: a rule's maps are
+    its own, so its scores are those of the whole demo (local-only comes with every run)."""
+    from octofuse.cli import main
+
+    rules = ["naive-bayes", "min-info-loss"]
+    args = ["demo", "--rules", ",".join(rules), "--export", "none", "--out", str(tmp_path / "d")]
+    assert main(args) == 0
+    mean = json.loads((tmp_path / "d" / "summary.json").read_text())["mean"]
+    table = readme_demo_table()
+    assert list(table) == ["local-only", *octofuse_rules(), "channel-filter", "source-layers"]
+    figures, measured = {}, {}
+    for rule in ["local-only", *rules]:
+        for column, (key, scale) in DEMO_COLUMNS.items():
+            cell = table[rule][column].rstrip("%")
+            if cell != "–":
+                figures[f"{rule} {column}"] = cell
+                measured[f"{rule} {column}"] = scale * mean[rule][key]
+    assert len(figures) == 3 * 7 - 2  # local-only has no loss columns
+    assert_as_printed(measured, figures, "README.md")
+
+
+def octofuse_rules() -> list[str]:
+    import octofuse
+
+    return list(octofuse.RULES)
