@@ -10,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from doc_figures import assert_as_printed, quoted
+from doc_figures import REPO, assert_as_printed, quoted
 
-REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
 
 
