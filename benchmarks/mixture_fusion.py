@@ -51,20 +51,15 @@ def timed(fn, repeats: int) -> tuple[float, object]:
     return statistics.median(times) * 1e3, out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--grid", type=int, default=400, help="grid nodes per axis")
-    ap.add_argument("--json", default=None)
-    args = ap.parse_args(argv)
-
+def measure(repeats: int, grid_n: int) -> list[dict]:
+    """Every rule and method, timed against the grid; accuracy of the last run (seed repeats-1)."""
     a, b = random_mixture(1), random_mixture(2, offset=(1.0, 0.5))
     prior = random_mixture(3, m=4)
-    grid = Grid2D.covering(a, b, prior, n=args.grid)
+    grid = Grid2D.covering(a, b, prior, n=grid_n)
     pts = grid.points
     rows = []
     for rule in RULES:
-        grid_ms, truth = timed(lambda k: grid_fuse(a, b, rule, grid, prior=prior), args.repeats)
+        grid_ms, truth = timed(lambda k: grid_fuse(a, b, rule, grid, prior=prior), repeats)
         for method in METHODS:
             ms, res = timed(
                 lambda k: fuse_mixtures(
@@ -77,7 +72,7 @@ def main(argv=None) -> int:
                     prior=prior,
                     seed=k,
                 ),
-                args.repeats,
+                repeats,
             )
             rows.append(
                 {
@@ -91,6 +86,16 @@ def main(argv=None) -> int:
                     "kl_from_grid": grid_kl(truth.log_density, res.mixture.logpdf(pts)),
                 }
             )
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--grid", type=int, default=400, help="grid nodes per axis")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    rows = measure(args.repeats, args.grid)
     print(
         f"Mixture fusion, 2 x 15 components in 2-D, N_s = 1000, reduction to 15 ({machine()}, one core;"
         f" CPU time; grid {args.grid} x {args.grid}, median of {args.repeats})"

@@ -11,10 +11,11 @@
 5. Runs benchmarks/ingest.py (scan insertion against OctoMap's insertPointCloud, and where the
    time of `octofuse build` goes) and benchmarks/network.py (a fusion run's time split in the
    demo's setting, and its growth with 4 to 32 agents on generated bags in build/bench-data).
-6. Writes every figure to build/bench/results.json.
+6. Writes every figure to build/bench/results.json and the table of current figures in
+   benchmarks/README.md (the rows of the parts run, dated today; not with --quick).
 
     .venv/bin/python benchmarks/run_all.py [--repeats N] [--pairs N] [--quick]
-        [--parts fusion,maps,ingest,network] [--ingest-repeats N] [--network-repeats N]
+        [--parts fusion,maps,ingest,network,beliefs] [--ingest-repeats N] [--network-repeats N]
 """
 
 from __future__ import annotations
@@ -33,11 +34,13 @@ BUILD = ROOT / "build" / "bench"
 EXE = BUILD / "benchmarks" / "octofuse_bench_fuse_trees"
 
 sys.path.insert(0, str(HERE))
+import figures_table  # noqa: E402
 import ingest  # noqa: E402
 import network  # noqa: E402
 import rules_throughput  # noqa: E402
+from bench_common import machine  # noqa: E402
 
-PARTS = ("fusion", "maps", "ingest", "network")
+PARTS = ("fusion", "maps", "ingest", "network", "beliefs")
 DATA = ROOT / "build" / "bench-data"
 #: (name, bag or generator, maps fused: a, b) for the benchmark on maps built from bags
 MAP_SETS = (("warehouse", "warehouse4", "robot2", "robot3"), ("lab8", "lab8", "robot1", "robot2"))
@@ -101,6 +104,22 @@ def run_trees(values: str, repeats: int, scale: float) -> dict:
     res = json.loads(out.read_text())
     res["stdout"] = proc.stdout
     return res
+
+
+def run_mixture_fusion(repeats: int, grid: int) -> dict:
+    """benchmarks/mixture_fusion.py in a process of its own: its BLAS limited to one thread
+    before numpy loads, as its CPU times assume."""
+    out = BUILD / "mixture_fusion.json"
+    BUILD.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    subprocess.run(
+        [sys.executable, str(HERE / "mixture_fusion.py"), "--repeats", str(repeats)]
+        + ["--grid", str(grid), "--json", str(out)],
+        check=True,
+        env=env,
+        stdout=subprocess.DEVNULL,
+    )
+    return json.loads(out.read_text())
 
 
 def bag_path(name: str, quick: bool) -> Path:
@@ -359,8 +378,8 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--parts",
         default=",".join(PARTS),
-        help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network "
-        "(comma separated)",
+        help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network, "
+        "beliefs (mixture fusion) (comma separated)",
     )
     ap.add_argument("--ingest-repeats", type=int, default=3, help="timed runs per insertion method")
     ap.add_argument("--network-repeats", type=int, default=1, help="runs per fusion-run setting")
@@ -431,7 +450,13 @@ def main(argv=None) -> int:
         print("5. Fusion runs: where the time goes, and growth with the number of agents")
         network.print_tables(res)
         summary["network"] = res
+    if "beliefs" in parts:
+        log("running the mixture-fusion benchmark (benchmarks/mixture_fusion.py)")
+        summary["mixture_fusion"] = run_mixture_fusion(args.repeats, 100 if args.quick else 400)
     BUILD.mkdir(parents=True, exist_ok=True)
+    if not args.quick:
+        figures_table.update(HERE / "README.md", summary, machine())
+        log("table of current figures updated in benchmarks/README.md")
     if set(parts) != set(PARTS) and (BUILD / "results.json").exists():
         try:  # keep the figures of the parts not run this time
             summary = {**json.loads((BUILD / "results.json").read_text()), **summary}

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import fftconvolve
 
+from doc_figures import assert_as_printed, benchmark, quoted
 from octofuse.beliefs.base import Belief
 from octofuse.beliefs.expoly import ExPoly2D, predict_coefficients_1d
 from octofuse.beliefs.expoly_fit import fit_moments, monomials
@@ -212,8 +213,13 @@ def test_moment_fit_recovers_a_mildly_non_gaussian_belief():
 
 
 def test_moment_fit_reports_a_stall_instead_of_failing():
-    fit = fit_moments(CRESCENT.wep(RING_A, 0.3).raw_moments(monomials(4)), max_iter=6)
-    assert isinstance(fit.belief, ExPoly2D) and np.isfinite(fit.residual)
+    moments = CRESCENT.wep(RING_A, 0.3).raw_moments(monomials(4))
+    short = fit_moments(moments, max_iter=6)
+    assert short.converged is False and short.iterations == 6
+    assert short.residual > 0.1  # far from the ring-shaped target, and said so
+    assert isinstance(short.belief, ExPoly2D)
+    longer = fit_moments(moments)  # more steps keep the best fit: never worse, still stalled
+    assert longer.converged is False and longer.residual <= short.residual
 
 
 @pytest.mark.parametrize(
@@ -256,3 +262,37 @@ def test_other_bad_inputs():
         RING_A.predict([[1.0, 2.0], [2.0, 4.0]])
     with pytest.raises(ValueError, match="not positive"):
         ExPoly2D.from_gaussian([0, 0], [[1.0, 2.0], [2.0, 1.0]])
+
+
+def test_paper_checks_give_the_figures_the_docs_quote():
+    """`benchmarks/expoly_paper_checks.py`: the two rings, degree 2 and diffusion in docs/beliefs.md."""
+    checks = benchmark("expoly_paper_checks")
+    rings = checks.two_rings()
+    page = "docs/beliefs.md"
+    figures = dict(
+        zip(
+            ["trace a", "trace b", "fused", "w", "ci"],
+            quoted(
+                page,
+                r"source traces # and #, fused minimum # at w = # \(paper: about 2\.6 near "
+                r"0\.49\), while Gaussian covariance intersection of the moments cannot go below #;",
+            ),
+        )
+    )
+    measured = {"trace a": rings["source_traces"][0], "trace b": rings["source_traces"][1]}
+    measured |= {"fused": rings["trace"]["trace"], "w": rings["trace"]["w"]}
+    measured["ci"] = rings["gaussian_ci"]["trace"]
+    (largest,) = quoted(page, r"degree 2 equals Gaussian covariance intersection to (\de-\d+)")
+    assert f"{checks.degree_two_vs_gaussian_ci():.0e}" == largest
+    tv = {}
+    for row in checks.diffusion_error():
+        tv.setdefault(row["q"], []).append(row["tv_eq3+moments"])
+    figures |= dict(
+        zip(
+            ["0.01 low", "0.01 high", "0.25 low", "0.25 high"],
+            quoted(page, r"exact convolution is #-# for q = 0\.01 and #-# for q = 0\.25\)"),
+        )
+    )
+    measured |= {"0.01 low": min(tv[0.01]), "0.01 high": max(tv[0.01])}
+    measured |= {"0.25 low": min(tv[0.25]), "0.25 high": max(tv[0.25])}
+    assert_as_printed(measured, figures, page)

@@ -1,6 +1,7 @@
 """The README tells the truth: its Python code blocks (and those of the pages in docs/) run as
 written on the bundled data, and its layout section names the folders the package has."""
 
+import json
 import os
 import re
 import subprocess
@@ -8,7 +9,7 @@ import sys
 
 import pytest
 
-from conftest import REPO
+from doc_figures import REPO, assert_as_printed, quoted
 
 README = (REPO / "README.md").read_text()
 
@@ -28,12 +29,53 @@ def test_the_readme_has_python_examples():
     assert len(python_blocks()) >= 2
 
 
+#: prepended to an example: each print call's output ends with a separator line, so that the
+#: output of the N-th print statement can be found
+SEPARATED_PRINTS = (
+    "import builtins\n"
+    "def print(*args, **kwargs):\n"
+    "    builtins.print(*args, **kwargs)\n"
+    "    builtins.print('\\x1e')\n"
+)
+
+
+def promised_prints(block: str) -> list[tuple[int, str]]:
+    """(index among the block's top-level print statements, its comment) of each commented one;
+    comment lines below it continue the comment."""
+    lines, found, index = block.splitlines(), [], -1
+    for n, line in enumerate(lines):
+        if not line.startswith("print("):
+            continue
+        index += 1
+        if "#" in line:
+            comment = [line.split("#", 1)[1].strip()]
+            for more in lines[n + 1 :]:
+                if not more.strip().startswith("#"):
+                    break
+                comment.append(more.strip()[1:].strip())
+            found.append((index, " ".join(comment)))
+    return found
+
+
+def check_promise(printed: str, comment: str) -> None:
+    """A comment "about 2.6" promises the printed number to its digits; a comment listing names
+    ("a, b, c") promises those names, in that order."""
+    about = re.fullmatch(r"about (\d+(?:\.\d+)?)\b.*", comment)
+    if about:
+        decimals = len(about[1].partition(".")[2])
+        assert f"{float(printed):.{decimals}f}" == about[1], (printed, comment)
+    elif re.fullmatch(r"[a-z-]+(, [a-z-]+)+", comment):
+        assert re.findall(r"[a-z][a-z-]*", printed) == comment.split(", "), (printed, comment)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(every_python_block())))
 def test_each_python_block_runs_as_written(tmp_path, index):
+    """Each example exits 0 in a folder of its own and prints what its comments say."""
     (tmp_path / "data").symlink_to(REPO / "data")
     script = tmp_path / "example.py"
-    script.write_text(every_python_block()[index])
+    block = every_python_block()[index]
+    script.write_text(SEPARATED_PRINTS + block)
     env = {**os.environ, "MPLBACKEND": "Agg"}
     done = subprocess.run(
         [sys.executable, str(script)],
@@ -44,6 +86,27 @@ def test_each_python_block_runs_as_written(tmp_path, index):
         timeout=300,
     )
     assert done.returncode == 0, done.stderr[-3000:]
+    outputs = done.stdout.split("\x1e\n")
+    for n, comment in promised_prints(block):
+        check_promise(outputs[n].strip(), comment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "example.py"]  # nothing left
+
+
+def test_promises_are_read_from_the_examples():
+    promises = [p for b in every_python_block() for p in promised_prints(b)]
+    assert (1, RULES_COMMENT) in promises
+    assert any(comment.startswith("about 2.6") for _, comment in promises)
+    check_promise("2.5686", "about 2.6: smaller than either source")
+    with pytest.raises(AssertionError):
+        check_promise("2.66", "about 2.6")
+    with pytest.raises(AssertionError):
+        check_promise("('chernoff', 'naive-bayes')", "naive-bayes, chernoff")
+
+
+RULES_COMMENT = (
+    "naive-bayes, bhattacharyya, min-entropy, chernoff, entropy-weighted-chernoff, "
+    "kld-weighted-chernoff, min-info-loss"
+)
 
 
 def test_the_layout_section_matches_the_package():
@@ -54,3 +117,84 @@ def test_the_layout_section_matches_the_package():
         assert f"{name}/" in layout, f"the README's layout does not mention {name}/"
     for name in re.findall(r"python/octofuse/(\w+)/", layout):
         assert (package / name).is_dir(), f"the README names python/octofuse/{name}/, which is gone"
+
+
+@pytest.mark.slow
+def test_the_quicker_demo_gives_the_figures_the_docs_quote(tmp_path):
+    """docs/demo.md's quicker demo (every 4th scan, three rules), run as the page writes it."""
+    from octofuse.cli import main
+
+    page = "docs/demo.md"
+    (command,) = quoted(page, r"`octofuse demo (--every 4 --rules [a-z,-]+ --export none)`")
+    assert main(["demo", *command.split(), "--out", str(tmp_path / "demo")]) == 0
+    mean = json.loads((tmp_path / "demo" / "summary.json").read_text())["mean"]
+    names = ["chernoff", "min-info-loss", "channel-filter", "local-only"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"KL\(central ‖ agent\) # for Chernoff, # for min-info-loss and # for the channel "
+                r"filter, against # for the local-only maps",
+            ),
+        )
+    )
+    assert_as_printed({n: mean[n]["kl_mean"] for n in names}, figures, page)
+
+
+#: the README's demo table: its columns and the summary's keys of the same scores
+DEMO_COLUMNS = {
+    "KL(central ‖ agent)": ("kl_mean", 1),
+    "over-confident": ("overconfidence", 100),
+    "class agreement": ("agreement", 100),
+    "coverage": ("coverage", 100),
+    "info loss mean": ("loss_mean", 1),
+    "info loss p95": ("loss_p95", 1),
+    "occupied on a true surface": ("occupied_accuracy", 100),
+}
+
+
+def readme_demo_table() -> dict[str, dict[str, str]]:
+    """The README's demo table: cells by rule (the first word of the first cell) and column."""
+    section = README.split("## What the demo shows")[1].splitlines()
+    first = next(n for n, line in enumerate(section) if line.startswith("|"))
+    lines = []
+    for line in section[first:]:
+        if not line.startswith("|"):
+            break
+        lines.append(line)
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    rows = {}
+    for line in lines[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[cells[0].split()[0]] = dict(zip(header[1:], cells[1:]))
+    return rows
+
+
+@pytest.mark.slow
+def test_the_demo_gives_the_readme_table(tmp_path):
+    """Three rows of the README's demo table, from a demo of two rules alone: a rule's maps are
+    its own, so its scores are those of the whole demo (local-only comes with every run)."""
+    from octofuse.cli import main
+
+    rules = ["naive-bayes", "min-info-loss"]
+    args = ["demo", "--rules", ",".join(rules), "--export", "none", "--out", str(tmp_path / "d")]
+    assert main(args) == 0
+    mean = json.loads((tmp_path / "d" / "summary.json").read_text())["mean"]
+    table = readme_demo_table()
+    assert list(table) == ["local-only", *octofuse_rules(), "channel-filter", "source-layers"]
+    figures, measured = {}, {}
+    for rule in ["local-only", *rules]:
+        for column, (key, scale) in DEMO_COLUMNS.items():
+            cell = table[rule][column].rstrip("%")
+            if cell != "–":
+                figures[f"{rule} {column}"] = cell
+                measured[f"{rule} {column}"] = scale * mean[rule][key]
+    assert len(figures) == 3 * 7 - 2  # local-only has no loss columns
+    assert_as_printed(measured, figures, "README.md")
+
+
+def octofuse_rules() -> list[str]:
+    import octofuse
+
+    return list(octofuse.RULES)

@@ -8,9 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from doc_figures import assert_as_printed, quoted
 from octofuse.fusion.consensus import estimates, metropolis_weights, select_seeds
 from octofuse.fusion.voting import ChiSquareGate, dynamic_vote, hypothesis_count
 from octofuse.fusion.voting_baselines import maximum_likelihood, residual_covariance, static_vote
+from octofuse.fusion.voting_checks import paper_checks
 
 N_IN = 6
 RING = [(i, (i + 1) % 8) for i in range(8)]
@@ -194,3 +196,58 @@ def test_bad_gate_raises():
         ChiSquareGate(0.95, "sqrt")
     with pytest.raises(ValueError, match="confidence"):
         ChiSquareGate(1.2)
+
+
+@pytest.mark.slow
+def test_paper_checks_give_the_figures_the_docs_quote():
+    """`benchmarks/voting_paper_checks.py` (1000 trials, seed 0): the figures of docs/robust.md."""
+    res = paper_checks(1000, 0)
+    page = "docs/robust.md"
+    fig3, table, fair = res["fig3"], res["table1"], res["table1_consistent"]
+    figures, measured = {}, {}
+
+    def expect(names, pattern, values):
+        figures.update(zip(names, quoted(page, pattern)))
+        measured.update(zip(names, values))
+
+    counts = res["hypothesis_counts"]
+    expect(
+        ["K 0.6", "K 0.8"],
+        r"K = # for p_in = 0\.6 and K = # for p_in = 0\.8",
+        [counts["p_in=0.6"]["K"], counts["p_in=0.8"]["K"]],
+    )
+    expect(
+        ["votes", "to ML"],
+        r"votes converge to # for 7 of 10 inliers, the estimate to the maximum likelihood of the "
+        r"inliers to (\d)e-14",
+        [min(fig3["winner_votes"]), fig3["max_estimate_error_to_ml_inliers"] * 1e14],
+    )
+    assert max(fig3["winner_votes"]) == pytest.approx(min(fig3["winner_votes"]), abs=1e-12)
+    assert fig3["inliers_found"]
+    ml, static, dynamic = table["ml"], table["static[paper]"], table["dynamic[paper]"]
+    paper = table["paper"]
+    expect(
+        ["ml error", "paper ml error", "ml fp", "paper ml fp"],
+        r"error # against #, false positives # against #",
+        [ml["mean_error"], paper["ml"]["mean_error"], ml["false_positives"]]
+        + [paper["ml"]["false_positives"]],
+    )
+    expect(
+        ["dyn fp", "paper dyn fp", "dyn fn", "paper dyn fn", "static fn", "paper static fn"],
+        r"dynamic voting's false positives match \(# against #\), but its false negatives do "
+        r"not \(# against #\), nor static voting's \(# against #\)",
+        [dynamic["false_positives"], paper["dynamic"]["false_positives"]]
+        + [dynamic["false_negatives"], paper["dynamic"]["false_negatives"]]
+        + [static["false_negatives"], paper["static"]["false_negatives"]],
+    )
+    expect(
+        ["oracle fn"],
+        r"maximum likelihood of the true inliers rejects #\.",
+        [table["oracle[paper]"]["false_negatives"]],
+    )
+    expect(
+        ["fair static", "fair dynamic"],
+        r"errors of # \(static\) and # \(dynamic\)",
+        [fair["static[squared]"]["mean_error"], fair["dynamic[squared]"]["mean_error"]],
+    )
+    assert_as_printed(measured, figures, page)

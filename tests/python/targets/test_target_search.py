@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from doc_figures import assert_as_printed, quoted
 from octofuse.beliefs.mixture import GaussianMixture
 from octofuse.targets.detector import CameraDetector
 from octofuse.targets.particle_filter import gaussian_sum_update
@@ -134,8 +135,16 @@ def test_run_writes_outputs_in_place(tmp_path):
     } <= names
     summary = json.loads((out / "summary.json").read_text())
     assert summary["schemes"] == ["centralized", "no-sharing", "chernoff"]
-    assert "wep_band" in summary["findings"]
-    assert "What the data says" in (out / "report.md").read_text()
+    # what is written is what was measured: robot 1's final KL to the centralized belief
+    final = {s: float(res.kl_to_central[s][-1][0]) for s in res.schemes}
+    assert summary["final_kl_to_central"]["chernoff"][0] == pytest.approx(final["chernoff"])
+    band = summary["findings"]["wep_band"]
+    assert band["band"] == pytest.approx([final["chernoff"]] * 2) and band["width"] == 0.0
+    assert band["no_sharing_robot1"] == pytest.approx(final["no-sharing"])
+    report = (out / "report.md").read_text()
+    assert "What the data says" in report
+    gain = float(res.info_gain["chernoff"][-1][0])
+    assert f"| chernoff | {gain:.3f} |" in report
     assert [p.name for p in tmp_path.iterdir()] == ["search"]  # no staging folder left behind
 
 
@@ -146,3 +155,33 @@ def test_run_writes_outputs_in_place(tmp_path):
 def test_bad_arguments_raise(tmp_path, kwargs, match):
     with pytest.raises(ValueError, match=match):
         run_target_search(tmp_path / "x", **kwargs)
+
+
+@pytest.mark.slow
+def test_short_search_gives_the_figures_the_docs_quote():
+    """The shorter run of docs/beliefs.md (3 robots, 26 s, three rules), to its printed digits."""
+    page = "docs/beliefs.md"
+    duration, rules = quoted(
+        page, r"`octofuse search --setting 3-robots --duration # --rules ([a-z,-]+)`"
+    )
+    assert rules == "naive-bayes,chernoff,min-info-loss"
+    res = simulate("3-robots", rules=tuple(rules.split(",")), duration=int(duration))
+    gain = {s: res.info_gain[s][-1] for s in res.schemes}
+    kl1 = {s: float(res.kl_to_central[s][-1][0]) for s in res.schemes}
+    names = ["central", "nb low", "nb high", "chernoff", "min-info-loss", "alone"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"centralized information gain of #, naive-Bayes gains of #-#, and robot 1's KL "
+                r"to the centralized belief # \(Chernoff\) and # \(min-info-loss\) against # "
+                r"without sharing",
+            ),
+        )
+    )
+    measured = {"central": gain["centralized"][0], "nb low": gain["naive-bayes"].min()}
+    measured |= {"nb high": gain["naive-bayes"].max(), "alone": kl1["no-sharing"]}
+    measured |= {"chernoff": kl1["chernoff"], "min-info-loss": kl1["min-info-loss"]}
+    assert_as_printed(measured, figures, page)
+    np.testing.assert_allclose(gain["centralized"], gain["centralized"][0])  # one shared belief
