@@ -138,11 +138,14 @@ class Agent:
         delta: bool = False,
         reliable: bool = True,
         state: OccupancyMap | None = None,
+        max_nodes: int | None = None,
     ) -> MapMessage:
         """The message for neighbour ``to`` now: the map (``state`` if given: the map as it was
         at an earlier moment), or the channel filter's contribution; with ``delta``, only what
-        changed since the snapshot the neighbour is known to hold. Source layers send the
-        layers ``to`` lacks, whole on first contact and as deltas after, whatever ``delta``."""
+        changed since the snapshot the neighbour is known to hold, and with ``max_nodes`` only
+        its most informative voxels that fit (:meth:`~.link.Link.outgoing`). Source layers
+        send the layers ``to`` lacks, whole on first contact and as deltas after, whatever
+        ``delta``."""
         link = self.link(to)
         if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
             self._advanced([c for c in [self.layers.publish()] if c is not None])
@@ -170,7 +173,7 @@ class Agent:
             if delta:  # kept as the next baseline: a copy of the map as sent
                 snapshot = snapshot.copy()
         whole = link.sends_whole()
-        seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable)
+        seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable, max_nodes=max_nodes)
         if self.exact and payload is not snapshot:
             open_map(payload)
         return MapMessage(self.name, to, self.rule, seq, link.applied, payload, delta and not whole)

@@ -46,6 +46,7 @@ from ..maps.occupancy import OccupancyMap
 from ..memory import resident_memory
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
+from .budget import LinkBudget
 from .faults import FaultyLinks
 from .transport import ZenohTransport, endpoint
 
@@ -62,6 +63,7 @@ class AgentCounts:
     bytes_received: int = 0
     sent_32b: int = 0
     behind: int = 0  #: scans inserted later than their time plus a second
+    held_back: int = 0  #: messages not sent: the link's budget had no room
     restarts: int = 0
 
 
@@ -111,6 +113,8 @@ class LiveAgent:
         self._published = 0.0  #: when the fused map was last published (monotonic)
         self.faults: dict = {}  #: what the fault layer did to this agent's chunks
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
+        rate = self.live.budget_bytes_per_s
+        self.budget = LinkBudget(rate, self.live.max_chunk_bytes) if rate else None
 
     # -- the link protocol on frames ---------------------------------------------------------
     def uses(self, other: str) -> bool:
@@ -119,16 +123,37 @@ class LiveAgent:
             return other in self.neighbours
         return (self.name, other) in self.tree
 
-    def compose(self, receiver: str) -> bytes:
-        """The frame for ``receiver`` now."""
+    def compose(self, receiver: str, t: float) -> bytes | None:
+        """The frame for ``receiver`` at mission time ``t``; None if the link's budget leaves
+        no room for a voxel now."""
         f = self.cfg.fuse
+        max_nodes = None
+        if self.budget is not None:
+            max_nodes = self.budget.max_nodes(receiver, t, self._empty_frame(receiver))
+            if max_nodes < 1:
+                self.counts.held_back += 1
+                return None
         msg = self.agent.compose(
-            receiver, delta=f.delta, reliable=f.loss == 0 and not self.live.faults.any
+            receiver,
+            delta=f.delta,
+            reliable=f.loss == 0 and not self.live.faults.any,
+            max_nodes=max_nodes,
         )
         self.counts.sent += 1
         self.counts.bytes_sent += message_bytes(msg.payload)
         self.counts.sent_32b += 32 * msg.payload.num_leaves
-        return msg.encode(self.live.fleet)
+        frame = msg.encode(self.live.fleet)
+        if self.budget is not None:
+            self.budget.spend(receiver, t, frame)
+        return frame
+
+    def _empty_frame(self, receiver: str) -> int:
+        """Bytes of a frame to ``receiver`` whose map has no node."""
+        m = self.agent.map
+        empty = OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping)
+        return len(
+            MapMessage(self.name, receiver, self.rule, 1, 1, empty, True).encode(self.live.fleet)
+        )
 
     def apply(self, sender: str, frame: bytes) -> bool:
         """Apply a frame that arrived from ``sender``; False (counted) if it is refused."""
@@ -237,7 +262,9 @@ class LiveAgent:
         for e in group:
             s, d = self.names[e.sender], self.names[e.receiver]
             if s == self.name and self.uses(d):
-                send(d, self.compose(d))
+                frame = self.compose(d, t)
+                if frame is not None:
+                    send(d, frame)
         progress["t"] = t
         self._status(transport, t)
 
@@ -297,7 +324,7 @@ class LiveAgent:
             for e in group:  # every message of the group composed before any is applied
                 s, d = self.names[e.sender], self.names[e.receiver]
                 if s == self.name and self.uses(d):
-                    frame = self.compose(d)
+                    frame = self.compose(d, t)
                     if not e.lost:
                         transport.send(d, frame)
             for e in group:
@@ -360,8 +387,9 @@ class LiveAgent:
         links.flush()
         for _ in range(live.settle_rounds):  # fault-free rounds: the fleet settles
             for n in self.neighbours:
-                if self.uses(n):
-                    transport.send(n, self.compose(n))
+                frame = self.compose(n, now()) if self.uses(n) else None
+                if frame is not None:
+                    transport.send(n, frame)
             self._drain(transport, until=time.monotonic() + 0.5)
 
     def _drain(self, transport, until: float | None, done: list | None = None) -> None:
@@ -458,6 +486,8 @@ class LiveAgent:
                         "bytes_received": c.bytes_received,
                         "sent_32b": c.sent_32b,
                         "behind": c.behind,
+                        "held_back": c.held_back,
+                        "budget_peak": dict(self.budget.peak) if self.budget else {},
                         "restarts": c.restarts,
                         "chunks_over_bound": transport.dropped,
                         "chunks_refused": transport.chunks_refused,
