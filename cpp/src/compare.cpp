@@ -178,7 +178,8 @@ void finish_inner(OccupancyTree& t, OccupancyNode* n) {
 // up to the first that would make it more than `max_nodes` nodes; returns how many it took.
 std::size_t build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves,
                               std::size_t max_nodes = std::numeric_limits<std::size_t>::max()) {
-  if (leaves.empty() || max_nodes == 0) return 0;
+  // a root without leaves would be one leaf over all space: no tree unless a leaf fits
+  if (leaves.empty() || 1u + leaves.front().depth > max_nodes) return 0;
   OccupancyNode* root = detail::TreeAccess<OccupancyTree>::ensure_root(t);
   std::size_t nodes = 1, taken = 0;
   for (const LeafRec& l : leaves) {

@@ -12,6 +12,8 @@ from .chunks import HEAD_BYTES, wire_bytes
 
 #: bytes an OctoMap stream's node takes (its log-odds and child mask)
 NODE_BYTES = 5
+#: the nodes of a map of one finest voxel (the root and one node per level below it)
+MIN_NODES = 17
 
 
 class LinkBudget:
