@@ -26,6 +26,7 @@ from .options import (
     exchange_options,
     export_options,
     frame_options,
+    layers_option,
     map_rule_names,
     need_bags,
     need_out,
@@ -384,6 +385,7 @@ def demo(export_bag, **p):
     "--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON"
 )
 @click.option("--threads", type=click.IntRange(0, 256), help="0: one per core", show_default="0")
+@layers_option
 @frame_options
 @export_options
 @export_bag_option
