@@ -46,7 +46,7 @@ from ..maps.occupancy import OccupancyMap
 from ..memory import resident_memory
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
-from .budget import LinkBudget
+from .budget import MIN_NODES, LinkBudget
 from .faults import FaultyLinks
 from .transport import ZenohTransport, endpoint
 
@@ -64,6 +64,9 @@ class AgentCounts:
     sent_32b: int = 0
     behind: int = 0  #: scans inserted later than their time plus a second
     held_back: int = 0  #: messages not sent: the link's budget had no room
+    #: after a restart: when (wall clock) the agent was back on time with every neighbour
+    #: heard from in its new epoch
+    caught_up_at: float | None = None
     restarts: int = 0
 
 
@@ -104,7 +107,7 @@ class LiveAgent:
         self.out = Path(out) / rule / name
         self.out.mkdir(parents=True, exist_ok=True)
         mk = lambda: OccupancyMap.from_config(cfg.build.map)  # noqa: E731
-        self.agent = Agent(name, self.rule, mk())
+        self.agent = Agent(name, self.rule, mk(), cfg.fuse.layers_max_bytes)
         self.local = mk()
         self.frames = AgentFrames.from_config(names, cfg.fuse)
         self.counts = AgentCounts()
@@ -113,6 +116,11 @@ class LiveAgent:
         self._published = 0.0  #: when the fused map was last published (monotonic)
         self.faults: dict = {}  #: what the fault layer did to this agent's chunks
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
+        #: wall-clock times for latency: own scans inserted (time, count), messages sent
+        #: (receiver, seq, time, own scans in them) and applied (sender, seq, time)
+        self.trace: dict[str, list] = {"scans": [], "sent": [], "applied": []}
+        self.heard: set[str] = set()  #: neighbours applied from since this process started
+        self.scans_in_map = 0  #: own scans in the map (those before a restart too)
         rate = self.live.budget_bytes_per_s
         self.budget = LinkBudget(rate, self.live.max_chunk_bytes) if rate else None
 
@@ -125,12 +133,12 @@ class LiveAgent:
 
     def compose(self, receiver: str, t: float) -> bytes | None:
         """The frame for ``receiver`` at mission time ``t``; None if the link's budget leaves
-        no room for a voxel now."""
+        no room for a finest voxel now."""
         f = self.cfg.fuse
         max_nodes = None
         if self.budget is not None:
             max_nodes = self.budget.max_nodes(receiver, t, self._empty_frame(receiver))
-            if max_nodes < 1:
+            if max_nodes < MIN_NODES:
                 self.counts.held_back += 1
                 return None
         msg = self.agent.compose(
@@ -143,6 +151,7 @@ class LiveAgent:
         self.counts.bytes_sent += message_bytes(msg.payload)
         self.counts.sent_32b += 32 * msg.payload.num_leaves
         frame = msg.encode(self.live.fleet)
+        self.trace["sent"].append((receiver, msg.seq, time.time(), self.scans_in_map))
         if self.budget is not None:
             self.budget.spend(receiver, t, frame)
         return frame
@@ -178,6 +187,8 @@ class LiveAgent:
             self.counts.refused["old or repeated"] += 1
             return False
         self.counts.applied += 1
+        self.heard.add(sender)
+        self.trace["applied"].append((sender, msg.seq, time.time()))
         return True
 
     # -- the mission ---------------------------------------------------------------------------
@@ -192,6 +203,7 @@ class LiveAgent:
             epoch = checkpoint.next_epoch(self.out / "epoch")
             if resume and ckpt.is_file():
                 self.local, progress = checkpoint.restore(ckpt, self.agent, epoch)
+                self.scans_in_map = progress["scans"]
                 self.counts.restarts = epoch - 1
                 self.log(
                     f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s (start {epoch})"
@@ -299,6 +311,8 @@ class LiveAgent:
             )
             self.counts.scans += len(batch)
             progress["scans"] += len(batch)
+            self.scans_in_map = progress["scans"]
+            self.trace["scans"].append((time.time(), self.scans_in_map))
             batch.clear()
 
     def _scans_until(self, scans, t: float, start: int, progress: dict, carry: list) -> None:
@@ -356,8 +370,12 @@ class LiveAgent:
 
     def _in_time(self, transport, scans, timed, start, progress, ckpt) -> None:
         live = self.live
-        t0 = time.monotonic() - max(progress["t"], 0.0) / live.speed
+        # the mission's clock starts once, with the fleet: an agent started again catches up
+        # with it (the scans and exchanges it missed go at once) rather than lag behind
+        started = progress.setdefault("start_wall", time.time())
+        t0 = time.monotonic() - (time.time() - started)
         now = lambda: (time.monotonic() - t0) * live.speed  # noqa: E731 - mission time
+        tree = [n for n in self.neighbours if self.uses(n)]
         links = FaultyLinks(live.faults, self.name, self.index, transport.put, now)
         self.faults = links.counts
         next_ckpt = progress["t"] + live.checkpoint_period if live.checkpoint_period else None
@@ -377,6 +395,9 @@ class LiveAgent:
                 self._drain(transport, until=t0 + at / live.speed)
                 if now() > at + 1.0:
                     self.counts.behind += 1
+                elif self.counts.restarts and self.counts.caught_up_at is None:
+                    if self.heard.issuperset(tree):
+                        self.counts.caught_up_at = time.time()
                 self._insert([scan], progress)
             if t == float("inf"):
                 break
@@ -474,6 +495,8 @@ class LiveAgent:
         with checkpoint.written(self.out / "loss.npz") as f:
             np.savez(f, values=values, depths=depths)
         c = self.counts
+        with checkpoint.written(self.out / "trace.json") as f:
+            f.write(json.dumps(self.trace).encode())
         with checkpoint.written(self.out / "counts.json") as f:
             f.write(
                 json.dumps(
@@ -489,6 +512,7 @@ class LiveAgent:
                         "held_back": c.held_back,
                         "budget_peak": dict(self.budget.peak) if self.budget else {},
                         "restarts": c.restarts,
+                        "caught_up_at": c.caught_up_at,
                         "chunks_over_bound": transport.dropped,
                         "chunks_refused": transport.chunks_refused,
                         "faults": dict(self.faults),
