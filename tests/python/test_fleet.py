@@ -264,6 +264,20 @@ def test_a_link_budget_sends_the_most_informative_voxels_first_and_the_rest_late
             assert sum(n for s, n in sends if t - 1 < s <= t) <= rate, link
         assert agents[link[0]].budget.peak[link[1]] <= rate
     assert max(len(s) for s in sent.values()) > 10  # the budget held messages back
+    # an acknowledgement alone (what an agent that sends no more gives) moves the baseline on
+    from octofuse.fusion.wire import Encoding, Kind, Message
+
+    a, b = agents[names[0]], names[1]
+    a.agent.map.insert_scan(np.array([[9.0, 9.0, 1.0]]), [8.0, 9.0, 1.0])
+    msg = MapMessage.decode(a.compose(b, t + 2))
+    assert msg.payload.num_leaves > 0
+    ack = Message(
+        cfg.live.fleet, "channel-filter", b, a.name, 1, msg.seq, Kind.ACK, b"", Encoding.NONE
+    )
+    before = a.agent.map.to_bytes()
+    assert not a.apply(b, ack.encode()) and not a.counts.refused
+    assert a.agent.map.to_bytes() == before
+    assert MapMessage.decode(a.compose(b, t + 4)).payload.num_leaves == 0  # nothing new
     sender_map, payload = first
     ks, vs = voxel_keys(payload)
     km, vm = voxel_keys(sender_map)

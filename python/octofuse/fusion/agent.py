@@ -38,8 +38,8 @@ class MapMessage:
     seq: int  #: 1, 2, ... per link and direction
     ack: int  #: the newest seq the sender has applied from the receiver (0: none)
     #: the sender's map (or contribution), whole or its changed voxels; source layers': its
-    #: layers (:class:`~.source_layers.LayeredPayload`)
-    payload: OccupancyMap | LayeredPayload
+    #: layers (:class:`~.source_layers.LayeredPayload`); None: an acknowledgement alone
+    payload: OccupancyMap | LayeredPayload | None
     delta: bool  #: applied voxel by voxel (the payload holds changed voxels only)
 
     def encode(self, fleet: str = "", payload: bytes | None = None) -> bytes:
@@ -65,6 +65,8 @@ class MapMessage:
         """The message of a frame; ``WireError`` if the frame is not one, and the map
         stream's error if its payload is not a map."""
         msg = decode(frame, max_payload)
+        if msg.kind == Kind.ACK:  # no map: the sender's acknowledgement alone
+            return cls(msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack, None, False)
         if msg.encoding == Encoding.LAYERS:
             return cls(
                 msg.sender,

@@ -41,12 +41,14 @@ from ..fusion.agent_frames import AgentFrames
 from ..fusion.graph import make_graph
 from ..fusion.network import message_bytes
 from ..fusion.schedule import EXCHANGE, mission_events, moments, parse_schedule
+from ..fusion.wire import Encoding, Kind, Message
 from ..maps.build import insert_scans
 from ..maps.occupancy import OccupancyMap
 from ..memory import resident_memory
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
 from .budget import MIN_NODES, LinkBudget
+from .chunks import wire_bytes
 from .faults import FaultyLinks
 from .transport import ZenohTransport, endpoint
 
@@ -121,6 +123,8 @@ class LiveAgent:
         self.trace: dict[str, list] = {"scans": [], "sent": [], "applied": []}
         self.heard: set[str] = set()  #: neighbours applied from since this process started
         self.scans_in_map = 0  #: own scans in the map (those before a restart too)
+        #: the mission time now (set when the mission starts: the budget counts in it)
+        self.clock: Callable[[], float] = time.monotonic
         rate = self.live.budget_bytes_per_s
         self.budget = LinkBudget(rate, self.live.max_chunk_bytes) if rate else None
 
@@ -156,6 +160,28 @@ class LiveAgent:
             self.budget.spend(receiver, t, frame)
         return frame
 
+    def acknowledge(self, transport, sender: str) -> None:
+        """Tell ``sender`` what this agent has applied of its messages, without a map (when
+        this agent sends no more, or has no message for it yet): the sender's deltas move on,
+        under a budget to the voxels that did not fit."""
+        link = self.agent.link(sender)
+        frame = Message(
+            self.live.fleet,
+            self.rule,
+            self.name,
+            sender,
+            link.seq,
+            link.applied,
+            Kind.ACK,
+            encoding=Encoding.NONE,
+        ).encode()
+        if self.budget is not None:
+            t = self.clock()
+            if self.budget.allowance(sender, t) < wire_bytes(len(frame), self.live.max_chunk_bytes):
+                return
+            self.budget.spend(sender, t, frame)
+        transport.send(sender, frame)
+
     def _empty_frame(self, receiver: str) -> int:
         """Bytes of a frame to ``receiver`` whose map has no node."""
         m = self.agent.map
@@ -176,6 +202,9 @@ class LiveAgent:
             return False
         if (msg.sender, msg.receiver, msg.rule) != (sender, self.name, self.rule):
             self.counts.refused["not for this link"] += 1
+            return False
+        if msg.payload is None:  # an acknowledgement: what the neighbour holds of ours
+            self.agent.link(sender).acknowledged(msg.ack)
             return False
         self.counts.bytes_received += message_bytes(msg.payload)
         moved = (
@@ -240,9 +269,8 @@ class LiveAgent:
         try:
             transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
             t0 = time.monotonic()
-            links = FaultyLinks(
-                live.faults, self.name, self.index, transport.put, lambda: time.monotonic() - t0
-            )
+            self.clock = lambda: time.monotonic() - t0
+            links = FaultyLinks(live.faults, self.name, self.index, transport.put, self.clock)
             self.faults = links.counts
             for t, group in [*timed, (duration, [])]:
                 while time.monotonic() - t0 < t:
@@ -274,7 +302,7 @@ class LiveAgent:
         for e in group:
             s, d = self.names[e.sender], self.names[e.receiver]
             if s == self.name and self.uses(d):
-                frame = self.compose(d, t)
+                frame = self.compose(d, self.clock())  # the budget's clock: when it leaves
                 if frame is not None:
                     send(d, frame)
         progress["t"] = t
@@ -374,7 +402,7 @@ class LiveAgent:
         # with it (the scans and exchanges it missed go at once) rather than lag behind
         started = progress.setdefault("start_wall", time.time())
         t0 = time.monotonic() - (time.time() - started)
-        now = lambda: (time.monotonic() - t0) * live.speed  # noqa: E731 - mission time
+        now = self.clock = lambda: (time.monotonic() - t0) * live.speed  # mission time
         tree = [n for n in self.neighbours if self.uses(n)]
         links = FaultyLinks(live.faults, self.name, self.index, transport.put, now)
         self.faults = links.counts
@@ -384,8 +412,11 @@ class LiveAgent:
             # scans and arrivals until the exchange at t
             while True:
                 scan = carry.pop() if carry else next(scans, None)
-                if scan is None:
-                    self._drain(transport, until=None if t == float("inf") else t0 + t / live.speed)
+                if scan is None:  # after the last exchange, what has arrived (the settle
+                    # rounds and the end take the rest: waiting for quiet here would hold this
+                    # agent's own rounds back while its neighbours settle)
+                    last = time.monotonic() if t == float("inf") else t0 + t / live.speed
+                    self._drain(transport, until=last)
                     break
                 at = (scan.stamp_ns - start) / 1e9
                 if at > t:
@@ -433,7 +464,9 @@ class LiveAgent:
                 if until is None and not transport.running(done or []):
                     return
                 continue
-            self.apply(sender, frame)
+            # under a budget a sender's rest waits for acknowledgements: give them at once
+            if self.apply(sender, frame) and (done or self.budget is not None):
+                self.acknowledge(transport, sender)
 
     def _scored(self) -> OccupancyMap:
         """The fused map as scored and written (the exact modes' clamped)."""
