@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <utility>
 
 namespace octofuse::bindings {
 
@@ -76,6 +78,26 @@ void define_compare(py::module_& m) {
     check_compatible(cur, prev);
     py::gil_scoped_release release;
     return changed_voxels(cur, prev);
+  });
+  m.def(
+      "_most_informative_voxels",
+      [](const OccupancyMap& delta, const OccupancyMap& held, std::size_t max_nodes) {
+        check_compatible(delta, held);
+        std::size_t taken = 0;
+        std::unique_ptr<OccupancyMap> out;
+        {
+          py::gil_scoped_release release;
+          out = most_informative_voxels(delta, held, max_nodes, taken);
+        }
+        return py::make_tuple(std::move(out), taken);
+      },
+      py::arg("delta"), py::arg("held"), py::arg("max_nodes"),
+      "The leaves of `delta` that change `held` most, as many as fit in `max_nodes` nodes, "
+      "and how many were taken; the GIL is released.");
+  m.def("_overlaid", [](const OccupancyMap& held, const OccupancyMap& delta) {
+    check_compatible(held, delta);
+    py::gil_scoped_release release;
+    return overlaid(held, delta);
   });
 }
 

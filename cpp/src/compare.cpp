@@ -7,6 +7,7 @@
 #include "prune_or_max.hpp"
 #include "walk.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstddef>
@@ -128,6 +129,20 @@ struct LeafRec {
   float value;
 };
 
+// The child of a node at `depth` on the way to leaf `l`.
+unsigned child_index(const LeafRec& l, unsigned depth) {
+  const unsigned bit = 15 - depth;
+  return ((l.k[0] >> bit) & 1u) | (((l.k[1] >> bit) & 1u) << 1) | (((l.k[2] >> bit) & 1u) << 2);
+}
+
+// The lower corner key of child i of the node at `depth` whose lower corner key is k0.
+void child_key(const std::uint16_t k0[3], unsigned depth, unsigned i, std::uint16_t kc[3]) {
+  const unsigned half = 1u << (15 - depth);
+  kc[0] = static_cast<std::uint16_t>(k0[0] + ((i & 1) ? half : 0));
+  kc[1] = static_cast<std::uint16_t>(k0[1] + ((i & 2) ? half : 0));
+  kc[2] = static_cast<std::uint16_t>(k0[2] + ((i & 4) ? half : 0));
+}
+
 // Collects the leaves of `cur` whose value is new or differs from `prev`.
 struct Differ {
   std::vector<LeafRec> out;
@@ -141,13 +156,11 @@ struct Differ {
       }
       return;
     }
-    const unsigned half = 1u << (15 - depth);
     for (unsigned i = 0; i < 8; ++i) {
       const W cc = cur.child(i);
       if (!cc.present()) continue;
-      const std::uint16_t kc[3] = {static_cast<std::uint16_t>(k0[0] + ((i & 1) ? half : 0)),
-                                   static_cast<std::uint16_t>(k0[1] + ((i & 2) ? half : 0)),
-                                   static_cast<std::uint16_t>(k0[2] + ((i & 4) ? half : 0))};
+      std::uint16_t kc[3];
+      child_key(k0, depth, i, kc);
       walk(cc, prev.child(i), kc, depth + 1);
     }
   }
@@ -161,23 +174,74 @@ void finish_inner(OccupancyTree& t, OccupancyNode* n) {
   detail::prune_or_max(t, n);
 }
 
-// Builds a tree from disjoint leaves given by lower-corner key and depth.
-void build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves) {
-  if (leaves.empty()) return;
+// Builds a tree from disjoint leaves given by lower-corner key and depth, in their order,
+// up to the first that would make it more than `max_nodes` nodes; returns how many it took.
+std::size_t build_from_leaves(OccupancyTree& t, const std::vector<LeafRec>& leaves,
+                              std::size_t max_nodes = std::numeric_limits<std::size_t>::max()) {
+  // a root without leaves would be one leaf over all space: no tree unless a leaf fits
+  if (leaves.empty() || 1u + leaves.front().depth > max_nodes) return 0;
   OccupancyNode* root = detail::TreeAccess<OccupancyTree>::ensure_root(t);
+  std::size_t nodes = 1, taken = 0;
   for (const LeafRec& l : leaves) {
+    // the nodes this leaf adds: those below the deepest one its path already has
     OccupancyNode* n = root;
-    for (unsigned d = 0; d < l.depth; ++d) {
-      const unsigned bit = 15 - d;
-      const unsigned i =
-          ((l.k[0] >> bit) & 1u) | (((l.k[1] >> bit) & 1u) << 1) | (((l.k[2] >> bit) & 1u) << 2);
-      n = t.nodeChildExists(n, i) ? t.getNodeChild(n, i) : t.createNodeChild(n, i);
+    unsigned d = 0;
+    for (; d < l.depth; ++d) {
+      const unsigned i = child_index(l, d);
+      if (!t.nodeChildExists(n, i)) break;
+      n = t.getNodeChild(n, i);
     }
+    if (nodes + (l.depth - d) > max_nodes) break;
+    nodes += l.depth - d;
+    for (; d < l.depth; ++d) n = t.createNodeChild(n, child_index(l, d));
     n->setLogOdds(l.value);
+    ++taken;
   }
   finish_inner(t, root);
   detail::TreeAccess<OccupancyTree>::mark_changed(t);
+  return taken;
 }
+
+// The leaves of `delta` with the log-odds of `held` at each (0 where it has no node).
+struct HeldValues {
+  std::vector<LeafRec> leaves;
+  std::vector<float> held;
+
+  void walk(const W& cur, const W& prev, const std::uint16_t k0[3], unsigned depth) {
+    if (!cur.present()) return;
+    if (cur.leaf) {
+      leaves.push_back(
+          {{k0[0], k0[1], k0[2]}, static_cast<std::uint8_t>(depth), cur.node->getLogOdds()});
+      held.push_back(prev.present() ? prev.node->getLogOdds() : 0.0f);
+      return;
+    }
+    for (unsigned i = 0; i < 8; ++i) {
+      std::uint16_t kc[3];
+      child_key(k0, depth, i, kc);
+      walk(cur.child(i), prev.child(i), kc, depth + 1);
+    }
+  }
+};
+
+// The leaves of `held` with those of `delta` over them, disjoint.
+struct Overlay {
+  std::vector<LeafRec> out;
+
+  void walk(const W& base, const W& top, const std::uint16_t k0[3], unsigned depth) {
+    const W& from = top.present() ? top : base;
+    if (!from.present()) return;
+    if (from.leaf) {  // a leaf of delta, or of held where delta has nothing
+      out.push_back(
+          {{k0[0], k0[1], k0[2]}, static_cast<std::uint8_t>(depth), from.node->getLogOdds()});
+      return;
+    }
+    for (unsigned i = 0; i < 8; ++i) {
+      std::uint16_t kc[3];
+      child_key(k0, depth, i, kc);
+      walk(base.child(i), top.child(i), kc, depth + 1);
+    }
+  }
+};
 
 }  // namespace
 
@@ -205,6 +269,34 @@ std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
   const std::uint16_t k0[3] = {0, 0, 0};
   d.walk(W::root(current.tree()), W::root(previous.tree()), k0, 0);
   build_from_leaves(out->settled_tree(), d.out);
+  return out;
+}
+
+std::unique_ptr<OccupancyMap> most_informative_voxels(const OccupancyMap& delta,
+                                                      const OccupancyMap& held,
+                                                      std::size_t max_nodes, std::size_t& taken) {
+  HeldValues h;
+  const std::uint16_t k0[3] = {0, 0, 0};
+  h.walk(W::root(delta.tree()), W::root(held.tree()), k0, 0);
+  std::vector<std::size_t> order(h.leaves.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return std::fabs(h.leaves[a].value - h.held[a]) > std::fabs(h.leaves[b].value - h.held[b]);
+  });
+  std::vector<LeafRec> ranked;
+  ranked.reserve(order.size());
+  for (std::size_t i : order) ranked.push_back(h.leaves[i]);
+  auto out = std::make_unique<OccupancyMap>(delta.params());
+  taken = build_from_leaves(out->settled_tree(), ranked, max_nodes);
+  return out;
+}
+
+std::unique_ptr<OccupancyMap> overlaid(const OccupancyMap& held, const OccupancyMap& delta) {
+  Overlay o;
+  const std::uint16_t k0[3] = {0, 0, 0};
+  o.walk(W::root(held.tree()), W::root(delta.tree()), k0, 0);
+  auto out = std::make_unique<OccupancyMap>(held.params());
+  build_from_leaves(out->settled_tree(), o.out);
   return out;
 }
 

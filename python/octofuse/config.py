@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import contextvars
 import dataclasses
+import functools
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -446,6 +448,9 @@ class LiveConfig(Checked):
     max_message_bytes: int = 256 * 2**20
     #: messages go over the links in chunks of at most this many bytes
     max_chunk_bytes: int = 64 * 2**10
+    #: bytes a link may carry per second, each direction (e.g. ``2MB/s``; empty: no limit): a
+    #: delta that does not fit sends its most informative voxels and keeps the rest for later
+    link_budget: str = ""
     #: seconds an agent waits for a neighbour (to appear, or in lockstep for its message)
     timeout: float = 120.0
     #: after the mission, rounds of fault-free exchanges in which the fleet settles
@@ -486,6 +491,10 @@ class LiveConfig(Checked):
                 f"{where}.max_chunk_bytes = {self.max_chunk_bytes}: expected 256 "
                 f"to max_message_bytes ({self.max_message_bytes})"
             )
+        try:
+            self.budget_bytes_per_s  # noqa: B018 - parsed here, once, to name a bad value
+        except ValueError as e:
+            raise ValueError(f"{where}.link_budget = {self.link_budget!r}: {e}") from None
         if not 0 < self.timeout <= 3600:
             raise ValueError(f"{where}.timeout = {self.timeout}: expected above 0, up to 3600 s")
         if not 0 <= self.map_period <= 3600:
@@ -499,6 +508,11 @@ class LiveConfig(Checked):
             raise ValueError(
                 f"{where}: lockstep waits for every message of the schedule, which "
                 "injected faults would lose; use fuse.loss for lost messages"
+            )
+        if self.lockstep and self.budget_bytes_per_s:
+            raise ValueError(
+                f"{where}: lockstep waits for every message of the schedule, which "
+                "link_budget may hold back"
             )
         tls = [self.tls_root_ca, self.tls_certificate, self.tls_private_key]
         if any(tls) and not all(tls):
@@ -515,6 +529,45 @@ class LiveConfig(Checked):
     @property
     def scheme(self) -> str:
         return "tls" if self.tls_root_ca else "tcp"
+
+    @functools.cached_property
+    def budget_bytes_per_s(self) -> int:
+        """:attr:`link_budget` in bytes per second (0: no limit)."""
+        text = self.link_budget.strip()
+        if not text:
+            return 0
+        size, sep, per = text.rpartition("/")
+        if not sep or per.strip() != "s":
+            raise ValueError("expected a size per second such as 2MB/s or 500kB/s")
+        rate = parse_bytes(size)
+        if rate < 1024:  # a message's header and map stream alone take a few hundred bytes
+            raise ValueError(f"{rate} bytes per second: expected at least 1024 (1KiB/s)")
+        return rate
+
+
+#: units of byte sizes (SI and binary); case matters only between b and B ("kB" = "KB")
+_BYTE_UNITS = {
+    "B": 1,
+    "KB": 10**3,
+    "MB": 10**6,
+    "GB": 10**9,
+    "KIB": 2**10,
+    "MIB": 2**20,
+    "GIB": 2**30,
+}
+
+
+def parse_bytes(text: str) -> int:
+    """A byte size such as ``2MB``, ``64KiB``, ``500kB`` or ``1200`` (bytes), as bytes;
+    ``ValueError`` saying what was expected otherwise."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([A-Za-z]*)\s*", str(text))
+    unit = m and (m.group(2).upper() or "B")
+    if not m or unit not in _BYTE_UNITS or m.group(2).endswith("b"):
+        raise ValueError(
+            f"{text!r} is not a byte size: expected a number and a unit "
+            "(B, kB, MB, GB, KiB, MiB, GiB), e.g. 2MB"
+        )
+    return int(float(m.group(1)) * _BYTE_UNITS[unit])
 
 
 @dataclass
@@ -535,6 +588,17 @@ class FleetConfig(RunConfig):
                 f"{where}.fuse: a live fleet maps every robot in the common frame "
                 "for now; agent frames and alignment run in `run` and the swarm"
             )
+        if self.live.budget_bytes_per_s:
+            if not self.fuse.delta:
+                raise ValueError(
+                    f"{where}.live.link_budget: a budget sends what does not fit in a later "
+                    "message, as deltas do; set fuse.delta (--delta)"
+                )
+            if SOURCE_LAYERS in self.fuse.rules:
+                raise ValueError(
+                    f"{where}.live.link_budget: source layers send versions of whole layers, "
+                    "which a budget cannot cut; run them without link_budget"
+                )
 
 
 # ------------------------------------------------------------------------------ plain data

@@ -64,4 +64,16 @@ Comparison compare_maps(const ReferenceMap& ref, const OccupancyMap& map, double
 std::unique_ptr<OccupancyMap> changed_voxels(const OccupancyMap& current,
                                              const OccupancyMap& previous);
 
+/// The voxels of `delta` that change a receiver's copy `held` most, as many as fit in an
+/// OctoMap stream of `max_nodes` nodes: its leaves ranked by |log-odds - held's| (held's node
+/// at that place, 0 where it has none), largest first (ties in leaf order), taken in that
+/// order until the next would not fit. `taken` is set to how many leaves were taken.
+std::unique_ptr<OccupancyMap> most_informative_voxels(const OccupancyMap& delta,
+                                                      const OccupancyMap& held,
+                                                      std::size_t max_nodes, std::size_t& taken);
+
+/// `held` with the leaves of `delta` written over it: the receiver's copy after `delta`
+/// (a leaf of `delta` replaces everything of `held` below it).
+std::unique_ptr<OccupancyMap> overlaid(const OccupancyMap& held, const OccupancyMap& delta);
+
 }  // namespace octofuse

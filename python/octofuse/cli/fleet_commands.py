@@ -81,6 +81,12 @@ def _partitions(values) -> list[dict]:
 @click.option(
     "--speed", type=click.FloatRange(min=0.001, max=1000), help="replay speed", show_default="1"
 )
+@click.option(
+    "--link-budget",
+    help="bytes per second each link carries, e.g. 2MB/s (needs --delta): the most "
+    "informative voxels go first, the rest later",
+    show_default="no limit",
+)
 @click.option("--faults", help="injected faults: loss=P,duplicate=P,reorder=P,delay=SECONDS")
 @click.option(
     "--partition",
@@ -130,6 +136,7 @@ def fleet(bags, **p):
             "speed": p.get("speed"),
             "settle_rounds": p.get("settle_rounds"),
             "base_port": p.get("base_port"),
+            "link_budget": p.get("link_budget"),
         }.items()
         if v is not None
     }

@@ -29,6 +29,7 @@ from .options import (
     exchange_options,
     export_options,
     frame_options,
+    layers_option,
     need_bags,
     need_out,
     out_option,
@@ -397,6 +398,7 @@ def demo(export_bag, **p):
     "--truth", type=click.Path(dir_okay=False, path_type=Path), help="scene ground truth JSON"
 )
 @click.option("--threads", type=THREADS, help="0: one per core", show_default="0")
+@layers_option
 @frame_options
 @export_options
 @export_bag_option

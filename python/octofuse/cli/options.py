@@ -200,6 +200,31 @@ rule_option = click.option(
     help="fusion rule(s), comma separated, or 'all'",
     show_default=",".join(_DEFAULT.fuse.rules),
 )
+
+
+class ByteSize(click.ParamType):
+    """A byte size such as 512MB or 2GiB (:func:`~octofuse.config.parse_bytes`), as bytes."""
+
+    name = "SIZE"
+
+    def convert(self, value, param, ctx):
+        from ..config import parse_bytes
+
+        if isinstance(value, int):
+            return value
+        try:
+            return parse_bytes(value)
+        except ValueError as e:
+            self.fail(str(e), param, ctx)
+
+
+layers_option = click.option(
+    "--layers-max-bytes",
+    type=ByteSize(),
+    help="source-layers: bytes of layers an agent holds before it folds the oldest into one "
+    "conservative remainder (exact no more), e.g. 512MB; 0: unlimited",
+    show_default=str(_DEFAULT.fuse.layers_max_bytes),
+)
 exchange_options = _options(
     click.option(
         "--schedule",
@@ -248,6 +273,7 @@ exchange_options = _options(
         help="probability that a message is lost (seeded, the same messages for every rule)",
         show_default=str(_DEFAULT.fuse.loss),
     ),
+    layers_option,
 )
 frame_options = _options(
     click.option(
@@ -358,6 +384,7 @@ def run_config(
         spanning_tree=p.get("spanning_tree"),
         loss=p.get("loss"),
         rules_per_pass=p.get("rules_per_pass"),
+        layers_max_bytes=p.get("layers_max_bytes"),
     )
     if p.get("robust") is not None:
         fuse["robust"] = {"enabled": p["robust"]}

@@ -39,8 +39,8 @@ class MapMessage:
     seq: int  #: 1, 2, ... per link and direction
     ack: int  #: the newest seq the sender has applied from the receiver (0: none)
     #: the sender's map (or contribution), whole or its changed voxels; source layers': its
-    #: layers (:class:`~.source_layers.LayeredPayload`)
-    payload: OccupancyMap | LayeredPayload
+    #: layers (:class:`~.source_layers.LayeredPayload`); None: an acknowledgement alone
+    payload: OccupancyMap | LayeredPayload | None
     delta: bool  #: applied voxel by voxel (the payload holds changed voxels only)
 
     def encode(self, fleet: str = "", payload: bytes | None = None) -> bytes:
@@ -66,6 +66,8 @@ class MapMessage:
         """The message of a frame; ``WireError`` if the frame is not one, and the map
         stream's error if its payload is not a map."""
         msg = decode(frame, max_payload)
+        if msg.kind == Kind.ACK:  # no map: the sender's acknowledgement alone
+            return cls(msg.sender, msg.receiver, msg.rule, msg.seq, msg.ack, None, False)
         if msg.encoding == Encoding.LAYERS:
             return cls(
                 msg.sender,
@@ -143,11 +145,14 @@ class Agent:
         delta: bool = False,
         reliable: bool = True,
         state: OccupancyMap | None = None,
+        max_nodes: int | None = None,
     ) -> MapMessage:
         """The message for neighbour ``to`` now: the map (``state`` if given: the map as it was
         at an earlier moment), or the channel filter's contribution; with ``delta``, only what
-        changed since the snapshot the neighbour is known to hold. Source layers send the
-        layers ``to`` lacks, whole on first contact and as deltas after, whatever ``delta``."""
+        changed since the snapshot the neighbour is known to hold, and with ``max_nodes`` only
+        its most informative voxels that fit (:meth:`~.link.Link.outgoing`). Source layers
+        send the layers ``to`` lacks, whole on first contact and as deltas after, whatever
+        ``delta``."""
         link = self.link(to)
         if self.layers is not None:  # per source what ``to`` lacks: whole, or a delta
             self._advanced([c for c in [self.layers.publish()] if c is not None])
@@ -175,7 +180,7 @@ class Agent:
             if delta:  # kept as the next baseline: a copy of the map as sent
                 snapshot = snapshot.copy()
         whole = link.sends_whole()
-        seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable)
+        seq, payload = link.outgoing(snapshot, delta=delta, reliable=reliable, max_nodes=max_nodes)
         if self.exact and payload is not snapshot:
             open_map(payload)
         return MapMessage(self.name, to, self.rule, seq, link.applied, payload, delta and not whole)

@@ -16,6 +16,7 @@ source layers keep, per source, the version the neighbour is known to hold (:att
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from ..maps.occupancy import OccupancyMap
@@ -52,23 +53,36 @@ class Link:
     pending_layers: dict[int, list[tuple[str, int]]] = field(default_factory=dict)
 
     def outgoing(
-        self, snapshot: OccupancyMap, *, delta: bool, reliable: bool
+        self,
+        snapshot: OccupancyMap,
+        *,
+        delta: bool,
+        reliable: bool,
+        max_nodes: int | None = None,
     ) -> tuple[int, OccupancyMap]:
         """The next message's sequence number and payload for ``snapshot`` (what the agent
         sends now, a map of its own): the snapshot itself, or with ``delta`` its voxels changed
-        since :attr:`baseline`. The snapshot becomes the baseline (``reliable``) or waits for
-        its acknowledgement."""
+        since :attr:`baseline`. With ``max_nodes`` (deltas only) a payload of more nodes keeps
+        its most informative voxels (:meth:`~OccupancyMap.most_informative`); the others stay
+        changed against the next baseline and go in later messages. What the neighbour then
+        holds becomes the baseline (``reliable``) or waits for its acknowledgement."""
         self.seq += 1
-        payload = snapshot
         if self.resync < 0:
             self.resync = self.seq
-        if delta and not self.sends_whole():
-            if self.baseline is not None:
-                payload = snapshot.changed_since(self.baseline)
-            if reliable:
-                self.baseline = snapshot
-            else:
-                self.pending[self.seq] = snapshot
+        if not delta:
+            return self.seq, snapshot
+        whole = self.sends_whole() or self.baseline is None
+        payload = snapshot if whole else snapshot.changed_since(self.baseline)
+        held = snapshot
+        if max_nodes is not None and payload.num_nodes > max_nodes:
+            # a whole map replaces what the neighbour had: it then holds the part sent alone
+            base = empty_like(snapshot) if whole else self.baseline
+            payload, _ = payload.most_informative(base, max_nodes)
+            held = base.overlaid(payload)
+        if reliable:
+            self.baseline = held
+        else:
+            self.pending[self.seq] = held
         return self.seq, payload
 
     def acknowledged(self, ack: int) -> None:
@@ -156,3 +170,9 @@ class Link:
             *(m for _, steps in self.known.values() for _, _, m in steps or ()),
         ]
         return [m for m in held if m is not None]
+
+
+def empty_like(m: OccupancyMap) -> OccupancyMap:
+    """An empty map of ``m``'s parameters (its clamping too: open stays open)."""
+    out = OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping)
+    return out.open_clamping() if m.clamping_logodds == (-math.inf, math.inf) else out

@@ -249,11 +249,14 @@ class SwarmWorker:
     def stats(self) -> dict:
         private, cur, peak = resident_memory()
         self.peak_private = max(self.peak_private, private)
-        maps_bytes = sum(
-            m.memory_bytes
+        held = {  # every map: fused, own, source layers and what the links keep
+            id(m): m
             for a in self.names
-            for m in [*(n.map for n in self.nodes[a].values()), self.local[a]]
-        )
+            for n in self.nodes[a].values()
+            for m in (n.map, *n.held_maps())
+        }
+        maps_bytes = sum(m.memory_bytes for m in held.values())
+        maps_bytes += sum(self.local[a].memory_bytes for a in self.names)
         if self.central is not None:
             maps_bytes += self.central.memory_bytes
         return {

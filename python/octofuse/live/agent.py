@@ -41,11 +41,14 @@ from ..fusion.agent_frames import AgentFrames
 from ..fusion.graph import make_graph
 from ..fusion.network import message_bytes
 from ..fusion.schedule import EXCHANGE, mission_events, moments, parse_schedule
+from ..fusion.wire import Encoding, Kind, Message
 from ..maps.build import insert_scans
 from ..maps.occupancy import OccupancyMap
 from ..memory import resident_memory
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
+from .budget import MIN_NODES, LinkBudget
+from .chunks import wire_bytes
 from .faults import FaultyLinks
 from .transport import ZenohTransport, endpoint
 
@@ -63,6 +66,10 @@ class AgentCounts:
     sent_32b: int = 0
     behind: int = 0  #: scans inserted later than their time plus a second
     queued_max: int = 0  #: most scans waiting at once to be inserted (a live feed)
+    held_back: int = 0  #: messages not sent: the link's budget had no room
+    #: after a restart: when (wall clock) the agent was back on time with every neighbour
+    #: heard from in its new epoch
+    caught_up_at: float | None = None
     restarts: int = 0
 
 
@@ -106,7 +113,7 @@ class LiveAgent:
         self.out = Path(out) / rule / name
         self.out.mkdir(parents=True, exist_ok=True)
         mk = lambda: OccupancyMap.from_config(cfg.build.map)  # noqa: E731
-        self.agent = Agent(name, self.rule, mk())
+        self.agent = Agent(name, self.rule, mk(), cfg.fuse.layers_max_bytes)
         self.local = mk()
         self.frames = AgentFrames.from_config(names, cfg.fuse)
         self.counts = AgentCounts()
@@ -116,6 +123,15 @@ class LiveAgent:
         self._published = 0.0  #: when the fused map was last published (monotonic)
         self.faults: dict = {}  #: what the fault layer did to this agent's chunks
         self.pending: dict[str, deque] = defaultdict(deque)  # lockstep: frames by sender
+        #: wall-clock times for latency: own scans inserted (time, count), messages sent
+        #: (receiver, seq, time, own scans in them) and applied (sender, seq, time)
+        self.trace: dict[str, list] = {"scans": [], "sent": [], "applied": []}
+        self.heard: set[str] = set()  #: neighbours applied from since this process started
+        self.scans_in_map = 0  #: own scans in the map (those before a restart too)
+        #: the mission time now (set when the mission starts: the budget counts in it)
+        self.clock: Callable[[], float] = time.monotonic
+        rate = self.live.budget_bytes_per_s
+        self.budget = LinkBudget(rate, self.live.max_chunk_bytes) if rate else None
 
     # -- the link protocol on frames ---------------------------------------------------------
     def uses(self, other: str) -> bool:
@@ -124,16 +140,60 @@ class LiveAgent:
             return other in self.neighbours
         return (self.name, other) in self.tree
 
-    def compose(self, receiver: str) -> bytes:
-        """The frame for ``receiver`` now."""
+    def compose(self, receiver: str, t: float) -> bytes | None:
+        """The frame for ``receiver`` at mission time ``t``; None if the link's budget leaves
+        no room for a finest voxel now."""
         f = self.cfg.fuse
+        max_nodes = None
+        if self.budget is not None:
+            max_nodes = self.budget.max_nodes(receiver, t, self._empty_frame(receiver))
+            if max_nodes < MIN_NODES:
+                self.counts.held_back += 1
+                return None
         msg = self.agent.compose(
-            receiver, delta=f.delta, reliable=f.loss == 0 and not self.live.faults.any
+            receiver,
+            delta=f.delta,
+            reliable=f.loss == 0 and not self.live.faults.any,
+            max_nodes=max_nodes,
         )
         self.counts.sent += 1
         self.counts.bytes_sent += message_bytes(msg.payload)
         self.counts.sent_32b += 32 * msg.payload.num_leaves
-        return msg.encode(self.live.fleet)
+        frame = msg.encode(self.live.fleet)
+        self.trace["sent"].append((receiver, msg.seq, time.time(), self.scans_in_map))
+        if self.budget is not None:
+            self.budget.spend(receiver, t, frame)
+        return frame
+
+    def acknowledge(self, transport, sender: str) -> None:
+        """Tell ``sender`` what this agent has applied of its messages, without a map (when
+        this agent sends no more, or has no message for it yet): the sender's deltas move on,
+        under a budget to the voxels that did not fit."""
+        link = self.agent.link(sender)
+        frame = Message(
+            self.live.fleet,
+            self.rule,
+            self.name,
+            sender,
+            link.seq,
+            link.applied,
+            Kind.ACK,
+            encoding=Encoding.NONE,
+        ).encode()
+        if self.budget is not None:
+            t = self.clock()
+            if self.budget.allowance(sender, t) < wire_bytes(len(frame), self.live.max_chunk_bytes):
+                return
+            self.budget.spend(sender, t, frame)
+        transport.send(sender, frame)
+
+    def _empty_frame(self, receiver: str) -> int:
+        """Bytes of a frame to ``receiver`` whose map has no node."""
+        m = self.agent.map
+        empty = OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping)
+        return len(
+            MapMessage(self.name, receiver, self.rule, 1, 1, empty, True).encode(self.live.fleet)
+        )
 
     def apply(self, sender: str, frame: bytes) -> bool:
         """Apply a frame that arrived from ``sender``; False (counted) if it is refused."""
@@ -148,6 +208,9 @@ class LiveAgent:
         if (msg.sender, msg.receiver, msg.rule) != (sender, self.name, self.rule):
             self.counts.refused["not for this link"] += 1
             return False
+        if msg.payload is None:  # an acknowledgement: what the neighbour holds of ours
+            self.agent.link(sender).acknowledged(msg.ack)
+            return False
         self.counts.bytes_received += message_bytes(msg.payload)
         moved = (
             self.frames.to_receiver(sender, self.name, msg.payload, self.agent.map.resolution)
@@ -158,6 +221,8 @@ class LiveAgent:
             self.counts.refused["old or repeated"] += 1
             return False
         self.counts.applied += 1
+        self.heard.add(sender)
+        self.trace["applied"].append((sender, msg.seq, time.time()))
         return True
 
     # -- the mission ---------------------------------------------------------------------------
@@ -172,6 +237,7 @@ class LiveAgent:
             epoch = checkpoint.next_epoch(self.out / "epoch")
             if resume and ckpt.is_file():
                 self.local, progress = checkpoint.restore(ckpt, self.agent, epoch)
+                self.scans_in_map = progress["scans"]
                 self.counts.restarts = epoch - 1
                 self.log(
                     f"{self.name}: resumed from {ckpt} at t = {progress['t']:.2f} s (start {epoch})"
@@ -210,9 +276,8 @@ class LiveAgent:
         try:
             transport.wait_for([n for n in self.neighbours if self.uses(n)], live.timeout)
             t0 = time.monotonic()
-            links = FaultyLinks(
-                live.faults, self.name, self.index, transport.put, lambda: time.monotonic() - t0
-            )
+            self.clock = lambda: time.monotonic() - t0
+            links = FaultyLinks(live.faults, self.name, self.index, transport.put, self.clock)
             self.faults = links.counts
             for t, group in [*timed, (duration, [])]:
                 while time.monotonic() - t0 < t:
@@ -245,7 +310,9 @@ class LiveAgent:
         for e in group:
             s, d = self.names[e.sender], self.names[e.receiver]
             if s == self.name and self.uses(d):
-                send(d, self.compose(d))
+                frame = self.compose(d, self.clock())  # the budget's clock: when it leaves
+                if frame is not None:
+                    send(d, frame)
         progress["t"] = t
         self._status(transport, t)
 
@@ -280,6 +347,8 @@ class LiveAgent:
             )
             self.counts.scans += len(batch)
             progress["scans"] += len(batch)
+            self.scans_in_map = progress["scans"]
+            self.trace["scans"].append((time.time(), self.scans_in_map))
             batch.clear()
 
     def _scans_until(self, scans, t: float, start: int, progress: dict, carry: list) -> None:
@@ -305,7 +374,7 @@ class LiveAgent:
             for e in group:  # every message of the group composed before any is applied
                 s, d = self.names[e.sender], self.names[e.receiver]
                 if s == self.name and self.uses(d):
-                    frame = self.compose(d)
+                    frame = self.compose(d, t)
                     if not e.lost:
                         transport.send(d, frame)
             for e in group:
@@ -337,8 +406,12 @@ class LiveAgent:
 
     def _in_time(self, transport, scans, timed, start, progress, ckpt) -> None:
         live = self.live
-        t0 = time.monotonic() - max(progress["t"], 0.0) / live.speed
-        now = lambda: (time.monotonic() - t0) * live.speed  # noqa: E731 - mission time
+        # the mission's clock starts once, with the fleet: an agent started again catches up
+        # with it (the scans and exchanges it missed go at once) rather than lag behind
+        started = progress.setdefault("start_wall", time.time())
+        t0 = time.monotonic() - (time.time() - started)
+        now = self.clock = lambda: (time.monotonic() - t0) * live.speed  # mission time
+        tree = [n for n in self.neighbours if self.uses(n)]
         links = FaultyLinks(live.faults, self.name, self.index, transport.put, now)
         self.faults = links.counts
         next_ckpt = progress["t"] + live.checkpoint_period if live.checkpoint_period else None
@@ -347,8 +420,11 @@ class LiveAgent:
             # scans and arrivals until the exchange at t
             while True:
                 scan = carry.pop() if carry else next(scans, None)
-                if scan is None:
-                    self._drain(transport, until=None if t == float("inf") else t0 + t / live.speed)
+                if scan is None:  # after the last exchange, what has arrived (the settle
+                    # rounds and the end take the rest: waiting for quiet here would hold this
+                    # agent's own rounds back while its neighbours settle)
+                    last = time.monotonic() if t == float("inf") else t0 + t / live.speed
+                    self._drain(transport, until=last)
                     break
                 at = (scan.stamp_ns - start) / 1e9
                 if at > t:
@@ -358,6 +434,9 @@ class LiveAgent:
                 self._drain(transport, until=t0 + at / live.speed)
                 if now() > at + 1.0:
                     self.counts.behind += 1
+                elif self.counts.restarts and self.counts.caught_up_at is None:
+                    if self.heard.issuperset(tree):
+                        self.counts.caught_up_at = time.time()
                 self._insert([scan], progress)
             if t == float("inf"):
                 break
@@ -368,8 +447,9 @@ class LiveAgent:
         links.flush()
         for _ in range(live.settle_rounds):  # fault-free rounds: the fleet settles
             for n in self.neighbours:
-                if self.uses(n):
-                    transport.send(n, self.compose(n))
+                frame = self.compose(n, now()) if self.uses(n) else None
+                if frame is not None:
+                    transport.send(n, frame)
             self._drain(transport, until=time.monotonic() + 0.5)
 
     def _drain(self, transport, until: float | None, done: list | None = None) -> None:
@@ -392,7 +472,9 @@ class LiveAgent:
                 if until is None and not transport.running(done or []):
                     return
                 continue
-            self.apply(sender, frame)
+            # under a budget a sender's rest waits for acknowledgements: give them at once
+            if self.apply(sender, frame) and (done or self.budget is not None):
+                self.acknowledge(transport, sender)
 
     def _scored(self) -> OccupancyMap:
         """The fused map as scored and written (the exact modes' clamped)."""
@@ -456,6 +538,8 @@ class LiveAgent:
         with checkpoint.written(self.out / "loss.npz") as f:
             np.savez(f, values=values, depths=depths)
         c = self.counts
+        with checkpoint.written(self.out / "trace.json") as f:
+            f.write(json.dumps(self.trace).encode())
         with checkpoint.written(self.out / "counts.json") as f:
             f.write(
                 json.dumps(
@@ -470,7 +554,10 @@ class LiveAgent:
                         "insert_mode": self.insert_mode,
                         "behind": c.behind,
                         "queued_max": c.queued_max,
+                        "held_back": c.held_back,
+                        "budget_peak": dict(self.budget.peak) if self.budget else {},
                         "restarts": c.restarts,
+                        "caught_up_at": c.caught_up_at,
                         "chunks_over_bound": transport.dropped,
                         "chunks_refused": transport.chunks_refused,
                         "faults": dict(self.faults),

@@ -46,6 +46,11 @@ def split(frame: bytes, number: int, max_bytes: int) -> list[bytes]:
     ]
 
 
+def wire_bytes(frame_bytes: int, max_bytes: int) -> int:
+    """Bytes a frame of ``frame_bytes`` takes as chunks of at most ``max_bytes``."""
+    return frame_bytes + HEAD_BYTES * max(1, -(-frame_bytes // (max_bytes - HEAD_BYTES)))
+
+
 class Reassembler:
     """Chunks from senders in, whole messages out; ``max_bytes`` bounds a message."""
 

@@ -338,8 +338,26 @@ class OccupancyMap:
         return _core._assign_values(self._m, channel._m, delta._m)
 
     def changed_since(self, previous: OccupancyMap) -> OccupancyMap:
-        """The voxels whose value differs from ``previous`` (a delta message)."""
-        return OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m))
+        """The voxels whose value differs from ``previous`` (a delta message), with this map's
+        clamping."""
+        return self._same_clamping(OccupancyMap._wrap(_core._changed_voxels(self._m, previous._m)))
+
+    def most_informative(self, held: OccupancyMap, max_nodes: int) -> tuple[OccupancyMap, int]:
+        """The voxels of this map (a delta) that change ``held`` (the receiver's copy) most,
+        as many as fit in ``max_nodes`` nodes of a stream: ranked by the size of the log-odds
+        change, ``|l - l_held|`` (``l_held`` = 0 where ``held`` has no voxel), largest first.
+        Returns them and how many voxels (leaves) they are."""
+        raw, taken = _core._most_informative_voxels(self._m, held._m, int(max_nodes))
+        return self._same_clamping(OccupancyMap._wrap(raw)), taken
+
+    def overlaid(self, delta: OccupancyMap) -> OccupancyMap:
+        """A new map: this one with the voxels of ``delta`` written over it (a receiver's
+        copy after the delta)."""
+        return self._same_clamping(OccupancyMap._wrap(_core._overlaid(self._m, delta._m)))
+
+    def _same_clamping(self, made: OccupancyMap) -> OccupancyMap:
+        """``made`` (of this map's parameters) with this map's clamping, open if it is."""
+        return made.open_clamping() if self.clamping_logodds != made.clamping_logodds else made
 
     def class_counts(self, reference: OccupancyMap | ReferenceMap, tol: float) -> dict:
         """Voxel counts of this map against ``reference`` over finest voxels: the class

@@ -179,6 +179,16 @@ def test_run_prints_the_table(bag, tmp_path, capsys):
     assert s["mean"]["naive-bayes"]["overconfidence"] > s["mean"]["min-info-loss"]["overconfidence"]
 
 
+@pytest.mark.parametrize("command", ["run", "fleet"])
+def test_layers_max_bytes_is_a_size_given_once_on_the_command_line(bag, tmp_path, capsys, command):
+    args = [command, bag, "--rule", "source-layers", "--dump-config"]
+    code, text, err = run_cli(capsys, *args, "--layers-max-bytes", "512MB")
+    assert code == 0, err
+    assert yaml.safe_load(text)["fuse"]["layers_max_bytes"] == 512_000_000
+    code, _, err = run_cli(capsys, *args, "--layers-max-bytes", "lots")
+    assert code != 0 and "--layers-max-bytes" in err and "'lots' is not a byte size" in err
+
+
 def test_run_dump_config_then_run_it(bag, tmp_path, capsys):
     out = tmp_path / "o"
     code, text, err = run_cli(

@@ -98,3 +98,27 @@ def test_a_swarm_refuses_a_bad_number_of_samples_before_starting():
             FuseConfig(rules=["chernoff"], schedule="periodic:1"),
             samples=-1,
         )
+
+
+def test_maps_bytes_counts_source_layers_and_what_links_keep():
+    w = worker(["a", "b"], rules=("source-layers",))
+    for n, seed in (("a", 5), ("b", 6)):
+        w.nodes[n]["source-layers"].map.insert_scan(
+            np.random.default_rng(seed).uniform(-2, 2, (300, 3)), [0.0, 0.0, 0.0]
+        )
+        w.nodes[n]["source-layers"].layers.own.insert_scan(
+            np.random.default_rng(seed).uniform(-2, 2, (300, 3)), [0.0, 0.0, 0.0]
+        )
+    w.receive("b", ["a"], 0.0, w.send("a", ["b"]))
+    b = w.nodes["b"]["source-layers"]
+    held = {
+        id(m): m
+        for n in w.nodes.values()
+        for m in (n["source-layers"].map, *n["source-layers"].held_maps())
+    }
+    want = sum(m.memory_bytes for m in held.values()) + sum(
+        m.memory_bytes for m in w.local.values()
+    )
+    assert len(b.layers.maps()) >= 2  # b's own layer and a's
+    assert w.stats()["maps_bytes"] == want
+    assert want > sum(n["source-layers"].map.memory_bytes for n in w.nodes.values())

@@ -216,6 +216,123 @@ def test_an_agent_killed_and_started_again_resumes_and_the_fleet_ends_exact(bag,
         assert_same_values(OccupancyMap.load(out / rule / a.name / "fused.ot"), want, a.name)
 
 
+# -- a byte budget per link ------------------------------------------------------------------
+
+
+def test_a_link_budget_sends_the_most_informative_voxels_first_and_the_rest_later(bag, tmp_path):
+    """Agents of a line compose frames under a 4 kB/s budget every quarter second, a third of
+    them lost: no link carries more than 4 kB in any second (bytes counted on the frames),
+    the first message carries the largest log-odds of its sender's map, and once the budget
+    has let everything through every channel-filter map is exactly the sum of every robot's
+    scans."""
+    from octofuse.fusion.agent import MapMessage
+    from octofuse.live.agent import LiveAgent
+    from octofuse.live.chunks import wire_bytes
+
+    rate = 4000
+    cfg, _ = fleet_config(bag, tmp_path, link_budget="4kB/s", faults={"loss": 0.3})
+    names = [a.name for a in cfg.build.agents]
+    agents = {n: LiveAgent(cfg, n, "channel-filter", tmp_path / "out") for n in names}
+    with ScanSource(cfg.build) as src:
+        scans = list(src.scans())
+    want = exact_sum(bag)
+    rng = np.random.default_rng(3)
+    sent: dict[tuple[str, str], list] = {}
+    first = None
+    for step in range(400):
+        t = step / 4
+        if scans and step % 3 == 1:  # a scan now and then, the first after a message
+            scan = scans.pop(0)
+            agents[names[scan.agent]]._insert([scan], {"scans": 0})
+        for x in agents.values():
+            for y in x.neighbours:
+                frame = x.compose(y, t)
+                if frame is None:
+                    continue
+                sent.setdefault((x.name, y), []).append((t, wire_bytes(len(frame), 2**16)))
+                if first is None and x.scans_in_map:  # and the map it was taken from
+                    first = (x.agent.map.copy(), MapMessage.decode(frame).payload)
+                if step > 200 or rng.random() > 0.3:  # lost, until the last rounds
+                    agents[y].apply(x.name, frame)
+        if step > 200 and all(_same(clamped(x.agent.map), want) for x in agents.values()):
+            break
+    else:
+        raise AssertionError("the fleet did not settle under its budget")
+    for a in agents.values():
+        assert_same_values(clamped(a.agent.map), want, a.name)
+    for link, sends in sent.items():  # the bytes of every second that ends at a send
+        for t, _ in sends:
+            assert sum(n for s, n in sends if t - 1 < s <= t) <= rate, link
+        assert agents[link[0]].budget.peak[link[1]] <= rate
+    assert max(len(s) for s in sent.values()) > 10  # the budget held messages back
+    # an acknowledgement alone (what an agent that sends no more gives) moves the baseline on
+    from octofuse.fusion.wire import Encoding, Kind, Message
+
+    a, b = agents[names[0]], names[1]
+    a.agent.map.insert_scan(np.array([[9.0, 9.0, 1.0]]), [8.0, 9.0, 1.0])
+    msg = MapMessage.decode(a.compose(b, t + 2))
+    assert msg.payload.num_leaves > 0
+    ack = Message(
+        cfg.live.fleet, "channel-filter", b, a.name, 1, msg.seq, Kind.ACK, b"", Encoding.NONE
+    )
+    before = a.agent.map.to_bytes()
+    assert not a.apply(b, ack.encode()) and not a.counts.refused
+    assert a.agent.map.to_bytes() == before
+    assert MapMessage.decode(a.compose(b, t + 4)).payload.num_leaves == 0  # nothing new
+    sender_map, payload = first
+    ks, vs = voxel_keys(payload)
+    km, vm = voxel_keys(sender_map)
+    unsent = ~np.isin(km, ks)
+    assert 0 < len(ks) and unsent.any()
+    assert np.abs(vs).min() >= np.abs(vm[unsent]).max()
+
+
+def _same(got: OccupancyMap, want: OccupancyMap) -> bool:
+    kg, vg = voxel_keys(got)
+    kw, vw = voxel_keys(want)
+    return np.array_equal(kg, kw) and np.abs(vg - vw).max(initial=0.0) <= 2e-4
+
+
+@pytest.mark.parametrize(
+    "value, why",
+    [
+        ("2MB", "expected a size per second"),
+        ("2Mb/s", "is not a byte size"),
+        ("fast/s", "is not a byte size"),
+        ("100B/s", "expected at least 1024"),
+    ],
+)
+def test_a_bad_link_budget_is_one_line_naming_it(value, why):
+    with pytest.raises(ValueError, match=f"fleet.yaml.live.link_budget = '{value}': .*{why}"):
+        from_dict(
+            FleetConfig, {"fuse": {"delta": True}, "live": {"link_budget": value}}, "fleet.yaml"
+        )
+    assert (
+        from_dict(
+            FleetConfig, {"fuse": {"delta": True}, "live": {"link_budget": "2MB/s"}}
+        ).live.budget_bytes_per_s
+        == 2_000_000
+    )
+    with pytest.raises(ValueError, match="set fuse.delta"):
+        from_dict(FleetConfig, {"live": {"link_budget": "2MB/s"}})
+
+
+@pytest.mark.slow
+def test_through_loss_under_a_link_budget_a_fleet_ends_exact_and_within_it(bag, tmp_path):
+    cfg, path = fleet_config(
+        bag, tmp_path, link_budget="8kB/s", settle_rounds=25, faults={"loss": 0.2, "seed": 2}
+    )
+    out = tmp_path / "agents"
+    finish({a.name: start_agent(path, a.name, out) for a in cfg.build.agents})
+    want = exact_sum(bag)
+    for a in cfg.build.agents:
+        assert_same_values(
+            OccupancyMap.load(out / "channel-filter" / a.name / "fused.ot"), want, a.name
+        )
+        counts = json.loads((out / "channel-filter" / a.name / "counts.json").read_text())
+        assert counts["budget_peak"] and max(counts["budget_peak"].values()) <= 8000
+
+
 # -- what an agent lets in ------------------------------------------------------------------
 
 
