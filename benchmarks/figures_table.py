@@ -115,6 +115,18 @@ def rows_from(summary: dict) -> dict[tuple[str, str], list[str]]:
             f"grid {mix['grid']} x {mix['grid']}: {min(grid):.0f}-{max(grid):.0f} ms",
             f"{min(ratio):.1f}-{max(ratio):.1f}x",
         ]
+    realtime = summary.get("realtime")
+    if realtime:
+        by = {(r["set"], r["method"]): r for r in realtime}
+        base = by[("luminar", "OctoMap insertPointCloud")]["cpu_ms_per_scan"]
+        for method in ("octofuse exact", "octofuse fast"):
+            r = by[("luminar", method)]
+            rows[("realtime_ingest.py", f"{method}, 5 real Luminar clouds, 0.1 m, 40 m")] = [
+                f"{r['cpu_ms_per_scan']:.0f} ms CPU/scan ({100.0 / r['cpu_ms_per_scan']:.2f}x real "
+                f"time), {100 * r['occupied_kept']:.1f}% kept, {100 * r['extra_occupied']:.1f}% extra",
+                f"insertPointCloud: {base:.0f} ms CPU/scan",
+                _x(base / r["cpu_ms_per_scan"]),
+            ]
     return rows
 
 

@@ -15,7 +15,7 @@
    benchmarks/README.md (the rows of the parts run, dated today; not with --quick).
 
     .venv/bin/python benchmarks/run_all.py [--repeats N] [--pairs N] [--quick]
-        [--parts fusion,maps,ingest,network,beliefs] [--ingest-repeats N] [--network-repeats N]
+        [--parts fusion,maps,ingest,network,beliefs,realtime] [--ingest-repeats N] [--network-repeats N]
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ import network  # noqa: E402
 import rules_throughput  # noqa: E402
 from bench_common import machine  # noqa: E402
 
-PARTS = ("fusion", "maps", "ingest", "network", "beliefs")
+PARTS = ("fusion", "maps", "ingest", "network", "beliefs", "realtime")
 DATA = ROOT / "build" / "bench-data"
 #: (name, bag or generator, maps fused: a, b) for the benchmark on maps built from bags
 MAP_SETS = (("warehouse", "warehouse4", "robot2", "robot3"), ("lab8", "lab8", "robot1", "robot2"))
@@ -117,6 +117,25 @@ def run_mixture_fusion(repeats: int, grid: int) -> dict:
         + ["--grid", str(grid), "--json", str(out)],
         check=True,
         env=env,
+        stdout=subprocess.DEVNULL,
+    )
+    return json.loads(out.read_text())
+
+
+def run_realtime(repeats: int) -> list[dict] | None:
+    """benchmarks/realtime_ingest.py in a process of its own, when the real Luminar bag is
+    there (it is not part of the repository)."""
+    import realtime_ingest
+
+    if not realtime_ingest.LUMINAR.exists():
+        log(f"realtime: skipped, {realtime_ingest.LUMINAR} not found")
+        return None
+    out = BUILD / "realtime_ingest.json"
+    BUILD.mkdir(parents=True, exist_ok=True)
+    subprocess.run(
+        [sys.executable, str(HERE / "realtime_ingest.py"), "--repeats", str(repeats)]
+        + ["--json", str(out)],
+        check=True,
         stdout=subprocess.DEVNULL,
     )
     return json.loads(out.read_text())
@@ -379,7 +398,8 @@ def main(argv=None) -> int:
         "--parts",
         default=",".join(PARTS),
         help="what to run: fusion (trees + arrays), maps (trees of bags), ingest, network, "
-        "beliefs (mixture fusion) (comma separated)",
+        "beliefs (mixture fusion), realtime (3-D lidar insertion; needs the real Luminar bag) "
+        "(comma separated)",
     )
     ap.add_argument("--ingest-repeats", type=int, default=3, help="timed runs per insertion method")
     ap.add_argument("--network-repeats", type=int, default=1, help="runs per fusion-run setting")
@@ -453,6 +473,11 @@ def main(argv=None) -> int:
     if "beliefs" in parts:
         log("running the mixture-fusion benchmark (benchmarks/mixture_fusion.py)")
         summary["mixture_fusion"] = run_mixture_fusion(args.repeats, 100 if args.quick else 400)
+    if "realtime" in parts and not args.quick:
+        log("running the real-time insertion benchmark (benchmarks/realtime_ingest.py)")
+        rows = run_realtime(args.repeats)
+        if rows:
+            summary["realtime"] = rows
     BUILD.mkdir(parents=True, exist_ok=True)
     if not args.quick:
         figures_table.update(HERE / "README.md", summary, machine())
