@@ -69,7 +69,22 @@ def main() -> None:
     ap.add_argument("--schedule", default="aperiodic:20")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
+    rows, header = measure(a.bag, a.every, a.rules.split(","), a.topology, a.schedule)
+    print(
+        f"\n{header}\n"
+        "\n| merge | | KL to centralized (nats/voxel) | over-confident voxels |\n|---|---|---:|---:|"
+    )
+    for x in rows:
+        print(f"| {x['merge']} | {x['kind']} | {x['kl_mean']:.4f} | {x['overconfidence']:.2%} |")
+    if a.json:
+        a.json.write_text(json.dumps(rows, indent=1))
 
+
+def measure(
+    bag: str, every: int, rules: list[str], topology: str, schedule: str
+) -> tuple[list[dict], str]:
+    """One row per merge (the baselines, octofuse's rules, the own map alone) with its mean KL
+    to the centralized map and share of over-confident voxels; and a line on the run."""
     from octofuse.config import RunConfig, from_dict
     from octofuse.fusion.results import LOCAL, score_agent
     from octofuse.fusion.schedule import run_schedule
@@ -81,8 +96,8 @@ def main() -> None:
     cfg = from_dict(
         RunConfig,
         {
-            "build": {"bags": [a.bag], "scan_stride": a.every},
-            "fuse": {"rules": a.rules.split(","), "topology": a.topology, "schedule": a.schedule},
+            "build": {"bags": [bag], "scan_stride": every},
+            "fuse": {"rules": rules, "topology": topology, "schedule": schedule},
         },
     )
     t0 = time.perf_counter()
@@ -127,15 +142,11 @@ def main() -> None:
     for r in sim.rules:
         rows.append(_row(r, "octofuse", list(sim.scores[r].values())))
     rows.append(_row("own map only", "floor", list(sim.scores[LOCAL].values())))
-    print(
-        f"\n{len(names)} agents, {len(events)} exchanges ({a.topology}, {a.schedule}); "
-        f"octofuse rules {sim_s:.1f} s, baselines {base_s:.1f} s\n"
-        "\n| merge | | KL to centralized (nats/voxel) | over-confident voxels |\n|---|---|---:|---:|"
+    header = (
+        f"{len(names)} agents, {len(events)} exchanges ({topology}, {schedule}); "
+        f"octofuse rules {sim_s:.1f} s, baselines {base_s:.1f} s"
     )
-    for x in rows:
-        print(f"| {x['merge']} | {x['kind']} | {x['kl_mean']:.4f} | {x['overconfidence']:.2%} |")
-    if a.json:
-        a.json.write_text(json.dumps(rows, indent=1))
+    return rows, header
 
 
 def _row(merge: str, kind: str, scores: list) -> dict:
