@@ -23,6 +23,7 @@ from ..maps.infoloss import InfoLossMap
 from ..maps.occupancy import OccupancyMap
 from ..maps.tree_fusion import exchange_maps, fuse_into, subtract_into
 from ..rule_names import FusionRule
+from ..rules import UnknownPolicy
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .link import Link
 from .source_layers import Change, LayeredPayload, Layers
@@ -190,7 +191,7 @@ class Agent:
         self,
         msg: MapMessage,
         *,
-        unknown: str = "copy",
+        unknown: UnknownPolicy = UnknownPolicy.COPY,
         threads: int = 1,
         moved: OccupancyMap | None = None,
     ) -> bool:
@@ -278,7 +279,9 @@ class Agent:
                 link.forget_changes()
             self.layers.fold_to_budget()
 
-    def exchange_with(self, other: Agent, *, unknown: str = "copy") -> tuple[int, int]:
+    def exchange_with(
+        self, other: Agent, *, unknown: UnknownPolicy = UnknownPolicy.COPY
+    ) -> tuple[int, int]:
         """A two-way exchange of whole maps, both fused in one walk (a per-voxel rule, both
         agents in one frame). Returns the leaves of this agent's and ``other``'s map as sent
         (the two messages' voxels)."""

@@ -45,6 +45,7 @@ from ..fusion.wire import Encoding, Kind, Message
 from ..maps.build import insert_scans
 from ..maps.occupancy import OccupancyMap
 from ..memory import resident_memory
+from ..rules import parse_unknown
 from ..scans.source import ScanSource, prefetch
 from . import checkpoint, keys
 from .budget import MIN_NODES, LinkBudget
@@ -93,6 +94,7 @@ class LiveAgent:
                 f"rule '{rule}' is not one of the fleet's: {', '.join(cfg.fuse.rules)}"
             )
         self.cfg, self.name, self.live, self.log = cfg, name, cfg.live, log
+        self.unknown = parse_unknown(cfg.fuse.unknown)  # the core's policy, parsed once
         self.rule, self.rule_index = rule, cfg.fuse.rules.index(rule)
         names = [a.name for a in cfg.build.agents]
         if name not in names:
@@ -217,7 +219,7 @@ class LiveAgent:
             if self.frames.active
             else None
         )  # a fleet's maps share one frame for now
-        if not self.agent.deliver(msg, unknown=self.cfg.fuse.unknown, moved=moved):
+        if not self.agent.deliver(msg, unknown=self.unknown, moved=moved):
             self.counts.refused["old or repeated"] += 1
             return False
         self.counts.applied += 1
