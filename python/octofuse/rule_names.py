@@ -18,6 +18,9 @@ _EXACT_NAMES = ("channel-filter", "source-layers")
 
 
 class _RuleMethods(StrEnum):
+    def __repr__(self) -> str:  # a tuple of rules prints as their names
+        return repr(self.value)
+
     @property
     def core(self) -> _core.Rule | None:
         """The core's per-voxel rule, or None for an exact mode."""
