@@ -7,6 +7,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from doc_figures import REPO, assert_as_printed, quoted
@@ -173,14 +174,16 @@ def readme_demo_table() -> dict[str, dict[str, str]]:
 
 @pytest.mark.slow
 def test_the_demo_gives_the_readme_table(tmp_path):
-    """Three rows of the README's demo table, from a demo of two rules alone: a rule's maps are
-    its own, so its scores are those of the whole demo (local-only comes with every run)."""
+    """Four rows of the README's demo table, from a demo of three rules alone: a rule's maps are
+    its own, so its scores are those of the whole demo (local-only comes with every run); and
+    docs/demo.md's memory and traffic figures of those rules."""
     from octofuse.cli import main
 
-    rules = ["naive-bayes", "min-info-loss"]
+    rules = ["naive-bayes", "min-info-loss", "source-layers"]
     args = ["demo", "--rules", ",".join(rules), "--export", "none", "--out", str(tmp_path / "d")]
     assert main(args) == 0
-    mean = json.loads((tmp_path / "d" / "summary.json").read_text())["mean"]
+    summary = json.loads((tmp_path / "d" / "summary.json").read_text())
+    mean = summary["mean"]
     table = readme_demo_table()
     assert list(table) == ["local-only", *octofuse_rules(), "channel-filter", "source-layers"]
     figures, measured = {}, {}
@@ -190,8 +193,42 @@ def test_the_demo_gives_the_readme_table(tmp_path):
             if cell != "–":
                 figures[f"{rule} {column}"] = cell
                 measured[f"{rule} {column}"] = scale * mean[rule][key]
-    assert len(figures) == 3 * 7 - 2  # local-only has no loss columns
+    assert len(figures) == 4 * 7 - 4  # local-only and source-layers have no loss columns
     assert_as_printed(measured, figures, "README.md")
+
+    def megabytes(rule, part):
+        return (
+            np.mean([sum(m[p] for p in part) for m in summary["memory_bytes"][rule].values()]) / 1e6
+        )
+
+    page = "docs/demo.md"
+    names = ["total", "map", "layers", "others low", "sent", "others sent low"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"The price is memory: # MB per robot \(# MB map, # MB of layers and of the changes "
+                r"kept for deltas\) against \d+ MB for the channel filter and #-\d+ MB for naive "
+                r"Bayes and the WEP rules; a robot sends # MB \(the others #-\d",
+            ),
+        )
+    )
+    figures["floor over"] = quoted(page, r"all scans summed and clamped once give #%")[0]
+    figures["nb sent"] = quoted(page, r"a robot sends # MB \(naive-bayes")[0]
+    layers = "source-layers"
+    sent = {r: mean[r]["bytes_sent"] / 1e6 for r in rules}
+    measured = {
+        "total": megabytes(layers, ("map", "links")),
+        "map": megabytes(layers, ("map",)),
+        "layers": megabytes(layers, ("links",)),
+        "others low": megabytes("naive-bayes", ("map",)),
+        "sent": sent[layers],
+        "others sent low": sent["naive-bayes"],
+        "floor over": 100 * summary["exact"]["floor_overconfidence"],
+        "nb sent": sent["naive-bayes"],
+    }
+    assert_as_printed(measured, figures, page)
 
 
 def octofuse_rules() -> list[str]:
