@@ -229,6 +229,10 @@ def test_the_demo_gives_the_readme_table(tmp_path):
         "nb sent": sent["naive-bayes"],
     }
     assert_as_printed(measured, figures, page)
+    # docs/commands.md: the share of the accumulated loss the count of messages explains
+    low, high = quoted("docs/commands.md", r"In the demo it explains #-#% for every WEP rule")
+    share = re.search(r"`min-info-loss` (\d+)%", summary["loss_per_event_finding"]).group(1)
+    assert int(low) <= int(share) <= int(high), (share, low, high)
 
 
 def octofuse_rules() -> list[str]:
