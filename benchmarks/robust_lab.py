@@ -27,6 +27,15 @@ from octofuse.maps.compare import score
 from octofuse.maps.truth import Scene
 
 GENERATOR = Path(__file__).resolve().parents[1] / "data" / "generate_lab.py"
+#: the bias of the wrongly localised robot, and the run docs/robust.md quotes
+BIAS = {"robot": 3, "offset": (0.4, -0.2), "yaw": 3.0, "drift": (0.002, 0.001), "yaw_drift": 0.01}
+RUN = {
+    "every": 4,
+    "rules": ("min-info-loss", "chernoff"),
+    "topology": "max-robust:3",
+    "schedule": "aperiodic:10",
+    "robust_time": 60.0,
+}
 
 
 def generate(out: Path, robot: int, offset, yaw: float, drift, yaw_drift: float) -> Path:
@@ -51,19 +60,81 @@ def generate(out: Path, robot: int, offset, yaw: float, drift, yaw_drift: float)
     return out
 
 
+def measure(
+    bag: Path,
+    biased: str,
+    every: int,
+    rules,
+    topology: str,
+    schedule: str,
+    robust_time: float,
+    threads: int,
+):
+    """Fusion of ``rules`` without voting, with voting (no exchange before it) and with voting
+    after the usual exchanges, scored over the correctly localised robots: the table's rows
+    (rule, mode, kl, agreement, occupied_agreement, on_surface, mb_sent) and the runs by mode."""
+    scene = Scene.load(bag.with_name(bag.stem + "_scene.json"))
+    bcfg = make_build_config(bag, scan_stride=every, threads=threads)
+    good = [f"robot{k}" for k in range(1, 9) if f"robot{k}" != biased]
+    clean_cfg = make_build_config(
+        bag, agents=[f"{n}=/{n}/scan" for n in good], scan_stride=every, threads=threads
+    )
+    clean = build(clean_cfg).centralized
+    runs = {}
+    for mode, robust, hold in (
+        ("off", False, True),
+        ("on", True, True),
+        ("on, no hold", True, False),
+    ):
+        fcfg = FuseConfig(
+            rules=list(rules),
+            topology=topology,
+            schedule=schedule,
+            robust=RobustConfig(enabled=robust, time=robust_time, hold=hold),
+        )
+        runs[mode] = simulate(bcfg, fcfg, samples=0)
+    rows = []
+    for rule in [*rules, "local-only", "centralized (all 8)"]:
+        for mode, res in runs.items():
+            if rule in ("local-only", "centralized (all 8)") and mode != "off":
+                continue
+            if rule == "centralized (all 8)":
+                maps, sent = {a: res.central for a in good}, float("nan")
+            elif rule == "local-only":
+                maps, sent = {a: res.local[a] for a in good}, 0.0
+            else:
+                maps = {a: res.fused[rule][a] for a in good}
+                sent = sum(res.traffic[rule].sent.values()) / 1e6
+            s = [score(m, clean, truth=scene) for m in maps.values()]
+            rows.append(
+                {
+                    "rule": rule,
+                    "mode": mode,
+                    "kl": float(np.mean([x.kl_mean for x in s])),
+                    "agreement": float(np.mean([x.agreement for x in s])),
+                    "occupied_agreement": float(np.mean([x.agreement_occupied for x in s])),
+                    "on_surface": float(np.mean([x.occupied_accuracy for x in s])),
+                    "mb_sent": sent,
+                }
+            )
+    return rows, runs
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("/tmp/robust_lab_bias.bag"))
-    ap.add_argument("--bias-robot", type=int, default=3)
-    ap.add_argument("--bias-offset", type=float, nargs=2, default=(0.4, -0.2))
-    ap.add_argument("--bias-yaw", type=float, default=3.0)
-    ap.add_argument("--bias-drift", type=float, nargs=2, default=(0.002, 0.001))
-    ap.add_argument("--bias-yaw-drift", type=float, default=0.01)
-    ap.add_argument("--every", type=int, default=4, help="use every N-th scan of each robot")
-    ap.add_argument("--rules", default="min-info-loss,chernoff")
-    ap.add_argument("--topology", default="max-robust:3")
-    ap.add_argument("--schedule", default="aperiodic:10")
-    ap.add_argument("--robust-time", type=float, default=60.0)
+    ap.add_argument("--bias-robot", type=int, default=BIAS["robot"])
+    ap.add_argument("--bias-offset", type=float, nargs=2, default=BIAS["offset"])
+    ap.add_argument("--bias-yaw", type=float, default=BIAS["yaw"])
+    ap.add_argument("--bias-drift", type=float, nargs=2, default=BIAS["drift"])
+    ap.add_argument("--bias-yaw-drift", type=float, default=BIAS["yaw_drift"])
+    ap.add_argument(
+        "--every", type=int, default=RUN["every"], help="use every N-th scan of each robot"
+    )
+    ap.add_argument("--rules", default=",".join(RUN["rules"]))
+    ap.add_argument("--topology", default=RUN["topology"])
+    ap.add_argument("--schedule", default=RUN["schedule"])
+    ap.add_argument("--robust-time", type=float, default=RUN["robust_time"])
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
 
@@ -76,31 +147,11 @@ def main(argv=None) -> int:
         args.bias_drift,
         args.bias_yaw_drift,
     )
-    scene = Scene.load(bag.with_name(bag.stem + "_scene.json"))
     biased = f"robot{args.bias_robot}"
-    bcfg = make_build_config(bag, scan_stride=args.every, threads=args.threads)
-    names = [f"robot{k}" for k in range(1, 9)]
-    good = [n for n in names if n != biased]
-    clean_cfg = make_build_config(
-        bag, agents=[f"{n}=/{n}/scan" for n in good], scan_stride=args.every, threads=args.threads
-    )
-    clean = build(clean_cfg).centralized
     rules = [r for r in args.rules.split(",") if r]
-    runs = {}
-    # off; on (no exchange before the vote); on with exchanges before the vote as usual
-    for mode, robust, hold in (
-        ("off", False, True),
-        ("on", True, True),
-        ("on, no hold", True, False),
-    ):
-        fcfg = FuseConfig(
-            rules=rules,
-            topology=args.topology,
-            schedule=args.schedule,
-            robust=RobustConfig(enabled=robust, time=args.robust_time, hold=hold),
-        )
-        runs[mode] = simulate(bcfg, fcfg, samples=0)
-
+    rows, runs = measure(
+        bag, biased, args.every, rules, args.topology, args.schedule, args.robust_time, args.threads
+    )
     print(
         f"bag {bag}: {biased} biased by offset {tuple(args.bias_offset)} m, yaw {args.bias_yaw} deg, "
         f"drift {tuple(args.bias_drift)} m/s, {args.bias_yaw_drift} deg/s; every {args.every}. scan, "
@@ -116,30 +167,11 @@ def main(argv=None) -> int:
     )
     print(head)
     print("-" * len(head))
-    for rule in rules + ["local-only", "centralized (all 8)"]:
-        for mode, res in runs.items():
-            robust = mode != "off"
-            if rule == "centralized (all 8)":
-                if robust:
-                    continue
-                maps, sent = {a: res.central for a in good}, float("nan")
-            elif rule == "local-only":
-                if robust:
-                    continue
-                maps, sent = {a: res.local[a] for a in good}, 0.0
-            else:
-                maps = {a: res.fused[rule][a] for a in good}
-                sent = sum(res.traffic[rule].sent.values()) / 1e6
-            s = [score(m, clean, truth=scene) for m in maps.values()]
-            kl, agr = np.mean([x.kl_mean for x in s]), np.mean([x.agreement for x in s])
-            occ, acc = (
-                np.mean([x.agreement_occupied for x in s]),
-                np.mean([x.occupied_accuracy for x in s]),
-            )
-            print(
-                f"{rule:<20} {mode:<12} {kl:>11.4f} {agr:>9.1%} {occ:>9.1%} "
-                f"{acc:>10.1%} {sent:>8.1f}"
-            )
+    for r in rows:
+        print(
+            f"{r['rule']:<20} {r['mode']:<12} {r['kl']:>11.4f} {r['agreement']:>9.1%} "
+            f"{r['occupied_agreement']:>9.1%} {r['on_surface']:>10.1%} {r['mb_sent']:>8.1f}"
+        )
     out = runs["on"].robust
     print()
     for a, m, ab, ok, v in zip(out.agents, out.measurements, out.abstained, out.inliers, out.votes):

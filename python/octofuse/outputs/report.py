@@ -129,13 +129,14 @@ def findings(
             if ex.get("tree_links") is not None and ex["tree_links"] < ex["graph_links"]
             else ""
         )
-        floor = ex.get("floor_kl")
+        floor, floor_over = ex.get("floor_kl"), ex.get("floor_overconfidence")
         text = (
             f"Exact fusion (channel filter{links}): KL {cf['kl_mean']:.4f}, over-confident "
             f"on {cf['overconfidence']:.1%}, class agreement {cf['agreement']:.1%}"
             + (
-                f" (a map of all scans, clamped once, has KL {floor:.4f}: clamping the sum "
-                "is not OctoMap's step-by-step clamping)"
+                f" (a map of all scans, clamped once, has KL {floor:.4f}"
+                + (f" and is over-confident on {floor_over:.1%}" if floor_over is not None else "")
+                + ": clamping the sum is not OctoMap's step-by-step clamping)"
                 if floor is not None
                 else ""
             )
@@ -244,6 +245,7 @@ def exact_summary(res: SimResult, tol: float) -> dict | None:
         "tree": [list(e) for e in res.tree] if res.tree is not None else None,
         "floor_kl": None,
         "floor_agreement": None,
+        "floor_overconfidence": None,
     }
     if res.central_unclamped is not None and res.central is not None:
         from ..fusion.channel_filter import clamped
@@ -251,6 +253,7 @@ def exact_summary(res: SimResult, tol: float) -> dict | None:
 
         s = compare(res.central, clamped(res.central_unclamped), tol)
         out["floor_kl"], out["floor_agreement"] = s.kl_mean, s.agreement
+        out["floor_overconfidence"] = s.overconfidence
     return out
 
 

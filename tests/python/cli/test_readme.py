@@ -7,6 +7,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from doc_figures import REPO, assert_as_printed, quoted
@@ -173,14 +174,16 @@ def readme_demo_table() -> dict[str, dict[str, str]]:
 
 @pytest.mark.slow
 def test_the_demo_gives_the_readme_table(tmp_path):
-    """Three rows of the README's demo table, from a demo of two rules alone: a rule's maps are
-    its own, so its scores are those of the whole demo (local-only comes with every run)."""
+    """Four rows of the README's demo table, from a demo of three rules alone: a rule's maps are
+    its own, so its scores are those of the whole demo (local-only comes with every run); and
+    docs/demo.md's memory and traffic figures of those rules."""
     from octofuse.cli import main
 
-    rules = ["naive-bayes", "min-info-loss"]
+    rules = ["naive-bayes", "min-info-loss", "source-layers"]
     args = ["demo", "--rules", ",".join(rules), "--export", "none", "--out", str(tmp_path / "d")]
     assert main(args) == 0
-    mean = json.loads((tmp_path / "d" / "summary.json").read_text())["mean"]
+    summary = json.loads((tmp_path / "d" / "summary.json").read_text())
+    mean = summary["mean"]
     table = readme_demo_table()
     assert list(table) == ["local-only", *octofuse_rules(), "channel-filter", "source-layers"]
     figures, measured = {}, {}
@@ -190,11 +193,171 @@ def test_the_demo_gives_the_readme_table(tmp_path):
             if cell != "–":
                 figures[f"{rule} {column}"] = cell
                 measured[f"{rule} {column}"] = scale * mean[rule][key]
-    assert len(figures) == 3 * 7 - 2  # local-only has no loss columns
+    assert len(figures) == 4 * 7 - 4  # local-only and source-layers have no loss columns
     assert_as_printed(measured, figures, "README.md")
+
+    def megabytes(rule, part):
+        return (
+            np.mean([sum(m[p] for p in part) for m in summary["memory_bytes"][rule].values()]) / 1e6
+        )
+
+    page = "docs/demo.md"
+    names = ["total", "map", "layers", "others low", "sent", "others sent low"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"The price is memory: # MB per robot \(# MB map, # MB of layers and of the changes "
+                r"kept for deltas\) against \d+ MB for the channel filter and #-\d+ MB for naive "
+                r"Bayes and the WEP rules; a robot sends # MB \(the others #-\d",
+            ),
+        )
+    )
+    figures["floor over"] = quoted(page, r"all scans summed and clamped once give #%")[0]
+    figures["nb sent"] = quoted(page, r"a robot sends # MB \(naive-bayes")[0]
+    layers = "source-layers"
+    sent = {r: mean[r]["bytes_sent"] / 1e6 for r in rules}
+    measured = {
+        "total": megabytes(layers, ("map", "links")),
+        "map": megabytes(layers, ("map",)),
+        "layers": megabytes(layers, ("links",)),
+        "others low": megabytes("naive-bayes", ("map",)),
+        "sent": sent[layers],
+        "others sent low": sent["naive-bayes"],
+        "floor over": 100 * summary["exact"]["floor_overconfidence"],
+        "nb sent": sent["naive-bayes"],
+    }
+    assert_as_printed(measured, figures, page)
+    # docs/commands.md: the share of the accumulated loss the count of messages explains
+    low, high = quoted("docs/commands.md", r"In the demo it explains #-#% for every WEP rule")
+    share = re.search(r"`min-info-loss` (\d+)%", summary["loss_per_event_finding"]).group(1)
+    assert int(low) <= int(share) <= int(high), (share, low, high)
 
 
 def octofuse_rules() -> list[str]:
     import octofuse
 
     return list(octofuse.RULES)
+
+
+@pytest.mark.slow
+def test_message_loss_gives_the_figures_the_docs_quote(tmp_path):
+    """docs/demo.md's run with 30% of the messages lost, run as the page writes it."""
+    from octofuse.cli import main
+
+    page = "docs/demo.md"
+    (command,) = quoted(page, r"With 30% of the messages lost \(`octofuse (run [^`]+)`")
+    assert main([*command.split(), "--out", str(tmp_path / "loss")]) == 0
+    mean = json.loads((tmp_path / "loss" / "summary.json").read_text())["mean"]
+    names = ["channel-filter", "min-info-loss", "chernoff", "naive-bayes over-confident"]
+    figures = dict(
+        zip(
+            names,
+            quoted(
+                page,
+                r"# for the channel filter \(its tree has no second path around a lost message\), "
+                r"# for min-info-loss and # for Chernoff; naive Bayes stays over-confident on #% ",
+            ),
+        )
+    )
+    measured = {n: mean[n]["kl_mean"] for n in names[:3]}
+    measured[names[3]] = 100 * mean["naive-bayes"]["overconfidence"]
+    assert_as_printed(measured, figures, page)
+
+
+def test_the_demo_findings_are_the_readme_table():
+    """docs/demo.md's findings quote the demo's table in the README (which a test runs):
+    each figure there is the table's cell, or a range, extreme or ratio of its cells."""
+    table = readme_demo_table()
+
+    def cell(rule, column):
+        return float(table[rule][column].rstrip("%"))
+
+    def over(rules, column):
+        return [cell(r, column) for r in rules]
+
+    wep = [r for r in octofuse_rules() if r != "naive-bayes"]
+    chernoffs = [r for r in wep if "chernoff" in r or r == "bhattacharyya"]
+    kl, p95, mean = "KL(central ‖ agent)", "info loss p95", "info loss mean"
+    page = "docs/demo.md"
+    figures, measured = {}, {}
+
+    def check(names, pattern, values):
+        figures.update(zip(names, quoted(page, pattern)))
+        measured.update(zip(names, values))
+
+    oc = over(wep, "over-confident")
+    check(
+        ["nb over", "wep over min", "wep over max"],
+        r"Naive Bayes leaves #% of the voxels more certain than the centralized map \(by more "
+        r"than 0\.1 in log-odds\), against # to #% for the WEP rules",
+        [cell("naive-bayes", "over-confident"), min(oc), max(oc)],
+    )
+    check(
+        ["nb kl", "wep kl min", "wep kl max"],
+        r"over-confidence gap \(# against # to #\)",
+        [cell("naive-bayes", kl), min(over(wep, kl)), max(over(wep, kl))],
+    )
+    check(
+        ["wep kl low", "wep kl high", "local kl", "wep coverage", "local coverage"],
+        r"\(KL # to # against #; coverage #% against #%\)",
+        [
+            min(over(wep, kl)),
+            max(over(wep, kl)),
+            cell("local-only", kl),
+            min(over(wep, "coverage")),
+            cell("local-only", "coverage"),
+        ],
+    )
+    assert len({f"{c:.0f}" for c in over(wep, "coverage")}) == 1
+    check(
+        ["mil p95", "me p95"],
+        r"min-info-loss is the lowest of the WEP rules \(#, min-entropy #\)",
+        [cell("min-info-loss", p95), cell("min-entropy", p95)],
+    )
+    assert min(wep, key=lambda r: cell(r, p95)) == "min-info-loss"
+    lower = ["bhattacharyya", "chernoff", "entropy-weighted-chernoff"]
+    check(
+        ["lower min", "lower max", "mil mean"],
+        r"entropy-weighted Chernoff are lower \(# to # against #\)",
+        [min(over(lower, mean)), max(over(lower, mean)), cell("min-info-loss", mean)],
+    )
+    assert max(over(lower, mean)) < cell("min-info-loss", mean)
+    assert sorted(wep, key=lambda r: cell(r, kl))[1] == "min-info-loss"
+    check(
+        ["me kl", "mil kl", "cf kl", "family low", "family high"],
+        r"min-entropy \(KL #\) and min-info-loss \(#\) do better than the exact filter on the "
+        r"tree alone \(#\), because the 5 loop links carry information the tree does not; the "
+        r"Chernoff family \(#-#\) does not",
+        [
+            cell("min-entropy", kl),
+            cell("min-info-loss", kl),
+            cell("channel-filter", kl),
+            min(over(chernoffs, kl)),
+            max(over(chernoffs, kl)),
+        ],
+    )
+    links = quoted(page, r"spanning tree \(`--spanning-tree bfs\|given\|FILE`; # of the # links\)")
+    assert links == quoted("README.md", r"on a spanning tree: # of # links")
+    sl, me_times, me, cf_times, sl_over = quoted(
+        page,
+        r"KL #, # times below min-entropy \(#\) and # times below the channel filter \(its #% "
+        r"over-confidence",
+    )
+    figures.update({"sl kl": sl, "me kl again": me, "sl over": sl_over})
+    measured.update(
+        {
+            "sl kl": cell("source-layers", kl),
+            "me kl again": cell("min-entropy", kl),
+            "sl over": cell("source-layers", "over-confident"),
+        }
+    )
+    assert_as_printed(measured, figures, page)
+    for times, other in ((me_times, "min-entropy"), (cf_times, "channel-filter")):
+        # the ratio of the unrounded values, within what the table's rounding allows
+        a, b = table[other][kl], table["source-layers"][kl]
+        half = 0.5 * 10 ** -len(a.split(".")[1])
+        low, high = (float(a) - half) / (float(b) + half), (float(a) + half) / (float(b) - half)
+        step = 0.5 * 10 ** -len(times.split(".")[1])
+        assert float(times) + step >= low and float(times) - step <= high, (times, other)

@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bagfactory as bf  # noqa: E402
 from bagfactory import SENSORS, assert_same_map, room_map, run_cli  # noqa: E402
 from conftest import REPO, expand, random_map  # noqa: E402
+from doc_figures import assert_as_printed, quoted  # noqa: E402
 from octofuse import OccupancyMap  # noqa: E402
 from octofuse.config import AgentFrame, FuseConfig, RobustConfig, RunConfig, from_dict  # noqa: E402
 from octofuse.fusion.agent_frames import AgentFrames, moved, transform_error  # noqa: E402
@@ -76,6 +77,18 @@ def unbiased(lab):
     return run_lab(lab["true"])
 
 
+@pytest.fixture(scope="module")
+def biased_runs(lab):
+    """Runs of the shifted and of the turned lab, without and with robot3's frame."""
+    frame = {b: [AgentFrame("robot3", bias_frame(lab[b]))] for b in ("shift", "turn")}
+    return {
+        "shift": run_lab(lab["shift"]),
+        "shift framed": run_lab(lab["shift"], agent_frames=frame["shift"]),
+        "turn": run_lab(lab["turn"]),
+        "turn framed": run_lab(lab["turn"], agent_frames=frame["turn"]),
+    }
+
+
 def kl_in_common(res, truth: OccupancyMap, maps: dict) -> dict[str, float]:
     """KL of each agent's map, moved into the common frame, to ``truth``."""
     out = {}
@@ -130,12 +143,11 @@ def test_a_frame_pair_moves_a_message_by_whole_voxels_exactly():
 
 
 @pytest.mark.slow
-def test_a_known_frame_undoes_a_biased_robot(lab, unbiased):
+def test_a_known_frame_undoes_a_biased_robot(unbiased, biased_runs):
     """robot3's poses shifted by whole voxels: with its frame the run is the unbiased run (its
     scans reach the centralized map moved back; its messages are moved exactly)."""
     truth = unbiased.central
-    biased = run_lab(lab["shift"])
-    framed = run_lab(lab["shift"], agent_frames=[AgentFrame("robot3", bias_frame(lab["shift"]))])
+    biased, framed = biased_runs["shift"], biased_runs["shift framed"]
     assert set(framed.frames) == {"robot3"}
     assert compare(truth, framed.central, 0.1).kl_mean < 1e-6
     want = kl_in_common(unbiased, truth, unbiased.fused[RULE])
@@ -152,12 +164,11 @@ def test_a_known_frame_undoes_a_biased_robot(lab, unbiased):
 
 
 @pytest.mark.slow
-def test_a_known_turned_frame_moves_the_robots_own_map_into_place(lab, unbiased):
+def test_a_known_turned_frame_moves_the_robots_own_map_into_place(unbiased, biased_runs):
     """robot3's poses turned by 3 degrees: its own map, moved by its frame, lies on the truth,
     and the fused maps of robot3 and its neighbours with it."""
     truth = unbiased.central
-    framed = run_lab(lab["turn"], agent_frames=[AgentFrame("robot3", bias_frame(lab["turn"]))])
-    biased = run_lab(lab["turn"])
+    biased, framed = biased_runs["turn"], biased_runs["turn framed"]
     want = compare(truth, unbiased.local["robot3"], 0.1).kl_mean
     got = kl_in_common(framed, truth, {"robot3": framed.local["robot3"]})["robot3"]
     worse = compare(truth, biased.local["robot3"], 0.1).kl_mean
@@ -174,6 +185,30 @@ def test_a_known_turned_frame_moves_the_robots_own_map_into_place(lab, unbiased)
     worse = kl_in_common(biased, truth, biased.fused[RULE])
     for a in ("robot2", "robot3", "robot4"):
         assert got[a] - want[a] < 0.5 * (worse[a] - want[a]), (a, want[a], got[a], worse[a])
+
+
+#: the rows of docs/frames.md's table: robot3's poses and whether its frame is given
+FRAME_TABLE = {
+    "unbiased": r"unbiased \| –",
+    "shift": r"shifted 0\.4, -0\.2 m \| no",
+    "shift framed": r"shifted 0\.4, -0\.2 m \| yes",
+    "turn": r"shifted and turned 3 degrees \| no",
+    "turn framed": r"shifted and turned 3 degrees \| yes",
+}
+
+
+@pytest.mark.slow
+def test_the_frames_table_of_the_docs_is_what_the_runs_give(unbiased, biased_runs):
+    """docs/frames.md's table: each robot's fused map, moved into the common frame, against the
+    unbiased centralized map, in the runs the tests above make."""
+    runs = {"unbiased": unbiased, **biased_runs}
+    figures, measured = {}, {}
+    for name, row in FRAME_TABLE.items():
+        kl = kl_in_common(runs[name], unbiased.central, runs[name].fused[RULE])
+        cells = quoted("docs/frames.md", rf"\| {row} \| # / # / # / # \|")
+        for agent, cell in zip(sorted(kl), cells, strict=True):
+            figures[f"{name} {agent}"], measured[f"{name} {agent}"] = cell, kl[agent]
+    assert_as_printed(measured, figures, "docs/frames.md")
 
 
 # -- alignment on first contact (finished maps: `fuse`) -------------------------------------------
@@ -302,9 +337,20 @@ def test_robust_fusion_votes_on_the_maps_in_the_common_frame(lab, bias):
 
     res, offset = vote()
     assert res.excluded == ["robot3"] and np.hypot(*offset[:2]) > 0.35
-    res, offset = vote(agent_frames=[AgentFrame("robot3", bias_frame(lab[bias]))])
-    assert res.excluded == [] and np.hypot(*offset[:2]) < 0.05 and abs(offset[2]) < 0.01
+    res, framed = vote(agent_frames=[AgentFrame("robot3", bias_frame(lab[bias]))])
+    assert res.excluded == [] and np.hypot(*framed[:2]) < 0.05 and abs(framed[2]) < 0.01
     assert not res.robust.abstained[res.agents.index("robot3")]
+    # the offsets docs/frames.md quotes: shifted / turned, without and with the frame
+    off_shift, off_turn, on_shift, on_turn = quoted(
+        "docs/frames.md",
+        r"without its frame \(measured offset # / # m\) and kept with it \(# / # m\)",
+    )
+    figures = {"shift": (off_shift, on_shift), "turn": (off_turn, on_turn)}[bias]
+    assert_as_printed(
+        {"without": np.hypot(*offset[:2]), "with": np.hypot(*framed[:2])},
+        dict(zip(["without", "with"], figures)),
+        f"docs/frames.md ({bias})",
+    )
 
 
 @pytest.fixture(scope="module")

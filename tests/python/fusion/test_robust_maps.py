@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO
+from doc_figures import assert_as_printed, benchmark, quoted
 from octofuse.config import FuseConfig, RobustConfig, RunConfig, from_dict
 from octofuse.maps.alignment import (
     ABSTAIN_VARIANCE,
@@ -217,3 +218,60 @@ def test_the_biased_robot_is_voted_out_and_not_fused(lab_bag, tmp_path):
     plain = simulate(bcfg, dataclasses.replace(fcfg, robust=RobustConfig()), samples=0)
     assert plain.robust is None and plain.excluded == []
     assert plain.traffic["min-info-loss"].sent["robot3"] > 0
+
+
+@pytest.mark.slow
+def test_the_lab_figures_of_the_docs_are_what_the_benchmark_measures(tmp_path):
+    """docs/robust.md's measured paragraph, from one run of benchmarks/robust_lab.py."""
+    lab = benchmark("robust_lab")
+    bias, run = lab.BIAS, lab.RUN
+    bag = lab.generate(tmp_path / "biased.bag", **bias)
+    biased = f"robot{bias['robot']}"
+    rows, runs = lab.measure(bag, biased, **run, threads=2)
+    row = {(r["rule"], r["mode"]): r for r in rows}
+    vote = runs["on"].robust
+    assert vote.excluded == [biased] and runs["on, no hold"].excluded == [biased]
+    m = vote.measurements[vote.agents.index(biased)]
+
+    page = "docs/robust.md"
+    figures, measured = {}, {}
+
+    def check(names, pattern, values):
+        figures.update(zip(names, quoted(page, pattern)))
+        measured.update(zip(names, values))
+
+    check(
+        ["dx", "dy", "yaw"],
+        r"robot 3 measured \(# m, \+# m, # degrees\) and was voted out, nobody else was",
+        [m[0], m[1], np.degrees(m[2])],
+    )
+    mil, mil_on = row["min-info-loss", "off"], row["min-info-loss", "on"]
+    ch, ch_on = row["chernoff", "off"], row["chernoff", "on"]
+    check(
+        ["kl", "kl on", "occ", "occ on", "surface", "surface on", "ch kl", "ch kl on"],
+        r"min-info-loss: KL # -> #, occupied-voxel agreement #% -> #%, occupied voxels on a "
+        r"true surface #% -> #%; chernoff: KL # -> #\.",
+        [
+            mil["kl"],
+            mil_on["kl"],
+            100 * mil["occupied_agreement"],
+            100 * mil_on["occupied_agreement"],
+            100 * mil["on_surface"],
+            100 * mil_on["on_surface"],
+            ch["kl"],
+            ch_on["kl"],
+        ],
+    )
+    check(
+        ["total", "points", "voting", "maps"],
+        r"The vote cost # MB in all \(map points # MB, voting messages # MB\) against # MB of "
+        r"min-info-loss's map messages",
+        [
+            vote.total_bytes / 1e6,
+            vote.alignment_bytes / 1e6,
+            vote.voting_bytes / 1e6,
+            mil_on["mb_sent"],
+        ],
+    )
+    check(["no hold"], r"the gain is small \(KL #\)", [row["min-info-loss", "on, no hold"]["kl"]])
+    assert_as_printed(measured, figures, page)
