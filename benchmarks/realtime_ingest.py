@@ -43,7 +43,13 @@ from octofuse.scans.bags import BagSet
 from octofuse.scans.decode import pointcloud2_to_xyz
 
 ROOT = Path(__file__).resolve().parent.parent
-LUMINAR = ROOT.parent / "shared" / "data" / "real" / "luminar_pointcloud2.bag"
+#: the shared data beside the repository (or beside a directory above it, for a checkout
+#: placed deeper)
+SHARED_REAL = next(
+    (p / "shared" / "data" / "real" for p in ROOT.parents if (p / "shared" / "data").is_dir()),
+    ROOT.parent / "shared" / "data" / "real",
+)
+LUMINAR = SHARED_REAL / "luminar_pointcloud2.bag"
 RESOLUTION, MAX_RANGE, HZ = 0.1, 40.0, 10.0
 
 

@@ -30,9 +30,13 @@ using detail::kCell;
 using detail::kCodeOnly;
 constexpr long kKeyOffset = 32768;  // OctoMap's tree_max_val at depth 16
 
+// The size of a cache line: per-thread state that is written often is kept on lines of
+// its own, so that the threads do not take the lines from each other.
+constexpr std::size_t kLine = 64;
+
 // Rays crossing each cell of a scan, and the cells holding one of its end points: an
 // open-addressing map from cell code to a count whose top bit marks an end point.
-class CellTally {
+class alignas(kLine) CellTally {
  public:
   static constexpr std::uint32_t kHasEnd = 1u << 31;
 
@@ -317,14 +321,15 @@ namespace {
 
 // Calls f(worker, b, e) for runs b..e of the rays [0, n) on `threads` workers (0 to
 // threads - 1, the caller's thread among them), each taking the next run when done with one:
-// the rays of a scan differ in length, and neighbouring rays (runs) share their voxels.
+// the rays of a scan differ in length. Neighbouring rays share their voxels, so the runs are
+// long (8 per thread): a voxel then seldom goes to two workers.
 template <class F>
 void ray_runs(std::size_t n, unsigned threads, F&& f) {
-  constexpr std::size_t kRun = 256;
+  const std::size_t run = std::max<std::size_t>(256, n / (8 * std::size_t{threads}));
   std::atomic<std::size_t> next{0};
   detail::parallel_for(threads, threads, [&](std::size_t worker) {
-    for (std::size_t b = next.fetch_add(kRun); b < n; b = next.fetch_add(kRun))
-      f(worker, b, std::min(n, b + kRun));
+    for (std::size_t b = next.fetch_add(run); b < n; b = next.fetch_add(run))
+      f(worker, b, std::min(n, b + run));
   });
 }
 
@@ -337,7 +342,7 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
   const std::size_t n = scan.ends.size() / 3;
   const octomap::point3d o(scan.origin[0], scan.origin[1], scan.origin[2]);
   constexpr std::size_t kCache = 4096;
-  struct Worker {
+  struct alignas(kLine) Worker {
     std::vector<std::uint64_t> cache;  // the cell, its top bit: jumped
     detail::CodeSet voxels;
   };

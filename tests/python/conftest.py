@@ -9,7 +9,12 @@ import pytest
 import octofuse
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED_REAL = REPO.parent / "shared" / "data" / "real"
+# the shared data beside the repository (or beside a directory above it, for a checkout
+# placed deeper)
+SHARED_REAL = next(
+    (p / "shared" / "data" / "real" for p in REPO.parents if (p / "shared" / "data").is_dir()),
+    REPO.parent / "shared" / "data" / "real",
+)
 
 
 def scan_ring(rng, center, n_points=400, radius=1.0, z=(-0.3, 0.3)):
