@@ -348,9 +348,11 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
   };
   std::vector<Worker> workers;
   workers.reserve(threads);
-  for (unsigned k = 0; k < threads; ++k)  // a ray crosses some voxels no other ray does
+  // a ray crosses some voxels no other ray does: room for 16 a ray, so that the sets of a
+  // real scan's rays to 40 m are not made again as they grow
+  for (unsigned k = 0; k < threads; ++k)
     workers.push_back(
-        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(8 * n / threads)});
+        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(16 * n / threads)});
   ray_runs(n, threads, [&](std::size_t k, std::size_t b, std::size_t e) {
     Worker& w = workers[k];
     const auto jumped = [&](std::uint64_t cell) {
