@@ -322,14 +322,22 @@ namespace {
 // Calls f(worker, b, e) for runs b..e of the rays [0, n) on `threads` workers (0 to
 // threads - 1, the caller's thread among them), each taking the next run when done with one:
 // the rays of a scan differ in length. Neighbouring rays share their voxels, so the runs are
-// long (8 per thread): a voxel then seldom goes to two workers.
-template <class F>
-void ray_runs(std::size_t n, unsigned threads, F&& f) {
-  const std::size_t run = std::max<std::size_t>(256, n / (8 * std::size_t{threads}));
+// long (a voxel then seldom goes to two workers): each a share of the rays left, down to
+// 256 rays at the end, so that the workers end together. Then each worker calls
+// done(worker).
+template <class F, class Done>
+void ray_runs(std::size_t n, unsigned threads, F&& f, Done&& done) {
   std::atomic<std::size_t> next{0};
+  const std::size_t parts = 4 * std::size_t{threads};
   detail::parallel_for(threads, threads, [&](std::size_t worker) {
-    for (std::size_t b = next.fetch_add(run); b < n; b = next.fetch_add(run))
-      f(worker, b, std::min(n, b + run));
+    std::size_t b = next.load();
+    while (b < n) {
+      const std::size_t e = std::min(n, b + std::max<std::size_t>(256, (n - b) / parts));
+      if (!next.compare_exchange_weak(b, e)) continue;  // b: where the runs are now
+      f(worker, b, e);
+      b = next.load();
+    }
+    done(worker);
   });
 }
 
@@ -353,7 +361,8 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
   for (unsigned k = 0; k < threads; ++k)
     workers.push_back(
         {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(16 * n / threads)});
-  ray_runs(n, threads, [&](std::size_t k, std::size_t b, std::size_t e) {
+  std::vector<std::vector<std::uint64_t>> parts(threads);
+  const auto trace = [&](std::size_t k, std::size_t b, std::size_t e) {
     Worker& w = workers[k];
     const auto jumped = [&](std::uint64_t cell) {
       std::uint64_t& c = w.cache[(cell ^ (cell >> 9)) & (kCache - 1)];
@@ -365,10 +374,8 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
       trace_ray_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), scan.levels, jumped,
                       [&w](std::uint64_t c) { w.voxels.insert(c); });
     }
-  });
-  std::vector<std::vector<std::uint64_t>> parts(threads);
-  detail::parallel_for(threads, threads,
-                       [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
+  };
+  ray_runs(n, threads, trace, [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
   std::vector<std::uint64_t> fr = std::move(parts[0]);
   for (std::size_t k = 1; k < threads; ++k) {
     fr = merged(fr, parts[k]);
@@ -477,15 +484,15 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   // on each thread's share of the rays, then summed; and the cells of the end points
   const unsigned nt = threads_for(rays, opt.threads);
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
-  ray_runs(rays, nt, [&](std::size_t k, std::size_t b, std::size_t e) {
+  const auto count = [&](std::size_t k, std::size_t b, std::size_t e) {
     for (std::size_t j = b; j < e; ++j) {
       if (j > 0 && end_codes[j] == end_codes[j - 1]) continue;  // the first of its end voxel
       const float* p = &scan.ends[3 * j];
       walk_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }
-  });
-  for (CellTally& t : tallies) t.flush();
+  };
+  ray_runs(rays, nt, count, [&](std::size_t k) { tallies[k].flush(); });
   CellTally& tally = tallies[0];
   for (std::size_t k = 1; k < nt; ++k) tally.absorb(tallies[k]);
   for (std::uint64_t c : occ) tally.add(c >> (3 * level), CellTally::kHasEnd);
