@@ -412,22 +412,29 @@ void occupied_cells(const OccupancyTree& t, const OccupancyNode* node, unsigned 
 // beam past the range end there together, and neighbouring beams may), the one to the least
 // end (by x, then y, then z), so that neither the order nor repeats of the points change the
 // map. In the order of the end voxels' codes (which go to `codes`), so that neighbouring
-// rays follow each other.
+// rays follow each other. Sorted in `threads` parts at once, then merged (rays of one end
+// voxel and end point are alike).
 std::vector<float> rays_to_trace(const OccupancyTree& grid, const std::vector<float>& ends,
-                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes) {
+                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes,
+                                 unsigned threads) {
   const std::size_t n = ends.size() / 3;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* e = &ends[3 * i];
-    keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
-                static_cast<std::uint32_t>(i)};
-  }
-  std::sort(keyed.begin(), keyed.end(), [&ends](const auto& a, const auto& b) {
+  const auto less = [&ends](const auto& a, const auto& b) {
     if (a.first != b.first) return a.first < b.first;
     const float* p = &ends[3 * a.second];
     const float* q = &ends[3 * b.second];
     return std::lexicographical_compare(p, p + 3, q, q + 3);
+  };
+  const auto part = [&](std::size_t k) { return keyed.begin() + k * n / threads; };
+  detail::parallel_for(threads, threads, [&](std::size_t k) {
+    for (std::size_t i = k * n / threads; i < (k + 1) * n / threads; ++i) {
+      const float* e = &ends[3 * i];
+      keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
+                  static_cast<std::uint32_t>(i)};
+    }
+    std::sort(part(k), part(k + 1), less);
   });
+  for (unsigned k = 1; k < threads; ++k) std::inplace_merge(part(0), part(k), part(k + 1), less);
   std::vector<float> out;
   out.reserve(ends.size());
   codes.clear();
@@ -477,7 +484,7 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   }
   detail::sort_unique(occ);
   std::vector<std::uint64_t> end_codes;
-  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes);
+  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes, threads_for(n, opt.threads));
   const std::size_t rays = scan.ends.size() / 3;
 
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
