@@ -30,9 +30,13 @@ using detail::kCell;
 using detail::kCodeOnly;
 constexpr long kKeyOffset = 32768;  // OctoMap's tree_max_val at depth 16
 
+// The size of a cache line: per-thread state that is written often is kept on lines of
+// its own, so that the threads do not take the lines from each other.
+constexpr std::size_t kLine = 64;
+
 // Rays crossing each cell of a scan, and the cells holding one of its end points: an
 // open-addressing map from cell code to a count whose top bit marks an end point.
-class CellTally {
+class alignas(kLine) CellTally {
  public:
   static constexpr std::uint32_t kHasEnd = 1u << 31;
 
@@ -317,14 +321,23 @@ namespace {
 
 // Calls f(worker, b, e) for runs b..e of the rays [0, n) on `threads` workers (0 to
 // threads - 1, the caller's thread among them), each taking the next run when done with one:
-// the rays of a scan differ in length, and neighbouring rays (runs) share their voxels.
-template <class F>
-void ray_runs(std::size_t n, unsigned threads, F&& f) {
-  constexpr std::size_t kRun = 256;
+// the rays of a scan differ in length. Neighbouring rays share their voxels, so the runs are
+// long (a voxel then seldom goes to two workers): each a share of the rays left, down to
+// 256 rays at the end, so that the workers end together. Then each worker calls
+// done(worker).
+template <class F, class Done>
+void ray_runs(std::size_t n, unsigned threads, F&& f, Done&& done) {
   std::atomic<std::size_t> next{0};
+  const std::size_t parts = 4 * std::size_t{threads};
   detail::parallel_for(threads, threads, [&](std::size_t worker) {
-    for (std::size_t b = next.fetch_add(kRun); b < n; b = next.fetch_add(kRun))
-      f(worker, b, std::min(n, b + kRun));
+    std::size_t b = next.load();
+    while (b < n) {
+      const std::size_t e = std::min(n, b + std::max<std::size_t>(256, (n - b) / parts));
+      if (!next.compare_exchange_weak(b, e)) continue;  // b: where the runs are now
+      f(worker, b, e);
+      b = next.load();
+    }
+    done(worker);
   });
 }
 
@@ -337,16 +350,19 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
   const std::size_t n = scan.ends.size() / 3;
   const octomap::point3d o(scan.origin[0], scan.origin[1], scan.origin[2]);
   constexpr std::size_t kCache = 4096;
-  struct Worker {
+  struct alignas(kLine) Worker {
     std::vector<std::uint64_t> cache;  // the cell, its top bit: jumped
     detail::CodeSet voxels;
   };
   std::vector<Worker> workers;
   workers.reserve(threads);
-  for (unsigned k = 0; k < threads; ++k)  // a ray crosses some voxels no other ray does
+  // a ray crosses some voxels no other ray does: room for 16 a ray, so that the sets of a
+  // real scan's rays to 40 m are not made again as they grow
+  for (unsigned k = 0; k < threads; ++k)
     workers.push_back(
-        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(8 * n / threads)});
-  ray_runs(n, threads, [&](std::size_t k, std::size_t b, std::size_t e) {
+        {std::vector<std::uint64_t>(kCache, kNoCode), detail::CodeSet(16 * n / threads)});
+  std::vector<std::vector<std::uint64_t>> parts(threads);
+  const auto trace = [&](std::size_t k, std::size_t b, std::size_t e) {
     Worker& w = workers[k];
     const auto jumped = [&](std::uint64_t cell) {
       std::uint64_t& c = w.cache[(cell ^ (cell >> 9)) & (kCache - 1)];
@@ -358,10 +374,8 @@ std::vector<std::uint64_t> free_voxels(const OccupancyTree& grid, const FastScan
       trace_ray_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), scan.levels, jumped,
                       [&w](std::uint64_t c) { w.voxels.insert(c); });
     }
-  });
-  std::vector<std::vector<std::uint64_t>> parts(threads);
-  detail::parallel_for(threads, threads,
-                       [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
+  };
+  ray_runs(n, threads, trace, [&](std::size_t k) { parts[k] = workers[k].voxels.sorted(); });
   std::vector<std::uint64_t> fr = std::move(parts[0]);
   for (std::size_t k = 1; k < threads; ++k) {
     fr = merged(fr, parts[k]);
@@ -398,22 +412,29 @@ void occupied_cells(const OccupancyTree& t, const OccupancyNode* node, unsigned 
 // beam past the range end there together, and neighbouring beams may), the one to the least
 // end (by x, then y, then z), so that neither the order nor repeats of the points change the
 // map. In the order of the end voxels' codes (which go to `codes`), so that neighbouring
-// rays follow each other.
+// rays follow each other. Sorted in `threads` parts at once, then merged (rays of one end
+// voxel and end point are alike).
 std::vector<float> rays_to_trace(const OccupancyTree& grid, const std::vector<float>& ends,
-                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes) {
+                                 const std::vector<char>& cut, std::vector<std::uint64_t>& codes,
+                                 unsigned threads) {
   const std::size_t n = ends.size() / 3;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* e = &ends[3 * i];
-    keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
-                static_cast<std::uint32_t>(i)};
-  }
-  std::sort(keyed.begin(), keyed.end(), [&ends](const auto& a, const auto& b) {
+  const auto less = [&ends](const auto& a, const auto& b) {
     if (a.first != b.first) return a.first < b.first;
     const float* p = &ends[3 * a.second];
     const float* q = &ends[3 * b.second];
     return std::lexicographical_compare(p, p + 3, q, q + 3);
+  };
+  const auto part = [&](std::size_t k) { return keyed.begin() + k * n / threads; };
+  detail::parallel_for(threads, threads, [&](std::size_t k) {
+    for (std::size_t i = k * n / threads; i < (k + 1) * n / threads; ++i) {
+      const float* e = &ends[3 * i];
+      keyed[i] = {morton(grid.coordToKey(octomap::point3d(e[0], e[1], e[2]))),
+                  static_cast<std::uint32_t>(i)};
+    }
+    std::sort(part(k), part(k + 1), less);
   });
+  for (unsigned k = 1; k < threads; ++k) std::inplace_merge(part(0), part(k), part(k + 1), less);
   std::vector<float> out;
   out.reserve(ends.size());
   codes.clear();
@@ -463,22 +484,22 @@ FastScan trace_fast(const OccupancyTree& grid, const float* xyz, std::size_t n,
   }
   detail::sort_unique(occ);
   std::vector<std::uint64_t> end_codes;
-  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes);
+  scan.ends = rays_to_trace(grid, scan.ends, cut, end_codes, threads_for(n, opt.threads));
   const std::size_t rays = scan.ends.size() / 3;
 
   // the rays crossing each cell, a ray per end voxel (a point given twice is one ray), counted
   // on each thread's share of the rays, then summed; and the cells of the end points
   const unsigned nt = threads_for(rays, opt.threads);
   std::vector<CellTally> tallies(nt, CellTally(n / 4 + 1024));
-  ray_runs(rays, nt, [&](std::size_t k, std::size_t b, std::size_t e) {
+  const auto count = [&](std::size_t k, std::size_t b, std::size_t e) {
     for (std::size_t j = b; j < e; ++j) {
       if (j > 0 && end_codes[j] == end_codes[j - 1]) continue;  // the first of its end voxel
       const float* p = &scan.ends[3 * j];
       walk_cells(grid, o, octomap::point3d(p[0], p[1], p[2]), level,
                  [&](std::uint64_t c) { tallies[k].add_ray(c); });
     }
-  });
-  for (CellTally& t : tallies) t.flush();
+  };
+  ray_runs(rays, nt, count, [&](std::size_t k) { tallies[k].flush(); });
   CellTally& tally = tallies[0];
   for (std::size_t k = 1; k < nt; ++k) tally.absorb(tallies[k]);
   for (std::uint64_t c : occ) tally.add(c >> (3 * level), CellTally::kHasEnd);

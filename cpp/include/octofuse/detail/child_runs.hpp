@@ -1,6 +1,7 @@
 // octofuse: a depth-first update walk's step from a node to its children, over sorted codes.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 
 namespace octofuse::detail {
@@ -15,9 +16,19 @@ inline const std::uint64_t* child_run_end(const std::uint64_t* b, const std::uin
   };
   pos = child(*b);
   if (child(*(e - 1)) == pos) return e;  // the whole range lies under one child
-  const std::uint64_t* g = b + 1;
-  while (g != e && child(*g) == pos) ++g;
-  return g;
+  // the children's indices ascend: the run ends in (lo, hi], found by steps that double
+  // (runs are long near the root and a code or two near the voxels), then halving
+  const std::uint64_t* lo = b;
+  const std::uint64_t* hi = b + 1;
+  for (std::ptrdiff_t step = 1; child(*hi) == pos; step *= 2) {
+    lo = hi;
+    hi = (e - 1) - hi > 2 * step ? hi + 2 * step : e - 1;
+  }
+  while (hi - lo > 1) {
+    const std::uint64_t* mid = lo + (hi - lo) / 2;
+    (child(*mid) == pos ? lo : hi) = mid;
+  }
+  return hi;
 }
 
 /// Child `pos` of `node` for an update below it, as updateNodeRecurs() makes it: a pruned
