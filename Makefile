@@ -54,7 +54,7 @@ test-python: install
 test-python-fast: install
 	$(PY) -m pytest -m "not slow"
 
-CXX_SOURCES = $(shell git ls-files 'cpp/*.[ch]pp' 'tests/cpp/*.[ch]pp' 2>/dev/null)
+CXX_SOURCES = $(shell find cpp tests/cpp -name '*.[ch]pp' | sort)
 
 lint: install ## ruff (lint and format) and clang-format, checked
 	$(VENV)/bin/ruff check python tests benchmarks

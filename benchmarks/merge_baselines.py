@@ -48,8 +48,9 @@ class NewestPerSource:
                 self.versions[source] = (t, m)
 
     def merged(self):
-        out = self.own.copy()
-        out.clear()
+        from octofuse.fusion.link import empty_like
+
+        out = empty_like(self.own)
         for _, m in sorted(self.versions.values(), key=lambda x: x[0]):
             out = out.overlaid(m)
         return out.overlaid(self.own)

@@ -56,8 +56,10 @@ def _partitions(values) -> list[dict]:
     for text in values:
         parts = text.split(":")
         try:
+            if len(parts) != 3:
+                raise ValueError(text)
             start, end, agents = float(parts[0]), float(parts[1]), parts[2].split(",")
-        except (IndexError, ValueError):
+        except ValueError:
             raise click.BadParameter(
                 f"{text!r}: expected START:END:AGENT[,AGENT...] (seconds)", param_hint="--partition"
             ) from None

@@ -246,7 +246,7 @@ def _staged_with_bag(out: Path, command: str, bag):
 def _export_agents(spec: str, agents: list[str]) -> list[str]:
     if spec in ("all", "none", "first"):
         return {"all": agents, "none": [], "first": agents[:1]}[spec]
-    names = spec.split(",")  # parsed on the command line: no empty item, none twice
+    names = [n.strip() for n in spec.split(",") if n.strip()]  # the CLI's or a config file's
     bad = [n for n in names if n not in agents]
     if bad:
         raise CliError(

@@ -26,7 +26,7 @@ from ..rule_names import FusionRule
 from ..rules import UnknownPolicy
 from .channel_filter import add_into, is_open, open_map, unclamped_copy
 from .link import Link
-from .source_layers import Change, LayeredPayload, Layers
+from .source_layers import Change, LayeredPayload, Layers, empty_like
 from .wire import DEFAULT_MAX_PAYLOAD, Encoding, Kind, Message, decode
 
 
@@ -229,10 +229,7 @@ class Agent:
         link = self.link(sender)
         if delta:
             if link.received is None:
-                m = self.map
-                link.received = open_map(
-                    OccupancyMap(m.resolution, m.prob_hit, m.prob_miss, m.clamping)
-                )
+                link.received = empty_like(self.map)
             self.map.assign_delta(link.received, payload)
             return
         add_into(self.map, payload)

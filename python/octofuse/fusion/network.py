@@ -44,7 +44,6 @@ class Network:
         if CHANNEL_FILTER in rules and tree is None:
             raise ValueError("the channel filter needs the links of a tree")
         #: the channel filter's links, both directions (agent indices)
-        self.tree = tuple(tree) if tree is not None else None
         self._tree_links = {(a, b) for a, b in tree or ()} | {(b, a) for a, b in tree or ()}
         self._start({r: {a: make_map() for a in agents} for r in rules})
         self.traffic = {r: Traffic() for r in rules}

@@ -37,7 +37,6 @@ import numpy as np
 
 from ..config import CHANNEL_FILTER, FleetConfig
 from ..fusion.agent import Agent, MapMessage
-from ..fusion.agent_frames import AgentFrames
 from ..fusion.graph import make_graph
 from ..fusion.network import message_bytes
 from ..fusion.schedule import EXCHANGE, mission_events, moments, parse_schedule
@@ -117,7 +116,6 @@ class LiveAgent:
         mk = lambda: OccupancyMap.from_config(cfg.build.map)  # noqa: E731
         self.agent = Agent(name, self.rule, mk(), cfg.fuse.layers_max_bytes)
         self.local = mk()
-        self.frames = AgentFrames.from_config(names, cfg.fuse)
         self.counts = AgentCounts()
         self._insert_mode = insert_mode  #: as given (None: the default)
         self.insert_mode = insert_mode or cfg.build.insert_mode
@@ -214,12 +212,8 @@ class LiveAgent:
             self.agent.link(sender).acknowledged(msg.ack)
             return False
         self.counts.bytes_received += message_bytes(msg.payload)
-        moved = (
-            self.frames.to_receiver(sender, self.name, msg.payload, self.agent.map.resolution)
-            if self.frames.active
-            else None
-        )  # a fleet's maps share one frame for now
-        if not self.agent.deliver(msg, unknown=self.unknown, moved=moved):
+        # a fleet's maps share one frame (FleetConfig refuses agent frames and alignment)
+        if not self.agent.deliver(msg, unknown=self.unknown):
             self.counts.refused["old or repeated"] += 1
             return False
         self.counts.applied += 1

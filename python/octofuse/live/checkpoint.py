@@ -24,6 +24,7 @@ from typing import BinaryIO
 from ..fusion.agent import Agent
 from ..fusion.channel_filter import open_map
 from ..maps.occupancy import OccupancyMap
+from ..outputs.staging import written_then_renamed
 
 VERSION = 1
 
@@ -44,14 +45,11 @@ def written(path: Path, fsync: bool = False) -> Iterator[BinaryIO]:
     """A file to write the new content of ``path`` into: written under a temporary name beside
     it and renamed over it once complete (after an fsync with ``fsync``), so ``path`` holds its
     old content or the new one, never a part."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    with open(tmp, "wb") as f:
+    with written_then_renamed(Path(path)) as tmp, open(tmp, "wb") as f:
         yield f
         if fsync:
             f.flush()
             os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def save(path: Path, agent: Agent, local: OccupancyMap, progress: dict) -> None:

@@ -63,8 +63,17 @@ def resolved(cfg: FleetConfig) -> FleetConfig:
     block of free ports."""
     with ScanSource(cfg.build) as src:
         agents = list(src.agents)
+    names = {a.name for a in agents}
+    for p in cfg.live.faults.partitions:
+        unknown = [a for a in p.agents if a not in names]
+        if unknown:
+            raise ValueError(
+                f"faults.partitions: no agent {unknown[0]!r} in the fleet; its agents are "
+                f"{', '.join(sorted(names))}"
+            )
     n = len(agents) * len(cfg.fuse.rules)
-    live = replace(cfg.live, base_port=free_base_port(cfg.live.base_port, n, cfg.live.host))
+    # the agents' ports, then the launcher's and a live viewer's
+    live = replace(cfg.live, base_port=free_base_port(cfg.live.base_port, n + 2, cfg.live.host))
     return replace(cfg, build=replace(cfg.build, agents=agents), live=live)
 
 
@@ -165,13 +174,11 @@ def progress_line(status: dict) -> str:
 def _watch_status(cfg: FleetConfig, names: list[str], status: dict):
     """A Zenoh session of the launcher's own, connected to every agent, that keeps the last
     status of each."""
-    import zenoh
-
-    from .transport import zenoh_config
+    from .transport import open_session
 
     n = len(names) * len(cfg.fuse.rules)
-    session = zenoh.open(
-        zenoh_config(cfg.live, endpoint(cfg.live, n), [endpoint(cfg.live, k) for k in range(n)])
+    session = open_session(
+        cfg.live, endpoint(cfg.live, n), [endpoint(cfg.live, k) for k in range(n)], "the launcher"
     )
     lock = threading.Lock()
 

@@ -55,6 +55,18 @@ def zenoh_config(live: LiveConfig, listen: str, connect: list[str]):
     return c
 
 
+def open_session(live: LiveConfig, listen: str, connect: list[str], who: str):
+    """A Zenoh peer session listening on ``listen``; ``OSError`` naming ``who`` and the
+    endpoint if it cannot (a port taken, a certificate that does not load, ...)."""
+    import zenoh
+
+    try:
+        return zenoh.open(zenoh_config(live, listen, connect))
+    except zenoh.ZError as e:
+        reason = str(e).split(" at /", 1)[0]
+        raise OSError(f"{who}: Zenoh cannot listen on {listen}: {reason}") from None
+
+
 class ZenohTransport:
     """Agent ``name``'s session in fleet ``live.fleet`` under ``rule``.
 
@@ -70,8 +82,6 @@ class ZenohTransport:
         connect: list[str],
         announce: bool = True,
     ):
-        import zenoh
-
         self.live, self.rule, self.name = live, rule, name
         self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.dropped = 0  #: chunks over the size bound
@@ -80,11 +90,7 @@ class ZenohTransport:
         self._assembling = threading.Lock()
         self._alive: set[str] = set()
         self._alive_changed = threading.Condition()
-        try:
-            self.session = zenoh.open(zenoh_config(live, listen, connect))
-        except zenoh.ZError as e:  # a port taken, a certificate that does not load, ...
-            reason = str(e).split(" at /", 1)[0]
-            raise OSError(f"agent {name}: Zenoh cannot listen on {listen}: {reason}") from None
+        self.session = open_session(live, listen, connect, f"agent {name}")
         self._publishers: dict[str, object] = {}
         self._subscriber = self.session.declare_subscriber(
             keys.inbox(live.fleet, rule, name), self._on_message

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from ..config import MapConfig
+from ..config import INSERT_MODES, MapConfig
 from .infoloss import Leaves, leaves_from_core
 
 MapFileError = _core.MapFileError
@@ -451,10 +451,6 @@ def thread_count(threads) -> int:
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
         raise ValueError(f"threads must be a whole number, got {threads!r}")
     return int(threads)
-
-
-#: how scans update a map: OctoMap's insertPointCloud, or the real-time mode
-INSERT_MODES = ("exact", "fast")
 
 
 def insert_mode(mode) -> str:

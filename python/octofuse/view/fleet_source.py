@@ -23,11 +23,9 @@ class FleetSource:
     """The maps and link states of the running fleet ``cfg`` (agents resolved)."""
 
     def __init__(self, cfg: FleetConfig):
-        import zenoh
-
         from ..fusion.graph import make_graph
         from ..live import keys
-        from ..live.transport import endpoint, zenoh_config
+        from ..live.transport import endpoint, open_session
         from ..outputs.rosbag_export import typestore
 
         self.cfg = cfg
@@ -50,10 +48,11 @@ class FleetSource:
         self._changed, self._closed = threading.Event(), threading.Event()
         threading.Thread(target=self._redraw, name="fleet-view", daemon=True).start()
         n = len(self.agents) * len(self.rules)
-        self.session = zenoh.open(
-            zenoh_config(
-                cfg.live, endpoint(cfg.live, n + 1), [endpoint(cfg.live, k) for k in range(n)]
-            )
+        self.session = open_session(
+            cfg.live,
+            endpoint(cfg.live, n + 1),
+            [endpoint(cfg.live, k) for k in range(n)],
+            "the viewer",
         )
         self._subs = [
             self.session.declare_subscriber(keys.statuses(cfg.live.fleet), self._on_status)

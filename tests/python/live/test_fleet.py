@@ -656,3 +656,20 @@ def test_chunks_put_a_message_together_in_any_order_and_only_whole(frame, size, 
     if frame:  # a message over the receiver's bound is refused at its first chunk
         small = Reassembler(len(frame) - 1)
         assert small.add("b", chunks[0]) is None and small.dropped == 1
+
+
+@pytest.mark.parametrize(
+    "partition, said",
+    [
+        ("1:2:robot1:robot2", "expected START:END:AGENT[,AGENT...]"),
+        ("1:2:nobody", "no agent 'nobody' in the fleet"),
+    ],
+)
+def test_a_partition_naming_no_agent_of_the_fleet_is_refused(
+    bag, tmp_path, capsys, partition, said
+):
+    code, _, err = run_cli(
+        capsys, "fleet", bag, "--partition", partition, "--out", tmp_path / "fleet"
+    )
+    assert code != 0 and said in err.strip().splitlines()[-1], err
+    assert not (tmp_path / "fleet").exists()
